@@ -1,0 +1,43 @@
+"""jmlgdsl: describe a plant's modes in a small language, compile it to a jump Markov linear
+Gaussian model, and diagnose which mode the plant is in with particle filters."""
+
+from __future__ import annotations
+
+import importlib
+from pathlib import Path
+
+from .errors import DataError, Diagnostic, JmlgError, SpecError, SpecWarning
+from .model import Model, ModelError
+
+__version__ = "0.1.0"
+
+# Heavier parts load on first use, so `import jmlgdsl` and `jmlgdsl check` stay quick.
+_LAZY = {
+    "filter": "jmlgdsl.infer",
+    "Filter": "jmlgdsl.infer",
+    "Result": "jmlgdsl.infer",
+    "simulate": "jmlgdsl.simulate",
+}
+
+
+def load(path) -> Model:
+    """Load a plant: a .jmlg spec is parsed, checked and compiled; a .json/.npz model file is read.
+
+    Raises SpecError (with every located diagnostic) for a bad spec; warnings are issued as SpecWarning.
+    """
+    path = Path(path)
+    if path.suffix.lower() in (".json", ".npz"):
+        return Model.read(path)
+    from .compile.lower import compile_file
+
+    return compile_file(path)
+
+
+def __getattr__(name):
+    if name in _LAZY:
+        return getattr(importlib.import_module(_LAZY[name]), name)
+    raise AttributeError(f"module 'jmlgdsl' has no attribute {name!r}")
+
+
+__all__ = ["load", "Model", "ModelError", "SpecError", "SpecWarning", "DataError", "JmlgError",
+           "Diagnostic", *_LAZY]

@@ -1,0 +1,60 @@
+"""The `jmlgdsl` command: a thin argparse shell over the Python API.
+
+Each subcommand is a module in jmlgdsl/commands/ with `register(subparsers)`, which adds its parser
+and sets `func(args) -> exit status`. User errors (JmlgError) print as located messages, exit 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import pkgutil
+import sys
+import warnings
+
+from . import __version__, commands
+from .errors import JmlgError, SpecError, SpecWarning
+
+ORDER = ("check", "compile", "simulate", "run", "plot", "bench", "prbs", "learn")
+
+
+def _command_modules():
+    found = {m.name for m in pkgutil.iter_modules(commands.__path__)}
+    names = [n for n in ORDER if n in found] + sorted(found - set(ORDER))
+    return [importlib.import_module(f"{commands.__name__}.{n}") for n in names]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="jmlgdsl",
+        description="Fault diagnosis with jump Markov linear Gaussian models: write a plant in the "
+                    ".jmlg language, check and compile it, simulate it, and find which mode it is in "
+                    "from measured data with particle filters.",
+        epilog="Run 'jmlgdsl COMMAND --help' for the options of one command.")
+    parser.add_argument("--version", action="version", version=f"jmlgdsl {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for module in _command_modules():
+        module.register(sub)
+    return parser
+
+
+def _show_warning(message, category, filename, lineno, file=None, line=None):
+    print(str(message) if issubclass(category, SpecWarning) else f"warning: {message}", file=sys.stderr)
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
+    warnings.showwarning = _show_warning
+    try:
+        return args.func(args) or 0
+    except JmlgError as exc:
+        print(str(exc) if isinstance(exc, SpecError) else f"error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+    except BrokenPipeError:
+        return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,82 @@
+"""Batched Kalman kernel shared by every filter and by learning.
+
+Every function broadcasts over leading axes (particles, modes, ...): means are (..., n), covariances
+(..., n, n), matrices (..., rows, cols). Gaussian log-densities go through a Cholesky factor of the
+innovation covariance, never an explicit inverse or determinant, and covariances are symmetrised
+after every update.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+LOG_2PI = np.log(2.0 * np.pi)
+
+
+def _t(M):
+    return np.swapaxes(M, -1, -2)
+
+
+def symmetrize(S):
+    """(S + S') / 2 over the last two axes."""
+    return 0.5 * (S + _t(S))
+
+
+def predict(mu, Sig, A, b, Q):
+    """Time update: mean A mu + b and covariance A Sig A' + Q (b holds F u + f)."""
+    mu_p = np.einsum("...ij,...j->...i", A, mu) + b
+    Sig_p = symmetrize(A @ Sig @ _t(A) + Q)
+    return mu_p, Sig_p
+
+
+def innovation(mu_p, Sig_p, C, c, R):
+    """Predicted output C mu_p + c, its covariance S = C Sig_p C' + R, and C Sig_p (for the gain)."""
+    CS = C @ Sig_p
+    y_pred = np.einsum("...ij,...j->...i", C, mu_p) + c
+    S = symmetrize(CS @ _t(C) + R)
+    return y_pred, S, CS
+
+
+def log_normal(r, S):
+    """log N(r; 0, S) for residuals r (..., n) and covariances S (..., n, n), via Cholesky."""
+    n = r.shape[-1]
+    if n == 0:
+        return np.zeros(np.broadcast_shapes(r.shape[:-1], S.shape[:-2]))
+    L = np.linalg.cholesky(S)
+    z = np.linalg.solve(L, r[..., None])[..., 0]
+    logdet = 2.0 * np.log(np.diagonal(L, axis1=-2, axis2=-1)).sum(-1)
+    return -0.5 * (np.einsum("...i,...i->...", z, z) + logdet + n * LOG_2PI)
+
+
+def correct(mu_p, Sig_p, y_pred, S, CS, y):
+    """Measurement update given the innovation pieces: returns the filtered mean and covariance."""
+    if y.shape[-1] == 0:
+        return mu_p, Sig_p
+    gain_t = np.linalg.solve(S, CS)  # (S^-1 C Sig_p) = gain'
+    r = y - y_pred
+    mu = mu_p + np.einsum("...ji,...j->...i", gain_t, r)
+    Sig = symmetrize(Sig_p - _t(CS) @ gain_t)
+    return mu, Sig
+
+
+def observed(y):
+    """Boolean mask of the measured entries of one observation vector (NaN = not measured)."""
+    return ~np.isnan(y)
+
+
+def step(mu, Sig, A, b, Q, C, c, R, y):
+    """One full Kalman step with a possibly partial observation y (NaN entries skipped).
+
+    Returns (mu_filtered, Sig_filtered, log p(y_obs | past), y_pred over all outputs, S over all outputs).
+    """
+    mu_p, Sig_p = predict(mu, Sig, A, b, Q)
+    y_pred, S, CS = innovation(mu_p, Sig_p, C, c, R)
+    m = observed(y)
+    if m.all():
+        ll = log_normal(y - y_pred, S)
+        mu_f, Sig_f = correct(mu_p, Sig_p, y_pred, S, CS, y)
+    else:
+        S_o = S[..., m, :][..., :, m]
+        ll = log_normal(y[m] - y_pred[..., m], S_o)
+        mu_f, Sig_f = correct(mu_p, Sig_p, y_pred[..., m], S_o, CS[..., m, :], y[m])
+    return mu_f, Sig_f, ll, y_pred, S
