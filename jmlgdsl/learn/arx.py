@@ -1,0 +1,97 @@
+"""ARX least squares: y_t + a1 y_{t-1} + ... + a_na y_{t-na} = sum_j b_j u_{t-nk-j} + c + e_t.
+
+The b0 term (nk = 0) lets u_t act on y_t in the same step, as in the model's x_t = A x_{t-1} + F u_t.
+Solved by a QR-based least-squares solve (never the normal equations), with the parameter
+covariance; orders chosen by AIC or BIC over a grid; converted to observer canonical state space.
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.linalg import qr, solve_triangular
+
+from ..errors import DataError
+from .statespace import StateSpace, companion
+
+
+@dataclass(frozen=True)
+class ArxFit:
+    """Fitted coefficients a (na,), b (nb, nu) for lags nk..nk+nb-1, offset c, their covariance
+    (in the order a, b row by row, c), residual variance, and the information criteria."""
+
+    a: np.ndarray
+    b: np.ndarray
+    nk: int
+    c: float
+    cov: np.ndarray
+    sigma2: float
+    n: int
+    aic: float
+    bic: float
+
+    @property
+    def order(self) -> tuple[int, int, int]:
+        return len(self.a), len(self.b), self.nk
+
+    def b_full(self, n) -> np.ndarray:
+        """Input coefficients on lags 0..n-1, zero where the model has none, (n, nu)."""
+        out = np.zeros((n, self.b.shape[1]))
+        out[self.nk:self.nk + len(self.b)] = self.b
+        return out
+
+    def to_statespace(self, u0, n=None) -> StateSpace:
+        """Observer canonical form with n >= max(na, nk+nb) states: C = [1 0 ...], so x1 is the output.
+
+        The equation error is split evenly between process and measurement noise as EM's start;
+        the initial state is the steady state at input u0.
+        """
+        n = n or max(len(self.a), self.nk + len(self.b))
+        a = np.zeros(n)
+        a[:len(self.a)] = self.a
+        nu = self.b.shape[1]
+        f = np.zeros(n)
+        f[0] = self.c
+        ss = StateSpace(A=companion(a), F=self.b_full(n), f=f, C=np.eye(1, n), G=np.zeros((1, nu)),
+                        g=np.zeros(1), Q=0.5 * self.sigma2 * np.eye(n), R=np.array([[0.5 * self.sigma2]]),
+                        mu0=np.zeros(n), Sigma0=self.sigma2 * np.eye(n))
+        return ss.replace(mu0=ss.steady_state(u0))
+
+
+def fit(y, u, na, nb, nk=0, start=None) -> ArxFit:
+    """Least-squares ARX fit of one output y (T,) on inputs u (T, nu); `start` is the first equation's
+    time index (defaults to the largest lag, so that fits of different orders can share it)."""
+    y = np.asarray(y, float).ravel()
+    u = np.asarray(u, float).reshape(len(y), -1)
+    if np.isnan(y).any() or np.isnan(u).any():
+        raise DataError("ARX needs complete data: the experiment has missing values")
+    lag = max(na, nk + nb - 1)
+    start = lag if start is None else start
+    rows = np.arange(start, len(y))
+    cols = [-y[rows - i] for i in range(1, na + 1)]
+    cols += [u[rows - nk - j, m] for j in range(nb) for m in range(u.shape[1])]
+    X = np.column_stack(cols + [np.ones(len(rows))])
+    n, p = X.shape
+    if n <= p:
+        raise DataError(f"ARX({na},{nb},{nk}) has {p} parameters but only {n} equations")
+    Qm, Rm = qr(X, mode="economic")
+    theta = solve_triangular(Rm, Qm.T @ y[rows])
+    rss = float(np.sum((y[rows] - X @ theta) ** 2))
+    sigma2 = rss / (n - p)
+    Rinv = solve_triangular(Rm, np.eye(p))
+    nu = u.shape[1]
+    return ArxFit(a=theta[:na], b=theta[na:na + nb * nu].reshape(nb, nu), nk=nk, c=float(theta[-1]),
+                  cov=sigma2 * Rinv @ Rinv.T, sigma2=sigma2, n=n,
+                  aic=n * np.log(rss / n) + 2 * p, bic=n * np.log(rss / n) + p * np.log(n))
+
+
+def select(y, u, max_na=4, max_nb=4, max_nk=0, criterion="bic") -> ArxFit:
+    """The ARX order (na >= 1, nb >= 1, nk) minimising AIC or BIC, all fitted on the same equations."""
+    if criterion not in ("aic", "bic"):
+        raise ValueError(f"criterion must be 'aic' or 'bic', not {criterion!r}")
+    start = max(max_na, max_nk + max_nb - 1)
+    fits = [fit(y, u, na, nb, nk, start)
+            for na, nb, nk in itertools.product(range(1, max_na + 1), range(1, max_nb + 1), range(max_nk + 1))]
+    return min(fits, key=lambda f: getattr(f, criterion))

@@ -1,0 +1,162 @@
+"""Maximum-likelihood fit of one mode's state-space model by expectation-maximisation.
+
+E-step: the shared Kalman kernel filters forward, a Rauch-Tung-Striebel pass smooths back and gives
+the lag-one cross-covariances. M-step (Ghahramani & Hinton 1996, with inputs): closed-form
+regressions of x_t on [x_{t-1}, u_t, 1] for [A F f] and of y_t on [x_t, u_t, 1] for [C G g], their
+residual second moments for Q and R, and the smoothed x_0 for the initial state. Missing outputs
+(NaN) are allowed: a partly measured vector informs the states; the output map is fitted on the
+fully measured time steps.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..infer import kalman
+from .statespace import StateSpace
+
+#: Eigenvalues of fitted covariances are kept at least this fraction of the largest one.
+SPD_FLOOR = 1e-10
+
+
+@dataclass(frozen=True)
+class Smoothed:
+    """E-step output: smoothed means (T+1, nx) and covariances of x_0..x_T, lag-one
+    cross-covariances Cov(x_t, x_{t-1}) for t = 1..T, and the log-likelihood log p(y_1:T)."""
+
+    mean: np.ndarray
+    cov: np.ndarray
+    cross: np.ndarray
+    loglik: float
+
+
+@dataclass(frozen=True)
+class EMResult:
+    """The fitted model, the log-likelihood of every parameter set visited, and how it stopped."""
+
+    model: StateSpace
+    loglik: np.ndarray
+    converged: bool
+
+    @property
+    def iterations(self) -> int:
+        return len(self.loglik) - 1
+
+
+def smooth(ss: StateSpace, y, u) -> Smoothed:
+    """Kalman filter (with NaN-masked outputs) and RTS smoother for outputs y (T, ny), inputs u (T, nu)."""
+    y = np.asarray(y, float)
+    T, nx = len(y), ss.nx
+    b = u @ ss.F.T + ss.f
+    c = u @ ss.G.T + ss.g
+    mu_p, Sig_p = np.empty((T, nx)), np.empty((T, nx, nx))
+    mu_f, Sig_f = np.empty((T + 1, nx)), np.empty((T + 1, nx, nx))
+    mu_f[0], Sig_f[0] = ss.mu0, ss.Sigma0
+    loglik = 0.0
+    for t in range(T):
+        mu_p[t], Sig_p[t] = kalman.predict(mu_f[t], Sig_f[t], ss.A, b[t], ss.Q)
+        m = kalman.observed(y[t])
+        y_pred, S, CS = kalman.innovation(mu_p[t], Sig_p[t], ss.C[m], c[t, m], ss.R[np.ix_(m, m)])
+        loglik += float(kalman.log_normal(y[t, m] - y_pred, S))
+        mu_f[t + 1], Sig_f[t + 1] = kalman.correct(mu_p[t], Sig_p[t], y_pred, S, CS, y[t, m])
+    # Smoother gains J_t = Sig_f[t] A' Sig_p[t]^-1, all at once (Sig_p symmetric).
+    J = np.swapaxes(np.linalg.solve(Sig_p, ss.A @ Sig_f[:-1]), 1, 2)
+    mu_s, Sig_s = mu_f.copy(), Sig_f.copy()
+    for t in range(T - 1, -1, -1):
+        mu_s[t] = mu_f[t] + J[t] @ (mu_s[t + 1] - mu_p[t])
+        Sig_s[t] = kalman.symmetrize(Sig_f[t] + J[t] @ (Sig_s[t + 1] - Sig_p[t]) @ J[t].T)
+    cross = Sig_s[1:] @ np.swapaxes(J, 1, 2)
+    return Smoothed(mu_s, Sig_s, cross, loglik)
+
+
+def loglik(ss: StateSpace, y, u) -> float:
+    """log p(y_1:T | u_1:T) under the model (the forward pass of `smooth`)."""
+    return smooth(ss, y, u).loglik
+
+
+def m_step(ss: StateSpace, y, u, e: Smoothed, offset=True, feedthrough=True, initial=True) -> StateSpace:
+    """Closed-form parameter update from the smoothed moments.
+
+    offset: learn f (and g with feedthrough); feedthrough: learn G (else G, g stay as they are);
+    initial: learn mu0 and Sigma0. Parameters not learned are held at their current values.
+    """
+    T = len(y)
+    ones = np.ones((T, 1 if offset else 0))
+    # State equation: x_t on z_t = [x_{t-1}, u_t, 1].
+    Z = np.hstack([e.mean[:-1], u, ones])
+    X = e.mean[1:] - (0 if offset else ss.f)
+    W, Q = _regress(X, Z, e.cov[1:].sum(0), e.cov[:-1].sum(0), e.cross.sum(0))
+    nx, nu = ss.nx, u.shape[1]
+    A, F = W[:, :nx], W[:, nx:nx + nu]
+    f = W[:, nx + nu] if offset else ss.f
+    # Output equation on the fully measured steps: y_t on r_t = [x_t, u_t, 1] (or x_t alone).
+    o = ~np.isnan(y).any(axis=1)
+    xs, Sx = e.mean[1:][o], e.cov[1:][o].sum(0)
+    if feedthrough:
+        H, R = _regress(y[o] - (0 if offset else ss.g), np.hstack([xs, u[o], ones[o]]), None, Sx, None)
+        C, G = H[:, :nx], H[:, nx:nx + nu]
+        g = H[:, nx + nu] if offset else ss.g
+    else:
+        H, R = _regress(y[o] - u[o] @ ss.G.T - ss.g, xs, None, Sx, None)
+        C, G, g = H, ss.G, ss.g
+    if not initial:
+        mu0, Sigma0 = ss.mu0, ss.Sigma0
+    else:
+        mu0, Sigma0 = e.mean[0], spd(e.cov[0])
+    return StateSpace(A=A, F=F, f=f, C=C, G=G, g=g, Q=Q, R=R, mu0=mu0, Sigma0=Sigma0)
+
+
+def _regress(X, Z, Sxx_cov, Szz_cov, Sxz_cov):
+    """Expected least squares of X (n, p) on Z (n, q) whose first columns are latent states.
+
+    The *_cov terms add the summed posterior covariances to the moment matrices: Sxx_cov to X'X
+    (None when X is observed), Szz_cov to the state block of Z'Z and Sxz_cov to the state block of
+    X'Z. Returns the coefficients and the residual covariance (kept symmetric positive definite).
+    """
+    n, k = len(X), Szz_cov.shape[0]
+    Szz = Z.T @ Z
+    Szz[:k, :k] += Szz_cov
+    Sxz = X.T @ Z
+    if Sxz_cov is not None:
+        Sxz[:, :k] += Sxz_cov
+    Sxx = X.T @ X + (0 if Sxx_cov is None else Sxx_cov)
+    W = np.linalg.solve(Szz, Sxz.T).T
+    return W, spd((Sxx - W @ Sxz.T) / n)
+
+
+def spd(S) -> np.ndarray:
+    """Symmetric positive definite version of S: eigenvalues floored at SPD_FLOOR times the largest."""
+    w, V = np.linalg.eigh(kalman.symmetrize(S))
+    w = np.maximum(w, SPD_FLOOR * max(w.max(), np.finfo(float).tiny))
+    return kalman.symmetrize((V * w) @ V.T)
+
+
+def em(ss: StateSpace, y, u=None, max_iter=100, tol=1e-5, offset=True, feedthrough=True,
+       initial=True) -> EMResult:
+    """Run EM from `ss` until the log-likelihood gains less than tol relative, or max_iter iterations.
+
+    The log-likelihood cannot decrease in exact arithmetic; if it falls by more than rounding, the
+    last good parameters are kept and a warning says so.
+    """
+    y = np.asarray(y, float).reshape(len(y), -1)
+    u = np.zeros((len(y), 0)) if u is None else np.asarray(u, float).reshape(len(y), -1)
+    e = smooth(ss, y, u)
+    history = [e.loglik]
+    converged = False
+    for _ in range(max_iter):
+        new = m_step(ss, y, u, e, offset, feedthrough, initial)
+        e_new = smooth(new, y, u)
+        gain = e_new.loglik - history[-1]
+        if gain < -1e-9 * max(1.0, abs(history[-1])):
+            warnings.warn(f"EM log-likelihood fell from {history[-1]:.10g} to {e_new.loglik:.10g}; "
+                          "keeping the previous parameters", RuntimeWarning, stacklevel=2)
+            break
+        ss, e = new, e_new
+        history.append(e.loglik)
+        if gain < tol * abs(history[-2]):
+            converged = True
+            break
+    return EMResult(ss, np.array(history), converged)
