@@ -1,0 +1,8 @@
+"""Inference: which mode is the plant in? Particle filters (pf, rbpf, la-rbpf, fc-rbpf) and the
+deterministic baselines (imm, exact) over one batched Kalman kernel."""
+
+from .engine import FilterError
+from .online import ALGORITHMS, DEFAULT_ALGORITHM, Filter, filter
+from .result import Result, Step
+
+__all__ = ["filter", "Filter", "Result", "Step", "FilterError", "ALGORITHMS", "DEFAULT_ALGORITHM"]

@@ -11,6 +11,9 @@ from __future__ import annotations
 import numpy as np
 
 LOG_2PI = np.log(2.0 * np.pi)
+# Squared Mahalanobis distances are capped here, so an absurd outlier gets a tiny but finite
+# log-density (the same for every hypothesis) instead of -inf, which would turn weights into NaN.
+MAX_QUAD = 1e300
 
 
 def _t(M):
@@ -22,18 +25,27 @@ def symmetrize(S):
     return 0.5 * (S + _t(S))
 
 
+def predict_cov(Sig, A, Q):
+    """Covariance time update A Sig A' + Q (it never depends on the data)."""
+    return symmetrize(A @ Sig @ _t(A) + Q)
+
+
 def predict(mu, Sig, A, b, Q):
     """Time update: mean A mu + b and covariance A Sig A' + Q (b holds F u + f)."""
     mu_p = np.einsum("...ij,...j->...i", A, mu) + b
-    Sig_p = symmetrize(A @ Sig @ _t(A) + Q)
-    return mu_p, Sig_p
+    return mu_p, predict_cov(Sig, A, Q)
+
+
+def innovation_cov(Sig_p, C, R):
+    """Innovation covariance S = C Sig_p C' + R and C Sig_p (for the gain)."""
+    CS = C @ Sig_p
+    return symmetrize(CS @ _t(C) + R), CS
 
 
 def innovation(mu_p, Sig_p, C, c, R):
     """Predicted output C mu_p + c, its covariance S = C Sig_p C' + R, and C Sig_p (for the gain)."""
-    CS = C @ Sig_p
     y_pred = np.einsum("...ij,...j->...i", C, mu_p) + c
-    S = symmetrize(CS @ _t(C) + R)
+    S, CS = innovation_cov(Sig_p, C, R)
     return y_pred, S, CS
 
 
@@ -45,7 +57,7 @@ def log_normal(r, S):
     L = np.linalg.cholesky(S)
     z = np.linalg.solve(L, r[..., None])[..., 0]
     logdet = 2.0 * np.log(np.diagonal(L, axis1=-2, axis2=-1)).sum(-1)
-    return -0.5 * (np.einsum("...i,...i->...", z, z) + logdet + n * LOG_2PI)
+    return -0.5 * (np.minimum(np.einsum("...i,...i->...", z, z), MAX_QUAD) + logdet + n * LOG_2PI)
 
 
 def correct(mu_p, Sig_p, y_pred, S, CS, y):

@@ -1,0 +1,137 @@
+"""Kalman covariances shared between particles: a graph of the distinct covariances seen so far.
+
+A Kalman covariance depends only on the mode history and on which outputs were measured, never on
+the data values. Particles therefore hold an index into a table of distinct covariances (nodes),
+and for each node, mode and observation mask the covariance work is done once and cached: the
+Cholesky factor of the innovation covariance, the gain and the child node. Covariances that agree
+to a relative tolerance are one node, so once the Riccati recursion has converged the table stops
+growing and a step costs no covariance arithmetic at all.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import kalman
+
+
+class _Growing:
+    """An array that grows along its first axis with amortised doubling."""
+
+    def __init__(self, shape, dtype=float, fill=0):
+        self._data = np.full((16,) + tuple(shape), fill, dtype=dtype)
+        self._fill = fill
+        self.size = 0
+
+    def extend(self, block):
+        n = self.size + len(block)
+        if n > len(self._data):
+            bigger = np.full((2 * n,) + self._data.shape[1:], self._fill, dtype=self._data.dtype)
+            bigger[:self.size] = self._data[:self.size]
+            self._data = bigger
+        self._data[self.size:n] = block
+        self.size = n
+
+    @property
+    def data(self):
+        return self._data[:self.size]
+
+
+@dataclass
+class _Rows:
+    """Per (node, mode) results of one Kalman step under one observation mask, for nodes 0..done-1."""
+
+    Linv: _Growing  # inverse Cholesky factor of the innovation covariance, (m, m)
+    logdet: _Growing  # log det of the innovation covariance
+    gain_t: _Growing  # transposed Kalman gain, (m, nx)
+    Sig_f: _Growing  # filtered covariance, (nx, nx)
+    child: _Growing  # node of Sig_f, -1 until a particle needs it
+
+
+class CovarianceGraph:
+    """Distinct covariances (nodes) and their cached per-mode Kalman steps, keyed by observation mask."""
+
+    def __init__(self, model, rtol=1e-10):
+        self.model = model
+        self.rtol = rtol
+        nx = model.nx
+        self._Sig = _Growing((nx, nx))
+        self._keys: dict[bytes, int] = {}
+        self._rows: dict[bytes, _Rows] = {}
+
+    @property
+    def size(self) -> int:
+        return self._Sig.size
+
+    @property
+    def Sig(self) -> np.ndarray:
+        """Node covariances, (size, nx, nx)."""
+        return self._Sig.data
+
+    def _key(self, S):
+        scale = np.frexp(np.max(np.abs(np.diagonal(S))))[1]
+        grid = np.ldexp(self.rtol, int(scale))
+        return int(scale).to_bytes(4, "little", signed=True) + np.round(S / grid).astype(np.int64).tobytes()
+
+    def add(self, Sigs) -> np.ndarray:
+        """Node indices for covariances (n, nx, nx), creating nodes for the ones not seen before."""
+        out = np.empty(len(Sigs), dtype=np.int64)
+        for i, S in enumerate(Sigs):
+            key = self._key(S)
+            node = self._keys.get(key)
+            if node is None:
+                node = self._keys[key] = self._Sig.size
+                self._Sig.extend(S[None])
+            out[i] = node
+        return out
+
+    def rows(self, mask) -> _Rows:
+        """Cached Kalman pieces for every node and mode under the observation mask (bool, ny)."""
+        key = mask.tobytes()
+        rows = self._rows.get(key)
+        if rows is None:
+            m, nx, K = int(mask.sum()), self.model.nx, self.model.K
+            rows = self._rows[key] = _Rows(_Growing((K, m, m)), _Growing((K,)), _Growing((K, m, nx)),
+                                           _Growing((K, nx, nx)), _Growing((K,), np.int64, -1))
+        done = rows.child.size
+        if done < self.size:
+            self._compute(rows, self.Sig[done:], mask)
+        return rows
+
+    def _compute(self, rows, Sig, mask):
+        model = self.model
+        Sig_p = kalman.predict_cov(Sig[:, None], model.A, model.Q)
+        C = model.C[:, mask, :]
+        S, CS = kalman.innovation_cov(Sig_p, C, model.R[:, mask][:, :, mask])
+        Linv = np.linalg.inv(np.linalg.cholesky(S))
+        logdet = -2.0 * np.log(np.diagonal(Linv, axis1=-2, axis2=-1)).sum(-1)
+        gain_t = np.swapaxes(Linv, -1, -2) @ (Linv @ CS)  # S^-1 C Sig_p
+        Sig_f = kalman.symmetrize(Sig_p - np.swapaxes(CS, -1, -2) @ gain_t)
+        rows.Linv.extend(Linv)
+        rows.logdet.extend(logdet)
+        rows.gain_t.extend(gain_t)
+        rows.Sig_f.extend(Sig_f)
+        rows.child.extend(np.full((len(Sig), model.K), -1))
+
+    def children(self, rows: _Rows, node, mode) -> np.ndarray:
+        """Nodes of the filtered covariances reached from `node` (n,) by `mode` (n,) under `rows`' mask."""
+        child = rows.child.data[node, mode]
+        missing = child < 0
+        if missing.any():
+            pairs = np.unique(np.stack([node[missing], mode[missing]]), axis=1)
+            new = self.add(rows.Sig_f.data[pairs[0], pairs[1]])
+            rows.child.data[pairs[0], pairs[1]] = new
+            child = rows.child.data[node, mode]
+        return child
+
+    def compact(self, nodes) -> np.ndarray:
+        """Keep only the nodes in use (dropping every cache) and return `nodes` renumbered."""
+        live, renumbered = np.unique(nodes, return_inverse=True)
+        Sig = self.Sig[live].copy()
+        self._Sig = _Growing(Sig.shape[1:])
+        self._keys.clear()
+        self._rows.clear()
+        self.add(Sig)
+        return renumbered.reshape(np.shape(nodes))

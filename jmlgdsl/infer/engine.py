@@ -1,0 +1,81 @@
+"""What every filtering algorithm shares: the per-step estimate it returns and small weighted helpers.
+
+An engine is one algorithm's state plus `step(y, mask, u) -> Estimate`; the `Filter` front end
+(online.py) validates data, keeps the clock and the log-likelihood, and turns estimates into records.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import JmlgError
+from . import kalman
+from .resample import ess, normalize
+
+
+class FilterError(JmlgError, ValueError):
+    """A filter asked for something it cannot do (unknown algorithm, too many Gaussians, ...)."""
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """One time step's output of an engine (the Filter adds the clock and the residuals)."""
+
+    mode_posterior: np.ndarray  # (K,) p(z_t = k | y_1:t)
+    state_mean: np.ndarray  # (nx,) mixture mean of x_t | y_1:t
+    state_cov: np.ndarray  # (nx, nx) mixture covariance
+    y_pred: np.ndarray  # (ny,) one-step predictive mean E[y_t | y_1:t-1]
+    loglik: float  # log p(y_t | y_1:t-1) (an estimate for particle filters)
+    ess: float  # effective sample size of the particle weights (NaN for deterministic filters)
+
+
+def offsets(model, u):
+    """Per-mode constant terms of the state and output equations for input u: (K, nx) and (K, ny)."""
+    return model.F @ u + model.f, model.G @ u + model.g
+
+
+def mixture_moments(w, means, weighted_cov):
+    """Mean and covariance of a Gaussian mixture with weights w, component means and sum_j w_j Sig_j."""
+    mean = w @ means
+    d = means - mean
+    return mean, kalman.symmetrize(weighted_cov + (d * w[:, None]).T @ d)
+
+
+def sample_rows(probs, rng):
+    """One categorical draw per row of non-negative (unnormalised) probabilities (M, K)."""
+    cdf = np.cumsum(probs, axis=1)
+    u = rng.random(len(probs)) * cdf[:, -1]
+    return np.minimum((cdf < u[:, None]).sum(axis=1), probs.shape[1] - 1)
+
+
+class Resampler:
+    """The resampling policy of a particle filter: a scheme, a target count and an ESS threshold.
+
+    Resampling happens when ESS < threshold * n; a threshold of 1 resamples at every step.
+    """
+
+    def __init__(self, scheme, n, rng, threshold=1.0):
+        if not 0.0 < threshold <= 1.0:
+            raise FilterError(f"the ESS threshold must be in (0, 1], got {threshold}")
+        self.scheme, self.n, self.rng, self.threshold = scheme, n, rng, threshold
+
+    def __call__(self, w):
+        """(ancestor indices, their new log-weights, ESS of w) for normalised weights w."""
+        size = ess(w)
+        if self.threshold >= 1.0 or size < self.threshold * self.n:
+            return self.scheme(w, self.n, self.rng), np.full(self.n, -np.log(self.n)), size
+        with np.errstate(divide="ignore"):
+            return np.arange(len(w)), np.log(w), size
+
+
+def weighted_posterior(q, modes, K):
+    """Mode posterior from candidate weights q and their modes."""
+    return np.bincount(modes, weights=q, minlength=K)
+
+
+def predictive_mean(logw, y_pred):
+    """Mixture mean of candidate predicted outputs under their prior (before seeing y) log-weights."""
+    w, _ = normalize(logw)
+    return w @ y_pred

@@ -1,0 +1,46 @@
+"""Interacting multiple models: one Kalman filter per mode, mixed through the transition matrix.
+
+The classical deterministic baseline: K Kalman steps per time step, no sampling, but biased because
+the mixture over histories is collapsed to one Gaussian per mode at every step.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from . import kalman
+from .engine import Estimate, mixture_moments, offsets
+from .resample import normalize
+
+
+class IMM:
+    """Mode probabilities and one moment-matched Gaussian per mode."""
+
+    default_particles = None
+
+    def __init__(self, model, particles, rng, resampler):
+        self.model = model
+        with np.errstate(divide="ignore"):
+            self.log_mu = np.log(model.p0)
+        self.means = model.mu0.copy()
+        self.covs = np.broadcast_to(model.Sigma0, (model.K,) + model.Sigma0.shape).copy()
+
+    def step(self, y, mask, u) -> Estimate:
+        model = self.model
+        b, c = offsets(model, u)
+        # Mixing: mix[i, j] = p(z_{t-1} = i | z_t = j, y_1:t-1); log_pred[j] = log p(z_t = j | y_1:t-1).
+        joint = self.log_mu[:, None] + model.logP
+        log_pred = np.logaddexp.reduce(joint, axis=0)
+        with np.errstate(invalid="ignore"):
+            mix = np.nan_to_num(np.exp(joint - log_pred))  # a mode that cannot be reached mixes nothing
+        mixed = mix.T @ self.means
+        d = self.means[None, :, :] - mixed[:, None, :]  # (j, i, nx)
+        covs = np.einsum("ij,iab->jab", mix, self.covs) + np.einsum("ij,jia,jib->jab", mix, d, d)
+        # The mask handling lives in kalman.step: NaN outputs are left out of the update.
+        means, covs, ll, y_pred, _ = kalman.step(mixed, covs, model.A, b, model.Q, model.C, c, model.R, y)
+        post, loglik = normalize(log_pred + ll)
+        with np.errstate(divide="ignore"):
+            self.log_mu = np.log(post)
+        self.means, self.covs = means, covs
+        mean, cov = mixture_moments(post, means, np.einsum("j,jab->ab", post, covs))
+        return Estimate(post, mean, cov, np.exp(log_pred) @ y_pred, loglik, np.nan)

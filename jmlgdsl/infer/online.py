@@ -1,0 +1,86 @@
+"""The filtering front end: `Filter` steps through data on-line; `filter` runs it over a whole array.
+
+Both are one code path: the batch call is a loop of `Filter.step`.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from ..errors import DataError
+from .engine import FilterError, Resampler
+from .imm import IMM
+from .pf import BootstrapPF
+from .rbpf import RBPF, Exact, FearnheadCliffordRBPF, LookAheadRBPF
+from .resample import SCHEMES
+from .result import Result, Step
+
+ALGORITHMS = {"pf": BootstrapPF, "rbpf": RBPF, "la-rbpf": LookAheadRBPF, "fc-rbpf": FearnheadCliffordRBPF,
+              "imm": IMM, "exact": Exact}
+DEFAULT_ALGORITHM = "fc-rbpf"
+
+
+class Filter:
+    """On-line mode and state estimation: feed one observation at a time with `step(y_t, u_t)`.
+
+    `particles=None` takes the algorithm's default; `seed` (or an explicit numpy Generator `rng`)
+    makes runs reproducible bit for bit. Resampling happens when the effective sample size falls
+    below `ess_threshold` times the particle count (1, the default, resamples at every step).
+    """
+
+    def __init__(self, model, algorithm=DEFAULT_ALGORITHM, particles=None, seed=None,
+                 resampling="systematic", ess_threshold=1.0, rng=None):
+        if algorithm not in ALGORITHMS:
+            raise FilterError(f"unknown filter {algorithm!r}; choose from {', '.join(ALGORITHMS)}")
+        if resampling not in SCHEMES:
+            raise FilterError(f"unknown resampling scheme {resampling!r}; choose from {', '.join(SCHEMES)}")
+        engine = ALGORITHMS[algorithm]
+        if particles is None:
+            particles = engine.default_particles
+        elif isinstance(particles, bool) or not isinstance(particles, (int, np.integer)) or particles < 1:
+            raise FilterError(f"the number of particles must be a positive whole number, got {particles!r}")
+        self.model, self.algorithm, self.particles = model, algorithm, particles
+        self.rng = rng if rng is not None else np.random.default_rng(seed)
+        resampler = Resampler(SCHEMES[resampling], particles, self.rng, ess_threshold) if particles else None
+        self.engine = engine(model, particles, self.rng, resampler)
+        self.t = 0
+        self.loglik = 0.0
+
+    def step(self, y, u=None) -> Step:
+        """Advance one time step with outputs y (ny,) (NaN = not measured) and inputs u (nu,)."""
+        model = self.model
+        y = np.asarray(y, dtype=float).reshape(model.ny)
+        if np.isinf(y).any():
+            raise DataError(f"t={self.t + 1}: outputs must be finite numbers or missing (NaN), got {y}")
+        if u is None:
+            u = model.resolve_inputs(None, 1)[0]
+        else:
+            u = np.asarray(u, dtype=float).reshape(model.nu)
+            u = np.where(np.isnan(u), model.input_defaults, u)
+            if not np.isfinite(u).all():
+                bad = [n for n, v in zip(model.inputs, u) if not np.isfinite(v)]
+                raise DataError(f"t={self.t + 1}: no value and no default for input {', '.join(bad)}")
+        mask = ~np.isnan(y)
+        est = self.engine.step(y, mask, u)
+        self.t += 1
+        self.loglik += est.loglik
+        return Step(self.t, est.mode_posterior, est.state_mean, est.state_cov, est.y_pred,
+                    y - est.y_pred, est.loglik, est.ess)
+
+
+def filter(model, y, u=None, *, algorithm=DEFAULT_ALGORITHM, particles=None, seed=None,
+           resampling="systematic", ess_threshold=1.0, rng=None) -> Result:
+    """Filter a whole sequence: y (T, ny) with NaN for unmeasured entries, u (T, nu) or None for defaults."""
+    y = np.asarray(y, dtype=float)
+    if y.ndim == 1:
+        y = y[:, None] if model.ny == 1 else y[None]
+    if y.ndim != 2 or y.shape[1] != model.ny:
+        raise DataError(f"y must have shape (T, {model.ny}) for outputs {', '.join(model.outputs)}; got {y.shape}")
+    T = len(y)
+    u = model.resolve_inputs(u, T)
+    f = Filter(model, algorithm, particles, seed, resampling, ess_threshold, rng)
+    start = time.perf_counter()
+    steps = [f.step(y[t], u[t]) for t in range(T)]
+    return Result.from_steps(model, algorithm, f.particles, steps, time.perf_counter() - start)

@@ -1,0 +1,151 @@
+"""Rao-Blackwellised filters: particles are mode histories carrying an exact Kalman filter each.
+
+They differ only in which (particle, next mode) candidates they evaluate and how they select the
+next particle set from them:
+
+- `rbpf`:    one candidate per particle, the mode drawn from the transition prior; resample.
+- `la-rbpf`: all K candidates per particle (look-ahead); resample particles by their summed
+             weight, then draw each survivor's mode from its exact posterior.
+- `fc-rbpf`: all candidates; keep N distinct ones by Fearnhead-Clifford optimal selection.
+- `exact`:   all candidates, all kept: every mode history, as long as their number stays bounded.
+
+Kalman covariances live in a shared CovarianceGraph, so the per-step cost of the covariance work
+does not grow with the number of particles.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .covariances import CovarianceGraph
+from .engine import (Estimate, FilterError, Resampler, mixture_moments, offsets, predictive_mean,
+                     sample_rows, weighted_posterior)
+from .kalman import LOG_2PI, MAX_QUAD
+from .resample import fearnhead_clifford, normalize
+
+
+class RaoBlackwellised:
+    """Shared state and step of the Rao-Blackwellised filters; subclasses choose candidates and selection."""
+
+    default_particles = 10
+
+    def __init__(self, model, particles, rng, resampler: Resampler):
+        self.model, self.n, self.rng, self.resampler = model, particles, rng, resampler
+        K, nx, ny = model.K, model.nx, model.ny
+        self.graph = CovarianceGraph(model)
+        root = self.graph.add(model.Sigma0[None])[0]
+        # Stacked maps from a particle mean to every mode's predicted state and output (one GEMM each).
+        self._A = model.A.reshape(K * nx, nx).T
+        self._CA = (model.C @ model.A).reshape(K * ny, nx).T
+        # t = 0: one weighted atom per mode the prior allows.
+        atoms = np.flatnonzero(model.p0 > 0)
+        self.logw = np.log(model.p0[atoms])
+        self.z = atoms
+        self.mu = model.mu0[atoms]
+        self.node = np.full(len(atoms), root)
+
+    # Subclasses: which candidates to evaluate, and how to select the next particles from them.
+    def candidates(self):
+        """(parent, mode, log proposal probability) of the candidates to evaluate."""
+        n, K = len(self.z), self.model.K
+        return np.repeat(np.arange(n), K), np.tile(np.arange(K), n), None
+
+    def select(self, q, parent, mode):
+        """(chosen candidate indices, their new log-weights, ESS) from normalised candidate weights q."""
+        raise NotImplementedError
+
+    def step(self, y, mask, u) -> Estimate:
+        model, K = self.model, self.model.K
+        rows = self.graph.rows(mask)
+        parent, mode, log_prop = self.candidates()
+        b, c = offsets(model, u)
+        n, nx, ny = len(self.z), model.nx, model.ny
+        mu_p = (self.mu @ self._A).reshape(n, K, nx) + b
+        y_pred = (self.mu @ self._CA).reshape(n, K, ny) + (np.einsum("kij,kj->ki", model.C, b) + c)
+        if log_prop is None:  # every (particle, mode) pair, in order
+            mu_p, y_pred = mu_p.reshape(n * K, nx), y_pred.reshape(n * K, ny)
+        else:
+            mu_p, y_pred = mu_p[parent, mode], y_pred[parent, mode]
+        flat = self.node[parent] * K + mode
+        m = int(mask.sum())
+        r = y[mask] - y_pred[:, mask]
+        Linv = rows.Linv.data.reshape(-1, m, m)[flat]
+        z = np.einsum("jab,jb->ja", Linv, r)
+        quad = np.minimum(np.einsum("ja,ja->j", z, z), MAX_QUAD)
+        ll = -0.5 * (quad + rows.logdet.data.reshape(-1)[flat] + m * LOG_2PI)
+        mu_f = mu_p + np.einsum("jai,ja->ji", rows.gain_t.data.reshape(-1, m, nx)[flat], r)
+
+        log_prior = self.logw[parent] + model.logP[self.z[parent], mode]
+        if log_prop is not None:
+            log_prior = log_prior - log_prop
+        q, loglik = normalize(log_prior + ll)
+        Sig_f = rows.Sig_f.data.reshape(-1, nx * nx)[flat]
+        mean, cov = mixture_moments(q, mu_f, (q @ Sig_f).reshape(nx, nx))
+        posterior = weighted_posterior(q, mode, K)
+        yp = predictive_mean(log_prior, y_pred)
+
+        chosen, self.logw, size = self.select(q, parent, mode)
+        self.z = mode[chosen]
+        self.mu = mu_f[chosen]
+        self.node = self.graph.children(rows, self.node[parent[chosen]], self.z)
+        if self.graph.size > 4 * len(self.node) + 4096:
+            self.node = self.graph.compact(self.node)
+        return Estimate(posterior, mean, cov, yp, loglik, size)
+
+
+class RBPF(RaoBlackwellised):
+    """Rao-Blackwellised particle filter with the transition prior as proposal."""
+
+    default_particles = 100
+
+    def __init__(self, model, particles, rng, resampler):
+        super().__init__(model, particles, rng, resampler)
+        # From the weighted prior atoms to N equally weighted particles.
+        ancestors = resampler.scheme(np.exp(self.logw), particles, rng)
+        self.logw = np.full(particles, -np.log(particles))
+        self.z, self.mu, self.node = self.z[ancestors], self.mu[ancestors], self.node[ancestors]
+
+    def candidates(self):
+        mode = sample_rows(self.model.P[self.z], self.rng)
+        return np.arange(len(self.z)), mode, self.model.logP[self.z, mode]
+
+    def select(self, q, parent, mode):
+        return self.resampler(q)
+
+
+class LookAheadRBPF(RaoBlackwellised):
+    """Look-ahead RBPF: select particles on p(y_t | history), then draw modes from their exact posterior."""
+
+    def select(self, q, parent, mode):
+        K = self.model.K
+        q = q.reshape(-1, K)
+        ancestors, logw, size = self.resampler(q.sum(axis=1))
+        return ancestors * K + sample_rows(q[ancestors], self.rng), logw, size
+
+
+class FearnheadCliffordRBPF(RaoBlackwellised):
+    """Look-ahead RBPF keeping N distinct successors chosen by Fearnhead-Clifford optimal selection."""
+
+    default_particles = 4
+
+    def select(self, q, parent, mode):
+        chosen, w = fearnhead_clifford(q, self.n, self.rng)
+        w = w / w.sum()
+        return chosen, np.log(w), 1.0 / np.dot(w, w)
+
+
+class Exact(RaoBlackwellised):
+    """Every mode history with positive probability: the exact posterior, for short sequences."""
+
+    default_particles = None
+    max_gaussians = 100_000
+
+    def select(self, q, parent, mode):
+        chosen = np.flatnonzero(q > 0)
+        if len(chosen) * self.model.K > self.max_gaussians:
+            raise FilterError(
+                f"exact filtering would need {len(chosen) * self.model.K} Gaussians at the next step, "
+                f"more than the limit of {self.max_gaussians}; use fc-rbpf, which is exact while "
+                f"the particles outnumber the mode histories")
+        w = q[chosen]
+        return chosen, np.log(w), 1.0 / np.dot(w, w)

@@ -1,0 +1,97 @@
+"""Resampling: draw ancestor indices from particle weights, plus the weight algebra around it.
+
+Every scheme takes normalised weights (use `normalize` on log-weights first), a count n and a
+numpy Generator, and returns n ancestor indices in increasing order. All four are unbiased: the
+expected number of copies of particle i is n * w_i; they differ only in variance (multinomial the
+most, systematic usually the least).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def normalize(logw):
+    """Normalised weights and log of their sum from unnormalised log-weights (logsumexp, no overflow)."""
+    top = np.max(logw)
+    w = np.exp(logw - top)
+    total = w.sum()
+    return w / total, top + np.log(total)
+
+
+def ess(w):
+    """Effective sample size 1 / sum(w^2) of normalised weights."""
+    return 1.0 / np.dot(w, w)
+
+
+def _inverse_cdf(w, points):
+    """Indices i with cumsum(w)[i-1] <= point < cumsum(w)[i] for sorted points in [0, 1)."""
+    cdf = np.cumsum(w)
+    cdf[-1] = 1.0  # guard against round-off leaving the last point beyond the end
+    return np.searchsorted(cdf, points, side="right")
+
+
+def multinomial(w, n, rng):
+    """n independent draws from w (sorted uniforms, so the result comes out ordered)."""
+    return _inverse_cdf(w, np.sort(rng.random(n)))
+
+
+def stratified(w, n, rng):
+    """One uniform draw in each of the n strata [j/n, (j+1)/n)."""
+    return _inverse_cdf(w, (np.arange(n) + rng.random(n)) / n)
+
+
+def systematic(w, n, rng):
+    """One uniform offset shared by n evenly spaced points: the minimum-variance scheme."""
+    return _inverse_cdf(w, (np.arange(n) + rng.random()) / n)
+
+
+def residual(w, n, rng):
+    """floor(n w_i) copies of each particle, the remaining ones drawn multinomially from the rest."""
+    counts = np.floor(n * w).astype(np.int64)
+    rest = n - counts.sum()
+    if rest > 0:
+        leftover = n * w - counts
+        counts += np.bincount(multinomial(leftover / leftover.sum(), rest, rng), minlength=len(w))
+    return np.repeat(np.arange(len(w)), counts)
+
+
+SCHEMES = {"multinomial": multinomial, "residual": residual, "stratified": stratified,
+           "systematic": systematic}
+
+
+def scheme(name):
+    """The resampling function called `name`; ValueError listing the known schemes otherwise."""
+    try:
+        return SCHEMES[name]
+    except KeyError:
+        raise ValueError(f"unknown resampling scheme {name!r}; choose from {', '.join(SCHEMES)}") from None
+
+
+def fearnhead_clifford(q, n, rng):
+    """Optimal selection of at most n distinct candidates from normalised weights q (Fearnhead & Clifford 2003).
+
+    Returns (indices, new weights). With at most n positive weights every one is kept as it is.
+    Otherwise the L largest, with c q_j >= 1 for the threshold c solving sum_j min(c q_j, 1) = n, keep
+    their weight; n - L of the rest are chosen by stratified sampling with spacing alpha = 1/c and get
+    weight alpha. E[new weight of j] = q_j, and the selected candidates are distinct.
+    """
+    positive = np.flatnonzero(q > 0)
+    if len(positive) <= n:
+        return positive, q[positive]
+    order = positive[np.argsort(-q[positive], kind="stable")]
+    qs = q[order]
+    # With the L largest kept, c = (n - L) / (sum of the others); the right L is the first with c q_L < 1.
+    tail = np.cumsum(qs[::-1])[::-1]  # tail[L] = sum of qs[L:]
+    L = np.arange(n)
+    ok = (n - L) * qs[L] < tail[L]
+    kept = int(np.argmax(ok))
+    alpha = tail[kept] / (n - kept)
+    rest = qs[kept:]
+    # Stratified walk: the j-th point alpha * (j + U) falls in candidate i when cumsum covers it.
+    points = alpha * (np.arange(n - kept) + rng.random())
+    chosen = np.searchsorted(np.cumsum(rest), points, side="right")
+    chosen = np.minimum(chosen, len(rest) - 1)
+    idx = np.concatenate([order[:kept], order[kept:][chosen]])
+    weights = np.concatenate([qs[:kept], np.full(n - kept, alpha)])
+    return idx, weights
