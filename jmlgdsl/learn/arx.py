@@ -36,28 +36,31 @@ class ArxFit:
     def order(self) -> tuple[int, int, int]:
         return len(self.a), len(self.b), self.nk
 
-    def b_full(self, n) -> np.ndarray:
-        """Input coefficients on lags 0..n-1, zero where the model has none, (n, nu)."""
-        out = np.zeros((n, self.b.shape[1]))
-        out[self.nk:self.nk + len(self.b)] = self.b
-        return out
+    def to_statespace(self, u0, y0, n=None) -> StateSpace:
+        """This model in observer canonical form (see `observer_form`), starting at output y0 under u0."""
+        return observer_form(self.a, self.b, self.nk, self.c, self.sigma2, u0, y0, n)
 
-    def to_statespace(self, u0, n=None) -> StateSpace:
-        """Observer canonical form with n >= max(na, nk+nb) states: C = [1 0 ...], so x1 is the output.
 
-        The equation error is split evenly between process and measurement noise as EM's start;
-        the initial state is the steady state at input u0.
-        """
-        n = n or max(len(self.a), self.nk + len(self.b))
-        a = np.zeros(n)
-        a[:len(self.a)] = self.a
-        nu = self.b.shape[1]
-        f = np.zeros(n)
-        f[0] = self.c
-        ss = StateSpace(A=companion(a), F=self.b_full(n), f=f, C=np.eye(1, n), G=np.zeros((1, nu)),
-                        g=np.zeros(1), Q=0.5 * self.sigma2 * np.eye(n), R=np.array([[0.5 * self.sigma2]]),
-                        mu0=np.zeros(n), Sigma0=self.sigma2 * np.eye(n))
-        return ss.replace(mu0=ss.steady_state(u0))
+def observer_form(a, b, nk, c, noise_var, u0, y0, n=None) -> StateSpace:
+    """State space of y_t + a1 y_{t-1} + ... = sum_j b_j u_{t-nk-j} + c with n >= max(na, nk+nb) states.
+
+    Observer canonical form: C = [1 0 ...], so x1 is the noise-free output. The equation-error
+    variance is split evenly between process and measurement noise (EM's starting point), and the
+    initial state is the steady state at input u0 with x1 moved to the first output y0.
+    """
+    b = np.atleast_2d(np.asarray(b, float))
+    n = n or max(len(a), nk + len(b))
+    a_full = np.zeros(n)
+    a_full[:len(a)] = a
+    F = np.zeros((n, b.shape[1]))
+    F[nk:nk + len(b)] = b
+    f = np.eye(n)[0] * c
+    ss = StateSpace(A=companion(a_full), F=F, f=f, C=np.eye(1, n), G=np.zeros((1, b.shape[1])),
+                    g=np.zeros(1), Q=0.5 * noise_var * np.eye(n), R=np.array([[0.5 * noise_var]]),
+                    mu0=np.zeros(n), Sigma0=noise_var * np.eye(n))
+    x0 = ss.steady_state(u0)
+    x0[0] = y0
+    return ss.replace(mu0=x0)
 
 
 def fit(y, u, na, nb, nk=0, start=None) -> ArxFit:

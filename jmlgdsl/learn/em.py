@@ -46,8 +46,21 @@ class EMResult:
         return len(self.loglik) - 1
 
 
-def smooth(ss: StateSpace, y, u) -> Smoothed:
-    """Kalman filter (with NaN-masked outputs) and RTS smoother for outputs y (T, ny), inputs u (T, nu)."""
+@dataclass(frozen=True)
+class Filtered:
+    """Forward pass: predicted means/covariances of x_1..x_T, filtered ones of x_0..x_T, the
+    innovations y_t - E[y_t | y_1:t-1] (NaN where not measured) and the log-likelihood."""
+
+    mean_pred: np.ndarray
+    cov_pred: np.ndarray
+    mean: np.ndarray
+    cov: np.ndarray
+    innovation: np.ndarray
+    loglik: float
+
+
+def forward(ss: StateSpace, y, u) -> Filtered:
+    """Kalman filter with NaN-masked outputs over y (T, ny) with inputs u (T, nu)."""
     y = np.asarray(y, float)
     T, nx = len(y), ss.nx
     b = u @ ss.F.T + ss.f
@@ -55,26 +68,29 @@ def smooth(ss: StateSpace, y, u) -> Smoothed:
     mu_p, Sig_p = np.empty((T, nx)), np.empty((T, nx, nx))
     mu_f, Sig_f = np.empty((T + 1, nx)), np.empty((T + 1, nx, nx))
     mu_f[0], Sig_f[0] = ss.mu0, ss.Sigma0
+    innov = np.full(y.shape, np.nan)
     loglik = 0.0
     for t in range(T):
         mu_p[t], Sig_p[t] = kalman.predict(mu_f[t], Sig_f[t], ss.A, b[t], ss.Q)
         m = kalman.observed(y[t])
         y_pred, S, CS = kalman.innovation(mu_p[t], Sig_p[t], ss.C[m], c[t, m], ss.R[np.ix_(m, m)])
-        loglik += float(kalman.log_normal(y[t, m] - y_pred, S))
+        innov[t, m] = y[t, m] - y_pred
+        loglik += float(kalman.log_normal(innov[t, m], S))
         mu_f[t + 1], Sig_f[t + 1] = kalman.correct(mu_p[t], Sig_p[t], y_pred, S, CS, y[t, m])
+    return Filtered(mu_p, Sig_p, mu_f, Sig_f, innov, loglik)
+
+
+def smooth(ss: StateSpace, y, u) -> Smoothed:
+    """Rauch-Tung-Striebel smoother over the forward pass for y (T, ny) and inputs u (T, nu)."""
+    fw = forward(ss, y, u)
     # Smoother gains J_t = Sig_f[t] A' Sig_p[t]^-1, all at once (Sig_p symmetric).
-    J = np.swapaxes(np.linalg.solve(Sig_p, ss.A @ Sig_f[:-1]), 1, 2)
-    mu_s, Sig_s = mu_f.copy(), Sig_f.copy()
-    for t in range(T - 1, -1, -1):
-        mu_s[t] = mu_f[t] + J[t] @ (mu_s[t + 1] - mu_p[t])
-        Sig_s[t] = kalman.symmetrize(Sig_f[t] + J[t] @ (Sig_s[t + 1] - Sig_p[t]) @ J[t].T)
+    J = np.swapaxes(np.linalg.solve(fw.cov_pred, ss.A @ fw.cov[:-1]), 1, 2)
+    mu_s, Sig_s = fw.mean.copy(), fw.cov.copy()
+    for t in range(len(J) - 1, -1, -1):
+        mu_s[t] = fw.mean[t] + J[t] @ (mu_s[t + 1] - fw.mean_pred[t])
+        Sig_s[t] = kalman.symmetrize(fw.cov[t] + J[t] @ (Sig_s[t + 1] - fw.cov_pred[t]) @ J[t].T)
     cross = Sig_s[1:] @ np.swapaxes(J, 1, 2)
-    return Smoothed(mu_s, Sig_s, cross, loglik)
-
-
-def loglik(ss: StateSpace, y, u) -> float:
-    """log p(y_1:T | u_1:T) under the model (the forward pass of `smooth`)."""
-    return smooth(ss, y, u).loglik
+    return Smoothed(mu_s, Sig_s, cross, fw.loglik)
 
 
 def m_step(ss: StateSpace, y, u, e: Smoothed, offset=True, feedthrough=True, initial=True) -> StateSpace:

@@ -1,0 +1,97 @@
+"""First-order-plus-dead-time fit of a step test: gain K, time constant tau, dead time theta.
+
+The model is the sampled FOPDT K e^{-theta s}/(tau s + 1) with the input held over each sample, in
+the model's timing (u_t acts on y_t): y_t = a y_{t-1} + K (1 - a) u_{t-d} + c with a = exp(-dt/tau),
+so after a step of size du at sample s the response is y0 + K du (1 - a^(t-s-d+1)) for t >= s + d.
+The dead time d runs over a whole-sample grid; for each d, (y0, K) are linear least squares given
+tau and tau is found by a bounded one-dimensional search; the d with the least squared error wins.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import minimize_scalar
+
+from ..errors import DataError
+from .arx import observer_form
+from .statespace import StateSpace
+
+
+@dataclass(frozen=True)
+class FopdtFit:
+    """Fitted gain, time constant (s), dead time (whole samples), initial level y0, and the step."""
+
+    gain: float
+    tau: float
+    delay: int
+    y0: float
+    u0: float
+    du: float
+    step: int
+    dt: float
+    sse: float
+    n: int
+
+    @property
+    def pole(self) -> float:
+        return float(np.exp(-self.dt / self.tau))
+
+    def response(self, T: int) -> np.ndarray:
+        """The fitted step response at samples 0..T-1."""
+        return _response(self.step, self.delay, self.dt, self.tau, T) * self.gain * self.du + self.y0
+
+    def to_statespace(self) -> StateSpace:
+        """The sampled FOPDT in observer canonical form (delay + 1 states), started at its initial level."""
+        a = self.pole
+        c = (1 - a) * (self.y0 - self.gain * self.u0)
+        return observer_form([-a], [[self.gain * (1 - a)]], self.delay, c, self.sse / self.n,
+                             [self.u0], self.y0)
+
+
+def _response(step, delay, dt, tau, T):
+    k = np.arange(T) - step - delay + 1
+    return np.where(k >= 1, 1.0 - np.exp(-np.maximum(k, 0) * dt / tau), 0.0)
+
+
+def find_step(u) -> int:
+    """Sample index at which a single-input step test's input changes (it must change exactly once)."""
+    u = np.asarray(u, float).ravel()
+    changes = np.flatnonzero(np.abs(np.diff(u)) > 1e-9 * max(1.0, np.abs(u).max()))
+    if len(changes) != 1:
+        raise DataError(f"a step test needs an input that changes exactly once; this one changes "
+                        f"{len(changes)} times")
+    return int(changes[0]) + 1
+
+
+def fit(y, u, dt: float = 1.0, max_delay: int | None = None) -> FopdtFit:
+    """FOPDT fit of output y (T,) to a single step in input u (T,); dead times 0..max_delay samples."""
+    y = np.asarray(y, float).ravel()
+    u = np.asarray(u, float).ravel()
+    if np.isnan(y).any() or np.isnan(u).any():
+        raise DataError("the step test has missing values")
+    T = len(y)
+    s = find_step(u)
+    max_delay = (T - s) // 2 if max_delay is None else max_delay
+    du, u0 = u[s] - u[s - 1], u[s - 1]
+    best = None
+    for d in range(max_delay + 1):
+        def sse(log_tau, d=d):
+            return _least_squares(y, _response(s, d, dt, np.exp(log_tau), T))[1]
+        res = minimize_scalar(sse, bounds=(np.log(dt / 20), np.log(20 * T * dt)), method="bounded",
+                              options={"xatol": 1e-10})
+        if best is None or res.fun < best[0]:
+            best = (res.fun, d, float(np.exp(res.x)))
+    err, d, tau = best
+    (y0, k), _ = _least_squares(y, _response(s, d, dt, tau, T))
+    return FopdtFit(gain=float(k / du), tau=tau, delay=d, y0=float(y0), u0=float(u0), du=float(du),
+                    step=s, dt=float(dt), sse=float(err), n=T)
+
+
+def _least_squares(y, shape):
+    """Best (y0, K du) for y ≈ y0 + K du * shape, and the squared error."""
+    X = np.column_stack([np.ones_like(shape), shape])
+    coef, *_ = np.linalg.lstsq(X, y, rcond=None)
+    r = y - X @ coef
+    return coef, float(r @ r)
