@@ -49,6 +49,11 @@ class _Rows:
     Sig_f: _Growing  # filtered covariance, (nx, nx)
     child: _Growing  # node of Sig_f, -1 until a particle needs it
 
+    def take(self, name, flat):
+        """Entries of one field at flat indices node * K + mode."""
+        a = getattr(self, name).data
+        return a.reshape((a.shape[0] * a.shape[1],) + a.shape[2:])[flat]
+
 
 class CovarianceGraph:
     """Distinct covariances (nodes) and their cached per-mode Kalman steps, keyed by observation mask."""

@@ -20,6 +20,9 @@ from .result import Result, Step
 ALGORITHMS = {"pf": BootstrapPF, "rbpf": RBPF, "la-rbpf": LookAheadRBPF, "fc-rbpf": FearnheadCliffordRBPF,
               "imm": IMM, "exact": Exact}
 DEFAULT_ALGORITHM = "fc-rbpf"
+# Readings this large (or infinite) cannot be measurements: their squares would overflow the
+# Kalman arithmetic, so they are treated as not measured.
+MAX_READING = 1e100
 
 
 class Filter:
@@ -49,11 +52,15 @@ class Filter:
         self.loglik = 0.0
 
     def step(self, y, u=None) -> Step:
-        """Advance one time step with outputs y (ny,) (NaN = not measured) and inputs u (nu,)."""
+        """Advance one time step with outputs y (ny,) and inputs u (nu,).
+
+        NaN outputs are not measured (as are infinite ones or any beyond MAX_READING in size);
+        NaN inputs take the spec's defaults.
+        """
         model = self.model
         y = np.asarray(y, dtype=float).reshape(model.ny)
-        if np.isinf(y).any():
-            raise DataError(f"t={self.t + 1}: outputs must be finite numbers or missing (NaN), got {y}")
+        with np.errstate(invalid="ignore"):
+            y = np.where(np.abs(y) < MAX_READING, y, np.nan)
         if u is None:
             u = model.resolve_inputs(None, 1)[0]
         else:

@@ -69,18 +69,16 @@ class RaoBlackwellised:
         flat = self.node[parent] * K + mode
         m = int(mask.sum())
         r = y[mask] - y_pred[:, mask]
-        Linv = rows.Linv.data.reshape(-1, m, m)[flat]
-        z = np.einsum("jab,jb->ja", Linv, r)
+        z = np.einsum("jab,jb->ja", rows.take("Linv", flat), r)
         quad = np.minimum(np.einsum("ja,ja->j", z, z), MAX_QUAD)
-        ll = -0.5 * (quad + rows.logdet.data.reshape(-1)[flat] + m * LOG_2PI)
-        mu_f = mu_p + np.einsum("jai,ja->ji", rows.gain_t.data.reshape(-1, m, nx)[flat], r)
+        ll = -0.5 * (quad + rows.take("logdet", flat) + m * LOG_2PI)
+        mu_f = mu_p + np.einsum("jai,ja->ji", rows.take("gain_t", flat), r)
 
         log_prior = self.logw[parent] + model.logP[self.z[parent], mode]
         if log_prop is not None:
             log_prior = log_prior - log_prop
         q, loglik = normalize(log_prior + ll)
-        Sig_f = rows.Sig_f.data.reshape(-1, nx * nx)[flat]
-        mean, cov = mixture_moments(q, mu_f, (q @ Sig_f).reshape(nx, nx))
+        mean, cov = mixture_moments(q, mu_f, np.einsum("j,jab->ab", q, rows.take("Sig_f", flat)))
         posterior = weighted_posterior(q, mode, K)
         yp = predictive_mean(log_prior, y_pred)
 

@@ -1,0 +1,81 @@
+"""The Kalman kernel against textbook formulas, and the shared covariance graph against the kernel."""
+
+import numpy as np
+import pytest
+from infer_models import random_model
+from scipy.stats import multivariate_normal
+
+from jmlgdsl.infer import kalman
+from jmlgdsl.infer.covariances import CovarianceGraph
+
+
+def random_spd(rng, n):
+    M = rng.normal(size=(n, n))
+    return M @ M.T + n * np.eye(n)
+
+
+def test_step_matches_textbook_formulas():
+    rng = np.random.default_rng(0)
+    nx, ny = 3, 2
+    A, C = rng.normal(size=(nx, nx)), rng.normal(size=(ny, nx))
+    Q, R, Sig = random_spd(rng, nx), random_spd(rng, ny), random_spd(rng, nx)
+    mu, b, c, y = rng.normal(size=nx), rng.normal(size=nx), rng.normal(size=ny), rng.normal(size=ny)
+    mu_f, Sig_f, ll, y_pred, S = kalman.step(mu, Sig, A, b, Q, C, c, R, y)
+    mp, Pp = A @ mu + b, A @ Sig @ A.T + Q
+    S_ref = C @ Pp @ C.T + R
+    gain = Pp @ C.T @ np.linalg.inv(S_ref)
+    np.testing.assert_allclose(y_pred, C @ mp + c)
+    np.testing.assert_allclose(S, S_ref)
+    np.testing.assert_allclose(mu_f, mp + gain @ (y - C @ mp - c))
+    np.testing.assert_allclose(Sig_f, (np.eye(nx) - gain @ C) @ Pp, atol=1e-12)
+    assert np.array_equal(Sig_f, Sig_f.T)
+    assert ll == pytest.approx(multivariate_normal(C @ mp + c, S_ref).logpdf(y))
+
+
+def test_partial_observation_uses_only_measured_rows():
+    rng = np.random.default_rng(1)
+    A, C = rng.normal(size=(2, 2)), rng.normal(size=(3, 2))
+    Q, R, Sig = random_spd(rng, 2), random_spd(rng, 3), random_spd(rng, 2)
+    mu, y = rng.normal(size=2), np.array([0.3, np.nan, -1.2])
+    keep = [0, 2]
+    got = kalman.step(mu, Sig, A, 0.0, Q, C, 0.0, R, y)
+    ref = kalman.step(mu, Sig, A, 0.0, Q, C[keep], 0.0, R[np.ix_(keep, keep)], y[keep])
+    for a, b in zip(got[:3], ref[:3]):
+        np.testing.assert_allclose(a, b)
+    assert got[3].shape == (3,)
+
+
+def test_log_normal_is_finite_for_absurd_residuals():
+    assert np.isfinite(kalman.log_normal(np.array([1e200]), np.array([[1e-6]])))
+
+
+def test_graph_rows_equal_the_kernel():
+    model = random_model(np.random.default_rng(2), K=3, nx=2, ny=2)
+    graph = CovarianceGraph(model)
+    root = graph.add(model.Sigma0[None])
+    mask = np.array([True, False])
+    rows = graph.rows(mask)
+    y = np.array([0.7, np.nan])
+    for k in range(model.K):
+        _, Sig_f, ll, y_pred, _ = kalman.step(np.zeros(2), model.Sigma0, model.A[k], 0.0, model.Q[k],
+                                              model.C[k], 0.0, model.R[k], y)
+        np.testing.assert_allclose(rows.Sig_f.data[root[0], k], Sig_f)
+        # With a zero mean the innovation is the observation itself.
+        Linv, logdet = rows.Linv.data[root[0], k], rows.logdet.data[root[0], k]
+        z = Linv @ y[:1]
+        assert -0.5 * (z @ z + logdet + np.log(2 * np.pi)) == pytest.approx(ll)
+
+
+def test_graph_merges_equal_covariances_and_compacts():
+    model = random_model(np.random.default_rng(3), K=2, nx=2, ny=1)
+    graph = CovarianceGraph(model, rtol=1e-10)
+    S = np.array([[2.0, 0.3], [0.3, 1.0]])
+    ids = graph.add(np.stack([S, S * (1 + 1e-14), S * 1.01, S]))
+    assert ids[0] == ids[1] == ids[3] != ids[2] and graph.size == 2
+    rows = graph.rows(np.array([True]))
+    child = graph.children(rows, np.array([0, 0, 1]), np.array([1, 1, 0]))
+    assert child[0] == child[1] and graph.size == 4
+    np.testing.assert_allclose(graph.Sig[child[2]], rows.Sig_f.data[1, 0])
+    renumbered = graph.compact(np.array([child[2], child[0]]))
+    assert graph.size == 2
+    np.testing.assert_array_equal(graph.Sig[renumbered], np.stack([rows.Sig_f.data[1, 0], rows.Sig_f.data[0, 1]]))

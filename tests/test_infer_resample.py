@@ -1,0 +1,80 @@
+"""Resampling schemes and Fearnhead-Clifford selection: unbiasedness, structure, log-space weights."""
+
+import numpy as np
+import pytest
+
+from jmlgdsl.infer.resample import SCHEMES, ess, fearnhead_clifford, normalize, scheme
+
+W = np.array([0.005, 0.3, 0.0, 0.12, 0.375, 0.2])
+N = 7
+REPEATS = 4000
+
+
+@pytest.mark.parametrize("name", sorted(SCHEMES))
+def test_expected_copies_equal_n_times_weight(name):
+    rng = np.random.default_rng(11)
+    counts = np.array([np.bincount(SCHEMES[name](W, N, rng), minlength=len(W)) for _ in range(REPEATS)])
+    assert (counts.sum(axis=1) == N).all()
+    assert (counts[:, W == 0] == 0).all()
+    se = counts.std(axis=0) / np.sqrt(REPEATS)
+    # 4.5 standard errors per particle: a false alarm over the six particles has probability < 1e-4.
+    assert np.all(np.abs(counts.mean(axis=0) - N * W) <= 4.5 * se + 1e-12)
+
+
+@pytest.mark.parametrize("name", sorted(SCHEMES))
+def test_indices_sorted_and_in_range(name):
+    idx = SCHEMES[name](W, 50, np.random.default_rng(0))
+    assert len(idx) == 50 and (np.diff(idx) >= 0).all() and idx.min() >= 0 and idx.max() < len(W)
+
+
+def test_systematic_gives_floor_or_ceil_copies():
+    rng = np.random.default_rng(3)
+    for _ in range(200):
+        counts = np.bincount(SCHEMES["systematic"](W, N, rng), minlength=len(W))
+        assert (counts >= np.floor(N * W)).all() and (counts <= np.ceil(N * W)).all()
+
+
+def test_residual_keeps_the_integer_part():
+    rng = np.random.default_rng(4)
+    for _ in range(100):
+        counts = np.bincount(SCHEMES["residual"](W, N, rng), minlength=len(W))
+        assert (counts >= np.floor(N * W)).all()
+
+
+def test_normalize_is_log_space_safe():
+    w, total = normalize(np.array([-1e4, -1e4 + np.log(3.0), -np.inf]))
+    np.testing.assert_allclose(w, [0.25, 0.75, 0.0])
+    assert total == pytest.approx(-1e4 + np.log(4.0))
+    assert ess(np.full(8, 1 / 8)) == pytest.approx(8.0)
+
+
+def test_unknown_scheme_is_named():
+    with pytest.raises(ValueError, match="choose from multinomial"):
+        scheme("bogus")
+
+
+def test_fearnhead_clifford_keeps_everything_when_few_candidates():
+    q = np.array([0.0, 0.5, 0.2, 0.0, 0.3])
+    idx, w = fearnhead_clifford(q, 3, np.random.default_rng(0))
+    assert list(idx) == [1, 2, 4]
+    np.testing.assert_array_equal(w, q[[1, 2, 4]])
+
+
+def test_fearnhead_clifford_distinct_and_unbiased():
+    rng = np.random.default_rng(5)
+    q = rng.dirichlet(np.full(12, 0.4))
+    q[[3, 8]] = [0.0, 0.0]
+    q /= q.sum()
+    n = 5
+    total = np.zeros((REPEATS, len(q)))
+    for r in range(REPEATS):
+        idx, w = fearnhead_clifford(q, n, rng)
+        assert len(idx) == n and len(set(idx)) == n
+        assert w.sum() == pytest.approx(1.0)
+        total[r, idx] = w
+    # sum_j min(c q_j, 1) = n forces c >= n, so a weight of at least 1/n is always kept as it is.
+    big = q >= 1.0 / n
+    assert big.any()
+    assert (total[:, big] == q[big]).all()
+    se = total.std(axis=0) / np.sqrt(REPEATS)
+    assert np.all(np.abs(total.mean(axis=0) - q) <= 4.5 * se + 1e-12)
