@@ -1,0 +1,1 @@
+"""The .jmlg grammar, installed inside the package as jmlgdsl.grammars."""

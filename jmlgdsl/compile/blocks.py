@@ -1,0 +1,457 @@
+"""Block forms lowered to one mode's matrices: generative `~` statements (coefficients extracted
+with sympy), literal matrices, first-order-plus-dead-time blocks and ARX blocks.
+
+Each lowering writes rows of a ModeArrays; `jmlgdsl.compile.lower` stacks the modes into a Model.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+import sympy as sp
+
+from ..lang.report import Report, suggest
+from ..lang.syntax import Dist, Expr, Statement
+from .evaluate import EvalError, numeric, symbolic
+from .units import time_in_seconds
+
+MATRIX_NAMES = ("A", "B", "C", "D", "F", "G", "f", "g", "x0")
+BLOCK_FORMS = ("Normal", "fopdt", "arx")
+
+
+@dataclass
+class Layout:
+    """Variable names of the compiled plant; blocks add internal states after the declared ones."""
+
+    states: list[str]
+    inputs: list[str]
+    outputs: list[str]
+    input_defaults: np.ndarray
+    block_states: dict[str, list[str]] = field(default_factory=dict)  # output -> its internal states
+
+    @property
+    def nx(self):
+        return len(self.states)
+
+
+@dataclass
+class ModeArrays:
+    """One mode's matrices while they are being filled in, with what has been defined so far."""
+
+    A: np.ndarray
+    F: np.ndarray
+    f: np.ndarray
+    B: np.ndarray
+    C: np.ndarray
+    G: np.ndarray
+    g: np.ndarray
+    D: np.ndarray
+    x0: np.ndarray  # NaN where the mode does not say
+    states_defined: set = field(default_factory=set)
+    outputs_defined: set = field(default_factory=set)
+
+    @classmethod
+    def empty(cls, layout: Layout, process: float, measurement: float):
+        nx, nu, ny = layout.nx, len(layout.inputs), len(layout.outputs)
+        B = process * np.eye(nx)
+        for names in layout.block_states.values():
+            for s in names:  # internal block states carry no noise unless their block says so
+                i = layout.states.index(s)
+                B[i, i] = 0.0
+        return cls(A=np.zeros((nx, nx)), F=np.zeros((nx, nu)), f=np.zeros(nx), B=B,
+                   C=np.zeros((ny, nx)), G=np.zeros((ny, nu)), g=np.zeros(ny),
+                   D=measurement * np.eye(ny), x0=np.full(nx, np.nan))
+
+
+class Lowering:
+    """Lowers the statements of one mode, given the layout and the mode's parameter values."""
+
+    def __init__(self, layout: Layout, params: dict, lets: dict, report: Report, dt: float, time_unit: str,
+                 process: float = 0.0):
+        self.layout, self.params, self.lets, self.report = layout, params, lets, report
+        self.dt, self.time_unit = dt, time_unit
+        self.process = process  # the mode's process noise sd, for the state a block drives
+
+    # ------------------------------------------------------------- names in expressions
+    def _numeric_lookup(self, node: Expr):
+        name = node.args[0]
+        if node.op == "var" and name in self.params:
+            return self.params[name]
+        if node.op == "var" and name in self.lets:
+            return numeric(self.lets[name].expr, self._numeric_lookup)
+        if name in self.layout.states or name in self.layout.inputs or name in self.layout.outputs:
+            raise EvalError(f"{name!r} is a variable, but a number is needed here", node)
+        raise EvalError(self._unknown(name), node)
+
+    def _unknown(self, name):
+        known = [*self.params, *self.lets, *self.layout.states, *self.layout.inputs]
+        return f"unknown name {name!r}{suggest(name, known)}"
+
+    def number(self, expr: Expr, what: str) -> float:
+        try:
+            v = numeric(expr, self._numeric_lookup)
+        except EvalError as exc:
+            self.report.error(str(exc), exc.node.pos)
+            return math.nan
+        if np.ndim(v):
+            self.report.error(f"{what} must be a number, not a matrix", expr.pos)
+            return math.nan
+        return float(v)
+
+    def matrix(self, expr: Expr) -> np.ndarray | None:
+        try:
+            return np.atleast_2d(np.asarray(numeric(expr, self._numeric_lookup), float))
+        except EvalError as exc:
+            self.report.error(str(exc), exc.node.pos)
+            return None
+
+    def affine(self, expr: Expr, in_state_equation: bool):
+        """Coefficients of an expression affine in the states (at t-1 for a state equation, at t for an
+        output) and the inputs at t: returns (state coefficients, input coefficients, constant)."""
+        lay = self.layout
+        xs = [sp.Symbol(f"{s}[t-1]" if in_state_equation else f"{s}[t]") for s in lay.states]
+        us = [sp.Symbol(u) for u in lay.inputs]
+
+        def lookup(node: Expr):
+            name = node.args[0]
+            if name in lay.states:
+                lag = node.args[1] if node.op == "indexed" else None
+                if node.index is not None or lag is None:
+                    want = "t-1" if in_state_equation else "t"
+                    raise EvalError(f"write the state with its time, {name}[{want}]", node)
+                if in_state_equation and lag != -1:
+                    raise EvalError(f"a state equation uses states at t-1: write {name}[t-1]", node)
+                if not in_state_equation and lag != 0:
+                    raise EvalError(f"an output uses states at t: write {name}[t]", node)
+                return xs[lay.states.index(name)]
+            if name in lay.inputs:
+                if node.op == "indexed" and (node.index is not None or node.args[1] != 0):
+                    raise EvalError(f"inputs enter at time t only: write {name} or {name}[t]", node)
+                return us[lay.inputs.index(name)]
+            if node.op == "var" and name in self.params:
+                return sp.Float(self.params[name])
+            if node.op == "var" and name in self.lets:
+                return symbolic(self.lets[name].expr, lookup)
+            if name in lay.outputs:
+                raise EvalError(f"{name!r} is an output; a mean may use states and inputs only", node)
+            raise EvalError(self._unknown(name), node)
+
+        try:
+            e = sp.expand(symbolic(expr, lookup))
+        except EvalError as exc:
+            self.report.error(str(exc), exc.node.pos)
+            return None
+        symbols = xs + us
+        for term in sp.Add.make_args(e):
+            present = term.free_symbols & set(symbols)
+            if present and not (sp.Poly(term, *present).total_degree() == 1 if term.is_polynomial(*present) else False):
+                self.report.error(f"{_show(term)} is not linear in the states and inputs", expr.pos)
+                return None
+        if e.free_symbols - set(symbols):
+            self.report.error(f"cannot use {', '.join(map(str, e.free_symbols - set(symbols)))} here", expr.pos)
+            return None
+        ax = np.array([float(e.coeff(s)) for s in xs])
+        au = np.array([float(e.coeff(s)) for s in us])
+        const = float(e.subs({s: 0 for s in symbols}))
+        return ax, au, const
+
+    # ------------------------------------------------------------- statements
+    def lower(self, arrays: ModeArrays, statements: list[Statement]):
+        for st in statements:
+            if st.kind == "sample":
+                self._sample(arrays, st)
+            elif st.kind == "assign":
+                self._assign(arrays, st)
+
+    def _sample(self, m: ModeArrays, st: Statement):
+        lay, name = self.layout, st.target.name.text
+        dist = st.dist
+        if dist.name.text not in BLOCK_FORMS:
+            self.report.error(f"unknown distribution or block {dist.name.text!r}; use Normal, fopdt or arx"
+                              f"{suggest(dist.name.text, BLOCK_FORMS)}", dist.name.pos)
+            return
+        if st.target.index is not None or (st.target.lag not in (None, 0)):
+            self.report.error(f"the left side of '~' is a variable at time t: write {name}[t]", st.target.name.pos)
+            return
+        if name in lay.states and name not in lay.block_states.get(name, ()):
+            if dist.name.text != "Normal":
+                self.report.error(f"{dist.name.text} defines an output; use Normal(mean, sd) for the state {name}",
+                                  dist.name.pos)
+                return
+            self._normal(m, st, state=lay.states.index(name))
+        elif name in lay.outputs:
+            j = lay.outputs.index(name)
+            if dist.name.text == "Normal":
+                self._normal(m, st, output=j)
+            elif dist.name.text == "fopdt":
+                self._fopdt(m, dist, j)
+            else:
+                self._arx(m, dist, j)
+            m.outputs_defined.add(name)
+        else:
+            self.report.error(f"{self._unknown(name)}: the left side of '~' is a state or an output",
+                              st.target.name.pos)
+
+    def _normal(self, m: ModeArrays, st: Statement, state: int | None = None, output: int | None = None):
+        d = st.dist
+        if len(d.positional) != 2 or d.keywords or d.at:
+            self.report.error("Normal takes two arguments: Normal(mean, standard deviation)", d.name.pos)
+            return
+        sd = self.number(d.positional[1], "a standard deviation")
+        if sd < 0:
+            self.report.error(f"a standard deviation cannot be negative (got {sd:g}); Normal takes (mean, sd)",
+                              d.positional[1].pos)
+        self._equation(m, d.positional[0], sd, state, output)
+
+    def _equation(self, m: ModeArrays, mean: Expr, sd: float, state: int | None, output: int | None):
+        coeffs = self.affine(mean, in_state_equation=state is not None)
+        if coeffs is None:
+            return
+        ax, au, c = coeffs
+        if state is not None:
+            m.A[state], m.F[state], m.f[state] = ax, au, c
+            m.B[state] = 0.0
+            m.B[state, state] = sd
+            m.states_defined.add(self.layout.states[state])
+        else:
+            m.C[output], m.G[output], m.g[output] = ax, au, c
+            m.D[output] = 0.0
+            m.D[output, output] = sd
+            m.outputs_defined.add(self.layout.outputs[output])
+
+    def _assign(self, m: ModeArrays, st: Statement):
+        lay, t, name = self.layout, st.target, st.target.name.text
+        if t.index is not None:
+            if t.index != 0 or name not in lay.states:
+                what = "an initial value is given as STATE[0] = value" if name in lay.states else \
+                    f"{self._unknown(name)}: only states have an initial value NAME[0]"
+                self.report.error(what, t.name.pos)
+                return
+            m.x0[lay.states.index(name)] = self.number(st.expr, "an initial value")
+        elif t.lag == 0:
+            if name in lay.states:
+                self._equation(m, st.expr, 0.0, lay.states.index(name), None)
+            elif name in lay.outputs:
+                self._equation(m, st.expr, 0.0, None, lay.outputs.index(name))
+            else:
+                self.report.error(self._unknown(name), t.name.pos)
+        elif t.lag is not None:
+            self.report.error(f"an equation defines {name}[t], not {name}[t{t.lag:+d}]", t.name.pos)
+        elif name in MATRIX_NAMES:
+            self._matrix(m, name, st)
+        else:
+            self.report.error(f"{self._unknown(name)}; in a mode block, assign a matrix "
+                              f"({', '.join(MATRIX_NAMES)}), a parameter, or write NAME[t] ~ ...", t.name.pos)
+
+    def _matrix(self, m: ModeArrays, name: str, st: Statement):
+        value = self.matrix(st.expr)
+        if value is None:
+            return
+        lay = self.layout
+        nx, nu, ny = lay.nx, len(lay.inputs), len(lay.outputs)
+        shapes = {"A": (nx, nx), "B": (nx, None), "C": (ny, nx), "D": (ny, None), "F": (nx, nu),
+                  "G": (ny, nu), "f": (nx,), "g": (ny,), "x0": (nx,)}
+        want = shapes[name]
+        if value.size == 1 and name in ("B", "D"):
+            value = value.item() * np.eye(want[0])
+        if len(want) == 1 and 1 in value.shape:
+            value = value.ravel()
+        if value.shape[0] != want[0] or (len(want) == 2 and want[1] is not None and value.shape[1] != want[1]):
+            sizes = f"nx = {nx}, nu = {nu}, ny = {ny}"
+            shown = " x ".join("any" if w is None else str(w) for w in want)
+            self.report.error(f"{name} must be {shown} ({sizes}), got {' x '.join(map(str, value.shape))}",
+                              st.expr.pos)
+            return
+        if name in ("B", "D"):
+            setattr(m, name, value)
+        elif name == "x0":
+            m.x0 = value
+        else:
+            getattr(m, name)[...] = value
+        if name == "A":
+            m.states_defined.update(lay.states)
+        if name == "C":
+            m.outputs_defined.update(lay.outputs)
+
+    # ------------------------------------------------------------- block forms
+    def _keywords(self, d: Dist, allowed: dict, required: tuple) -> dict | None:
+        """Keyword arguments as {key: (Expr, unit Name or None)}; reports unknown, repeated, missing."""
+        got, ok = {}, True
+        for key, value, unit in d.keywords:
+            if key.text not in allowed:
+                self.report.error(f"{d.name.text} has no argument {key.text!r}; it takes "
+                                  f"{', '.join(allowed)}{suggest(key.text, allowed)}", key.pos)
+                ok = False
+            elif key.text in got:
+                self.report.error(f"{key.text!r} is given twice", key.pos)
+                ok = False
+            got[key.text] = (value, unit)
+        for key in required:
+            if key not in got:
+                self.report.error(f"{d.name.text} needs '{key} VALUE'", d.name.pos)
+                ok = False
+        return got if ok else None
+
+    def _block_input(self, d: Dist) -> int | None:
+        if len(d.positional) != 1 or d.positional[0].op != "var":
+            self.report.error(f"{d.name.text} starts with the name of its input, e.g. {d.name.text}(u, ...)",
+                              d.name.pos)
+            return None
+        name = d.positional[0].args[0]
+        if name not in self.layout.inputs:
+            self.report.error(f"unknown input {name!r}{suggest(name, self.layout.inputs)}", d.positional[0].pos)
+            return None
+        return self.layout.inputs.index(name)
+
+    def _operating_point(self, d: Dist, k: int) -> tuple[float, float]:
+        if d.at is None:
+            return 0.0, 0.0
+        name, u_expr, y_expr = d.at
+        if name.text != self.layout.inputs[k]:
+            self.report.error(f"the operating point names the block's input: 'at {self.layout.inputs[k]} "
+                              f"VALUE -> OUTPUT'", name.pos)
+        return self.number(u_expr, "an operating input"), self.number(y_expr, "an operating output")
+
+    def _duration(self, value: Expr, unit, what: str) -> float:
+        """A time in seconds; without a unit, the unit of the sample time."""
+        from ..lang.syntax import Name
+
+        v = self.number(value, what)
+        return time_in_seconds(v, unit if isinstance(unit, Name) else Name(unit or self.time_unit, value.pos),
+                               self.report)
+
+    def _block_rows(self, m: ModeArrays, j: int, k: int, u_ss: float, y_ss: float) -> dict[str, int]:
+        """Claim the internal states of output j's block (the union over modes): every output and input
+        history register keeps shifting in every mode, so a mode switch finds the true past values.
+        Returns the state indices by name; the caller fills the row of the output state itself."""
+        out = self.layout.outputs[j]
+        names = self.layout.block_states[out]
+        idx = {s: self.layout.states.index(s) for s in names}
+        for s, i in idx.items():
+            m.A[i] = m.F[i] = m.f[i] = m.B[i] = 0.0
+            m.x0[i] = u_ss if s.startswith(f"{out}_u") else y_ss
+        m.states_defined.update(names)
+        for prefix, first in ((f"{out}_y", None), (f"{out}_u", k)):
+            history = [idx[s] for s in names if s.startswith(prefix)]
+            for n, i in enumerate(history):
+                if n == 0 and first is not None:
+                    m.F[i, first] = 1.0
+                else:
+                    m.A[i, history[n - 1] if n else idx[out]] = 1.0
+        return idx
+
+    def _measure(self, m: ModeArrays, j: int, state: int):
+        """The output reads the block's state directly."""
+        m.C[j] = m.G[j] = m.g[j] = 0.0
+        m.C[j, state] = 1.0
+        m.outputs_defined.add(self.layout.outputs[j])
+
+    def _fopdt(self, m: ModeArrays, d: Dist, j: int):
+        """K e^{-θs}/(τs+1) with zero-order hold: exact for any dead time (modified z-transform)."""
+        kw = self._keywords(d, {"gain": 1, "tau": 1, "delay": 1}, ("gain", "tau"))
+        k = self._block_input(d)
+        if kw is None or k is None:
+            return
+        gain = self.number(kw["gain"][0], "a gain")
+        tau, delay = self.fopdt_times(kw)
+        if not tau > 0:
+            self.report.error(f"the time constant must be positive (got {tau:g} s)", kw["tau"][0].pos)
+            return
+        if delay < 0:
+            self.report.error(f"the dead time cannot be negative (got {delay:g} s)", kw["delay"][0].pos)
+            return
+        u_ss, y_ss = self._operating_point(d, k)
+        out = self.layout.outputs[j]
+        lags, fraction = fopdt_lags(self.dt, tau, delay)
+        idx = self._block_rows(m, j, k, u_ss, y_ss)
+        x = idx[out]
+        a = math.exp(-self.dt / tau)
+        m.A[x, x] = a
+        m.f[x] = (1 - a) * (y_ss - gain * u_ss)
+        m.B[x, x] = self.process
+        for lag, b in zip(lags, fopdt_weights(self.dt, tau, fraction, a, gain)):
+            if lag == 0:
+                m.F[x, k] += b
+            else:
+                m.A[x, idx[f"{out}_u{lag - 1}"]] += b  # u_{t-lag}: the register holding u_{t-lag+1}, at t-1
+        self._measure(m, j, x)
+
+    def fopdt_times(self, kw) -> tuple[float, float]:
+        """Time constant and dead time of a fopdt block, in seconds."""
+        tau = self._duration(*kw["tau"], "a time constant")
+        delay = self._duration(*kw["delay"], "a dead time") if "delay" in kw else 0.0
+        return tau, delay
+
+    def arx_coefficients(self, kw) -> tuple[np.ndarray, np.ndarray] | None:
+        """The a (a1..a_na) and b (b0..b_nb) coefficient vectors of an arx block."""
+        a, b = self.matrix(kw["a"][0]), self.matrix(kw["b"][0])
+        if a is None or b is None:
+            return None
+        return a.ravel(), b.ravel()
+
+    def _arx(self, m: ModeArrays, d: Dist, j: int):
+        """y_t + a1 y_{t-1} + ... + a_na y_{t-na} = b0 u_t + ... + b_nb u_{t-nb} + e_t, realised on the
+        states (y_t, ..., y_{t-na+1}, u_t, ..., u_{t-nb+1}), so the process noise is the equation error e_t."""
+        kw = self._keywords(d, {"a": 1, "b": 1, "na": 1, "nb": 1}, ("a", "b"))
+        k = self._block_input(d)
+        if kw is None or k is None:
+            return
+        coeffs = self.arx_coefficients(kw)
+        if coeffs is None:
+            return
+        a, b = coeffs
+        for key, vec, extra in (("na", a, 0), ("nb", b, -1)):
+            if key in kw:
+                order = self.number(kw[key][0], f"the order {key}")
+                if order != len(vec) + extra:
+                    self.report.error(f"{key} = {order:g} but {len(vec)} coefficients are given "
+                                      f"({'a1..a_na' if key == 'na' else 'b0..b_nb'})", kw[key][0].pos)
+                    return
+        if len(b) == 0:
+            self.report.error("arx needs at least b0 in 'b [...]'", kw["b"][0].pos)
+            return
+        u_ss, y_ss = self._operating_point(d, k)
+        out = self.layout.outputs[j]
+        idx = self._block_rows(m, j, k, u_ss, y_ss)
+        y = idx[out]
+        past_y = [idx[s] for s in arx_states(out, len(a), 0)]  # y_{t-1}.. are these states at t-1
+        past_u = [idx[f"{out}_u{i}"] for i in range(len(b) - 1)]
+        m.A[y, past_y] = -a
+        m.A[y, past_u] = b[1:]
+        m.F[y, k] = b[0]
+        m.f[y] = y_ss * (1 + a.sum()) - u_ss * b.sum()
+        m.B[y, y] = self.process
+        self._measure(m, j, y)
+
+
+def fopdt_lags(dt: float, tau: float, delay: float) -> tuple[list[int], float]:
+    """Sample lags of the input that reach the lag state, and the fractional part of the dead time."""
+    whole = math.floor(delay / dt + 1e-9)
+    fraction = delay - whole * dt
+    if fraction <= 1e-9 * max(dt, delay):
+        return [whole], 0.0
+    return [whole, whole + 1], fraction
+
+
+def fopdt_weights(dt: float, tau: float, fraction: float, a: float, gain: float) -> list[float]:
+    """Input weights for u_{t-d} (and u_{t-d-1} when the dead time is d samples plus a fraction)."""
+    if fraction == 0.0:
+        return [gain * (1 - a)]
+    part = math.exp(-(dt - fraction) / tau)
+    return [gain * (1 - part), gain * (part - a)]
+
+
+def fopdt_states(out: str, dt: float, tau: float, delay: float) -> list[str]:
+    """Internal states of a fopdt block: the lag state (named after the output), then u_t, u_{t-1}, ..."""
+    return [out] + [f"{out}_u{i}" for i in range(max(fopdt_lags(dt, tau, delay)[0]))]
+
+
+def arx_states(out: str, na: int, nb: int) -> list[str]:
+    """Internal states of an arx block: y_t (named after the output), y_{t-1}, ..., then u_t, u_{t-1}, ..."""
+    return [out] + [f"{out}_y{i}" for i in range(1, na)] + [f"{out}_u{i}" for i in range(nb)]
+
+
+def _show(term) -> str:
+    return str(term).replace("**", "^")

@@ -1,0 +1,134 @@
+"""Evaluate expression trees: numerically (numbers and matrices) or symbolically (sympy), for
+linear-coefficient extraction and ODE Jacobians."""
+
+from __future__ import annotations
+
+import numpy as np
+import sympy as sp
+
+from ..lang.syntax import Expr
+
+
+class EvalError(Exception):
+    """An expression that cannot be evaluated; carries the node where it went wrong."""
+
+    def __init__(self, message: str, node: Expr):
+        super().__init__(message)
+        self.node = node
+
+
+SCALAR_FUNCTIONS = {
+    "exp": (np.exp, sp.exp), "log": (np.log, sp.log), "sqrt": (np.sqrt, sp.sqrt),
+    "sin": (np.sin, sp.sin), "cos": (np.cos, sp.cos), "tan": (np.tan, sp.tan),
+    "tanh": (np.tanh, sp.tanh), "abs": (np.abs, sp.Abs), "min": (np.minimum, sp.Min),
+    "max": (np.maximum, sp.Max), "pow": (np.power, sp.Pow),
+}
+ARITY = {"min": (2, 2), "max": (2, 2), "pow": (2, 2)}
+
+
+def _zeros(m, n=None):
+    return np.zeros((int(m), int(m if n is None else n)))
+
+
+def _ones(m, n=None):
+    return np.ones((int(m), int(m if n is None else n)))
+
+
+def _diag(v):
+    return np.diag(np.ravel(v))
+
+
+MATRIX_FUNCTIONS = {"eye": (lambda n: np.eye(int(n)), (1, 1)), "zeros": (_zeros, (1, 2)),
+                    "ones": (_ones, (1, 2)), "diag": (_diag, (1, 1))}
+FUNCTION_NAMES = sorted([*SCALAR_FUNCTIONS, *MATRIX_FUNCTIONS])
+
+
+def _check_arity(node: Expr, name: str, lo: int, hi: int):
+    n = len(node.args) - 1
+    if not lo <= n <= hi:
+        want = str(lo) if lo == hi else f"{lo} or {hi}"
+        raise EvalError(f"{name}() takes {want} argument{'s' if hi > 1 else ''}, got {n}", node)
+
+
+def numeric(node: Expr, lookup):
+    """Value of an expression as a float or a 2-D array. `lookup(node)` gives a name's value."""
+    op, args = node.op, node.args
+    if op == "number":
+        return args[0]
+    if op in ("var", "indexed"):
+        return lookup(node)
+    if op == "matrix":
+        rows = [[numeric(e, lookup) for e in row] for row in args]
+        try:
+            return np.block([[np.atleast_2d(np.asarray(v, float)) for v in row] for row in rows]) if rows else np.zeros((0, 0))
+        except ValueError:
+            raise EvalError("matrix rows have different lengths", node) from None
+    if op == "call":
+        name = args[0]
+        values = [numeric(a, lookup) for a in args[1:]]
+        if name in MATRIX_FUNCTIONS:
+            fn, (lo, hi) = MATRIX_FUNCTIONS[name]
+            _check_arity(node, name, lo, hi)
+            return fn(*values)
+        if name in SCALAR_FUNCTIONS:
+            lo, hi = ARITY.get(name, (1, 1))
+            _check_arity(node, name, lo, hi)
+            return SCALAR_FUNCTIONS[name][0](*values)
+        raise EvalError(unknown_function(name), node)
+    vals = [numeric(a, lookup) for a in args]
+    if op == "neg":
+        return -vals[0]
+    a, b = vals
+    if op == "add" or op == "sub":
+        try:
+            return a + b if op == "add" else a - b
+        except ValueError:
+            raise EvalError(f"cannot {op} matrices of shapes {np.shape(a)} and {np.shape(b)}", node) from None
+    if op == "mul":
+        if np.ndim(a) and np.ndim(b):
+            if np.shape(a)[1] != np.shape(b)[0]:
+                raise EvalError(f"cannot multiply matrices of shapes {np.shape(a)} and {np.shape(b)}", node)
+            return a @ b
+        return a * b
+    if op == "div":
+        if np.ndim(b):
+            raise EvalError("cannot divide by a matrix", node)
+        if b == 0:
+            raise EvalError("division by zero", node)
+        return a / b
+    if op == "pow":
+        if np.ndim(a) or np.ndim(b):
+            raise EvalError("powers of matrices are not supported", node)
+        return a ** b
+    raise EvalError(f"unsupported expression {op}", node)  # pragma: no cover - grammar has no others
+
+
+def symbolic(node: Expr, lookup) -> sp.Expr:
+    """A sympy expression; `lookup(node)` gives the sympy value of a name (a Symbol or a number)."""
+    op, args = node.op, node.args
+    if op == "number":
+        return sp.Float(args[0]) if args[0] != int(args[0]) else sp.Integer(int(args[0]))
+    if op in ("var", "indexed"):
+        return lookup(node)
+    if op == "matrix":
+        raise EvalError("a matrix is not allowed here", node)
+    if op == "call":
+        name = args[0]
+        if name not in SCALAR_FUNCTIONS:
+            raise EvalError(unknown_function(name) if name not in MATRIX_FUNCTIONS
+                            else f"{name}() makes a matrix, which is not allowed here", node)
+        lo, hi = ARITY.get(name, (1, 1))
+        _check_arity(node, name, lo, hi)
+        return SCALAR_FUNCTIONS[name][1](*[symbolic(a, lookup) for a in args[1:]])
+    vals = [symbolic(a, lookup) for a in args]
+    if op == "neg":
+        return -vals[0]
+    a, b = vals
+    return {"add": lambda: a + b, "sub": lambda: a - b, "mul": lambda: a * b,
+            "div": lambda: a / b, "pow": lambda: a ** b}[op]()
+
+
+def unknown_function(name: str) -> str:
+    from ..lang.report import suggest
+
+    return f"unknown function {name!r}{suggest(name, FUNCTION_NAMES)}"

@@ -1,0 +1,391 @@
+"""Check a parsed spec and resolve it into a plant description: declared names, sample time,
+parameters, modes (with `like` and overrides resolved), transition matrix and prior, noise defaults.
+Every problem is reported with its position; lowering to matrices happens in jmlgdsl.compile."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..compile.evaluate import EvalError, numeric
+from ..compile.units import time_in_seconds
+from . import syntax as S
+from .report import Report, suggest
+
+NOISE_KINDS = ("process", "measurement")
+ROW_TOLERANCE = 1e-3
+
+
+@dataclass
+class ModeInfo:
+    """One mode after resolving `like`: its parameter overrides and its model statements, in order."""
+
+    name: str
+    description: str
+    pos: S.Pos
+    overrides: list[S.Assign] = field(default_factory=list)
+    statements: list[S.Statement] = field(default_factory=list)
+    like: S.Name | None = None
+
+
+@dataclass
+class Plant:
+    """A checked plant, ready to be lowered to a Model."""
+
+    name: str
+    dt: float  # seconds
+    time_unit: str  # the unit the sample time was written in: time constants without a unit use it
+    inputs: list[S.Decl]
+    outputs: list[S.Decl]
+    states: list[S.Decl]
+    params: list[S.Assign]
+    lets: dict[str, S.Assign]
+    modes: list[ModeInfo]
+    P: np.ndarray
+    p0: np.ndarray
+    noise: dict[str, float]
+    spec: S.Spec
+
+    def mode_params(self, mode: ModeInfo, report: Report) -> dict[str, float]:
+        """Parameter values in a mode: the nominal list re-evaluated with the mode's overrides."""
+        nominal = evaluate_params(self.params, report)
+        overrides = {a.name.text: a for a in mode.overrides}
+        values: dict[str, float] = {}
+        for a in self.params:
+            src = overrides.get(a.name.text, a)
+            env = nominal if src is not a else values
+            values[a.name.text] = evaluate_number(src.expr, env, report, what=f"parameter {a.name.text}")
+        return values
+
+
+def evaluate_number(expr: S.Expr, env: dict, report: Report, what: str) -> float:
+    """A scalar value from known names in env; reports unknown names and non-scalars."""
+    def lookup(node):
+        name = node.args[0]
+        if node.op == "indexed":
+            raise EvalError(f"{what} cannot refer to a time-indexed value", node)
+        if name not in env:
+            raise EvalError(f"unknown name {name!r} in {what}{suggest(name, env)}", node)
+        return env[name]
+
+    try:
+        value = numeric(expr, lookup)
+    except EvalError as exc:
+        report.error(str(exc), exc.node.pos)
+        return float("nan")
+    if np.ndim(value):
+        report.error(f"{what} must be a number, not a matrix", expr.pos)
+        return float("nan")
+    return float(value)
+
+
+def evaluate_params(params: list[S.Assign], report: Report) -> dict[str, float]:
+    env: dict[str, float] = {}
+    for a in params:
+        env[a.name.text] = evaluate_number(a.expr, env, report, what=f"parameter {a.name.text}")
+    return env
+
+
+def check(spec: S.Spec) -> tuple[Plant, Report]:
+    """Resolve a parsed spec into a Plant; problems go to the returned Report (not raised here)."""
+    report = Report(spec.path, spec.lines)
+    for what, pos in spec.repeated:
+        report.error(f"'{what}' is given more than once", pos)
+    _check_declarations(spec, report)
+    dt, unit = _sample_time(spec, report)
+    params = spec.params
+    nominal = evaluate_params(params, report)
+    modes = _modes(spec, report, set(nominal))
+    names = [m.name for m in modes]
+    P = _transitions(spec, names, nominal, report)
+    p0 = _initial(spec, names, nominal, report)
+    noise = noise_values(spec.noise, nominal, report, plant_level=True)
+    decls = {"input": [], "output": [], "state": []}
+    for d in spec.decls:
+        decls[d.kind].append(d)
+    plant = Plant(
+        name=spec.plant.text if spec.plant else _stem(spec.path), dt=dt, time_unit=unit,
+        inputs=decls["input"], outputs=decls["output"], states=decls["state"], params=params,
+        lets={a.name.text: a for a in spec.lets}, modes=modes, P=P, p0=p0, noise=noise, spec=spec)
+    return plant, report
+
+
+def _stem(path: str) -> str:
+    from pathlib import Path
+
+    return Path(path).stem
+
+
+def _check_declarations(spec: S.Spec, report: Report):
+    """Every name is declared once; an output may share a state's name only to measure that state."""
+    seen: dict[str, tuple[str, S.Name]] = {}
+    entries = [(d.kind, d.name) for d in spec.decls] + [("param", a.name) for a in spec.params] \
+        + [("let", a.name) for a in spec.lets] + [("mode", m.name) for m in spec.modes]
+    for kind, name in entries:
+        if name.text in seen:
+            first_kind, first = seen[name.text]
+            measured_state = {kind, first_kind} == {"state", "output"}
+            if measured_state:
+                out = next(d for d in spec.decls if d.kind == "output" and d.name.text == name.text)
+                if out.value is None:
+                    continue
+            report.error(f"{name.text!r} is already declared as a {first_kind} at line {first.pos.line}",
+                         name.pos)
+        else:
+            seen[name.text] = (kind, name)
+    for d in spec.decls:
+        if d.sd is not None and d.kind != "state":
+            report.error("only states take an initial standard deviation ('sd')", d.sd.pos)
+    for b in spec.blocks:
+        if b.name.text in seen and seen[b.name.text][0] not in ("mode",) and spec.modes:
+            report.error(f"{b.name.text!r} is declared as a {seen[b.name.text][0]}, not a mode", b.name.pos)
+
+
+def _sample_time(spec: S.Spec, report: Report) -> tuple[float, str]:
+    if spec.sample is None:
+        report.error("missing sample time: add a line such as 'sample 1 s'", S.Pos(1, 1))
+        return 1.0, "s"
+    value, unit, pos = spec.sample
+    if value <= 0:
+        report.error("the sample time must be positive", pos)
+        return 1.0, "s"
+    if unit is None:
+        report.error("the sample time needs a unit: s, min or h (e.g. 'sample 0.1 min')", pos)
+        return value, "s"
+    seconds = time_in_seconds(value, unit, report)
+    return seconds, unit.text
+
+
+def _modes(spec: S.Spec, report: Report, params: set[str]) -> list[ModeInfo]:
+    """Mode list in declaration order, with block statements attached and `like` resolved."""
+    infos: dict[str, ModeInfo] = {}
+    for m in spec.modes:
+        if m.name.text in infos:
+            continue  # duplicate reported by _check_declarations
+        infos[m.name.text] = ModeInfo(m.name.text, m.description or "", m.name.pos, list(m.overrides))
+        _check_overrides(m.overrides, params, report)
+    declared = bool(spec.modes)
+    seen_blocks: dict[str, S.ModeBlock] = {}
+    for b in spec.blocks:
+        name = b.name.text
+        if name in seen_blocks:
+            report.error(f"mode {name!r} already has a block at line {seen_blocks[name].pos.line}", b.name.pos)
+            continue
+        seen_blocks[name] = b
+        if name not in infos:
+            if declared:
+                report.error(f"unknown mode {name!r}{suggest(name, infos)}", b.name.pos)
+                continue
+            infos[name] = ModeInfo(name, "", b.name.pos)
+        info = infos[name]
+        info.like = b.like
+        for st in b.statements:
+            is_override = (st.kind == "assign" and st.target.lag is None and st.target.index is None
+                           and st.target.name.text in params)
+            if is_override:
+                info.overrides.append(S.Assign(st.target.name, st.expr))
+            else:
+                info.statements.append(st)
+    if not infos:
+        report.error("no modes: declare them with 'modes a, b, ...' or write 'mode NAME { ... }' blocks",
+                     S.Pos(1, 1))
+    for info in infos.values():
+        _resolve_like(info, infos, report, [])
+    return list(infos.values())
+
+
+def _check_overrides(overrides, params: set[str], report: Report):
+    for a in overrides:
+        if a.name.text not in params:
+            report.error(f"{a.name.text!r} is not a parameter{suggest(a.name.text, params)}", a.name.pos)
+
+
+def _resolve_like(info: ModeInfo, infos: dict[str, ModeInfo], report: Report, chain: list[str]):
+    """Prepend the base mode's overrides and statements (recursively) to this mode's own."""
+    if info.like is None:
+        return
+    base_name = info.like.text
+    if base_name in chain or base_name == info.name:
+        report.error(f"mode {info.name!r} is 'like' itself through {' -> '.join(chain + [base_name])}",
+                     info.like.pos)
+        info.like = None
+        return
+    base = infos.get(base_name)
+    if base is None:
+        report.error(f"unknown mode {base_name!r}{suggest(base_name, infos)}", info.like.pos)
+        info.like = None
+        return
+    _resolve_like(base, infos, report, chain + [info.name])
+    info.overrides = base.overrides + info.overrides
+    info.statements = base.statements + info.statements
+    info.description = info.description or base.description
+    info.like = None
+
+
+# ------------------------------------------------------------------ probabilities
+
+def _probability_value(expr: S.Expr, env, report: Report) -> float:
+    value = evaluate_number(expr, env, report, what="a probability")
+    if value < 0:
+        report.error(f"a probability cannot be negative (got {value:g})", expr.pos)
+    elif value > 1:
+        report.error(f"a probability cannot exceed 1 (got {value:g})", expr.pos)
+    return value
+
+
+def _rule_vector(items, modes: list[str], env, report: Report, stay: int | None):
+    """A probability vector from rules: `name p`, `stay p` (the row's own mode) and `otherwise uniform`."""
+    K = len(modes)
+    p = np.full(K, np.nan)
+    otherwise = None
+    for it in items:
+        if it.kind == "otherwise":
+            if it.name.text != "uniform":
+                report.error(f"'otherwise' takes 'uniform', not {it.name.text!r}", it.name.pos)
+            otherwise = it
+            continue
+        if it.kind == "stay":
+            if stay is None:
+                report.error("'stay' belongs in 'transitions'; name the mode here", it.pos)
+                continue
+            k = stay
+        else:
+            if it.name.text not in modes:
+                report.error(f"unknown mode {it.name.text!r}{suggest(it.name.text, modes)}", it.name.pos)
+                continue
+            k = modes.index(it.name.text)
+        if not np.isnan(p[k]):
+            report.error(f"probability for {modes[k]!r} given twice", it.pos)
+        p[k] = _probability_value(it.value, env, report)
+    rest = np.isnan(p)
+    given = np.nansum(p)
+    if otherwise is not None:
+        if rest.any():
+            p[rest] = max(1.0 - given, 0.0) / rest.sum()
+        return p, otherwise.pos
+    return p, None
+
+
+def _normalise(vec, what: str, pos: S.Pos, report: Report):
+    """Check a probability vector; renormalise a sum within 1e-3 of 1 with a warning."""
+    total = float(vec.sum())
+    if not np.isfinite(total) or (vec < 0).any():
+        return vec
+    if abs(total - 1.0) > ROW_TOLERANCE:
+        hint = "" if total > 1 else "; add 'otherwise uniform' or the missing entries"
+        report.error(f"{what} sums to {total:.6g}, not 1{hint}", pos)
+        return vec
+    if total != 1.0 and abs(total - 1.0) > 1e-12:
+        report.warn(f"{what} sums to {total:.6g}; renormalised to 1", pos)
+        vec = vec / total
+    return vec
+
+
+def _transitions(spec: S.Spec, modes: list[str], env, report: Report) -> np.ndarray:
+    K = len(modes)
+    if not spec.transitions:
+        if K > 1:
+            report.error("missing 'transitions' (e.g. 'transitions stay 0.99, otherwise uniform')", S.Pos(1, 1))
+        return np.eye(K)
+    for extra in spec.transitions[1:]:
+        report.error(f"'transitions' is given more than once (first at line {spec.transitions[0].pos.line})",
+                     extra.pos)
+    t = spec.transitions[0]
+    if t.matrix is not None:
+        P = _matrix_value(t.matrix, (K, K), "the transition matrix", env, report)
+        rows = [(f"transition row {k + 1} ({modes[k]})", t.matrix.pos) for k in range(K)]
+    elif t.rules:
+        P = np.zeros((K, K))
+        for k in range(K):
+            P[k], _ = _rule_vector(t.rules, modes, env, report, stay=k)
+        if np.isnan(P).any():
+            report.error("transition rules leave entries open: end with 'otherwise uniform'", t.pos)
+            P = np.nan_to_num(P)
+        rows = [(f"transition row {k + 1} ({modes[k]})", t.pos) for k in range(K)]
+    else:
+        P = np.eye(K)
+        rows = [(f"transition row {k + 1} ({modes[k]})", t.pos) for k in range(K)]
+        seen = {}
+        for name, items in t.arrows:
+            if name.text not in modes:
+                report.error(f"unknown mode {name.text!r}{suggest(name.text, modes)}", name.pos)
+                continue
+            k = modes.index(name.text)
+            if k in seen:
+                report.error(f"transitions from {name.text!r} already given at line {seen[k]}", name.pos)
+            seen[k] = name.pos.line
+            row, otherwise = _rule_vector(items, modes, env, report, stay=k)
+            if otherwise is None and np.isnan(row[k]):
+                row[k] = 1.0 - np.nansum(row)  # the remaining mass stays in the mode
+                if row[k] < -ROW_TOLERANCE:
+                    report.error(f"transitions out of {name.text!r} add up to {np.nansum(row[np.arange(K) != k]):.6g} > 1",
+                                 name.pos)
+                row[k] = max(row[k], 0.0)
+            P[k] = np.nan_to_num(row)
+            rows[k] = (f"transition row {k + 1} ({name.text})", name.pos)
+    if P.shape == (K, K):
+        for k in range(K):
+            P[k] = _normalise(P[k], rows[k][0], rows[k][1], report)
+    return P
+
+
+def _initial(spec: S.Spec, modes: list[str], env, report: Report) -> np.ndarray:
+    K = len(modes)
+    if not spec.initial:
+        return np.full(K, 1.0 / max(K, 1))
+    for extra in spec.initial[1:]:
+        report.error(f"'initial' is given more than once (first at line {spec.initial[0].pos.line})", extra.pos)
+    t = spec.initial[0]
+    if t.matrix is not None:
+        p0 = _matrix_value(t.matrix, (K,), "the initial distribution", env, report)
+    elif t.arrows:
+        report.error("arrows ('a -> b p') belong in 'transitions'; write 'initial a p, otherwise uniform'", t.pos)
+        return np.full(K, 1.0 / K)
+    else:
+        p0, _ = _rule_vector(t.rules, modes, env, report, stay=None)
+        p0 = np.nan_to_num(p0)
+    return _normalise(p0, "the initial distribution", t.pos, report)
+
+
+def _matrix_value(expr: S.Expr, shape, what: str, env, report: Report) -> np.ndarray:
+    """A numeric vector/matrix of a required shape (a row or column is accepted for a vector)."""
+    def lookup(node):
+        if node.args[0] not in env:
+            raise EvalError(f"unknown name {node.args[0]!r}{suggest(node.args[0], env)}", node)
+        return env[node.args[0]]
+
+    try:
+        value = np.atleast_2d(np.asarray(numeric(expr, lookup), float))
+    except EvalError as exc:
+        report.error(str(exc), exc.node.pos)
+        return np.zeros(shape)
+    if len(shape) == 1 and 1 in value.shape:
+        value = value.ravel()
+    if value.shape != tuple(shape):
+        report.error(f"{what} must be {' x '.join(map(str, shape))} for {shape[0]} modes, "
+                     f"got {' x '.join(map(str, value.shape))}", expr.pos)
+        return np.zeros(shape)
+    for bad in zip(*np.nonzero(value < 0)):
+        report.error(f"{what} has a negative entry {value[bad]:g}", expr.pos)
+        break
+    return value
+
+
+def noise_values(stmts: list[S.Noise], env, report: Report, plant_level: bool) -> dict[str, float]:
+    """`noise process s, measurement s`: standard deviations by kind."""
+    out: dict[str, float] = {}
+    for st in stmts:
+        for name, expr in st.items:
+            if name.text not in NOISE_KINDS:
+                report.error(f"unknown noise kind {name.text!r}; use 'process' or 'measurement'"
+                             f"{suggest(name.text, NOISE_KINDS)}", name.pos)
+                continue
+            value = evaluate_number(expr, env, report, what=f"{name.text} noise")
+            if value < 0:
+                report.error(f"a noise standard deviation cannot be negative (got {value:g})", expr.pos)
+            if name.text in out and plant_level:
+                report.error(f"{name.text} noise is given more than once", name.pos)
+            out[name.text] = value
+    return out
+

@@ -1,0 +1,321 @@
+"""Parse .jmlg text into the typed syntax tree (jmlgdsl.lang.syntax) with the grammar shipped in
+jmlgdsl.grammars; a syntax error becomes a located SpecError saying what was expected."""
+
+from __future__ import annotations
+
+from functools import lru_cache
+from importlib.resources import files
+
+from lark import Lark, Token, Transformer, Tree, v_args
+from lark.exceptions import UnexpectedCharacters, UnexpectedEOF, UnexpectedInput, UnexpectedToken
+
+from ..errors import Diagnostic, SpecError
+from . import syntax as S
+
+# How expected terminals read in an error message.
+_READABLE = {
+    "NAME": "a name", "NUMBER": "a number", "SIGNED_NUMBER": "a number", "INT": "a whole number",
+    "STRING": "a quoted description", "UNIT": "a unit in brackets", "INDEXED": "a reference like h[t]",
+    "LSQB": "'['", "RSQB": "']'", "LPAR": "'('", "RPAR": "')'", "LBRACE": "'{'", "RBRACE": "'}'",
+    "COMMA": "','", "SEMICOLON": "';'", "COLON": "':'", "EQUAL": "'='", "TILDE": "'~'",
+    "PLUS": "'+'", "MINUS": "'-'", "STAR": "'*'", "SLASH": "'/'", "CIRCUMFLEX": "'^'", "$END": "end of file",
+}
+
+
+@lru_cache(maxsize=1)
+def grammar() -> Lark:
+    """The LALR parser for the language, built once per process from the packaged grammar file."""
+    text = files("jmlgdsl.grammars").joinpath("jmlg.lark").read_text(encoding="utf-8")
+    return Lark(text, parser="lalr", lexer="contextual", propagate_positions=True, maybe_placeholders=False)
+
+
+def parse_text(text: str, path: str = "<spec>") -> S.Spec:
+    """Parse a whole spec; raise SpecError with file:line:col and the expected tokens on bad syntax."""
+    lines = text.splitlines()
+    try:
+        tree = grammar().parse(text)
+    except UnexpectedInput as exc:
+        raise SpecError([_syntax_diagnostic(exc, path, lines)]) from None
+    spec = S.Spec(path=path, lines=lines)
+    builder = _Builder(spec)
+    builder.transform(tree)
+    if builder.errors:
+        raise SpecError(builder.errors)
+    return spec
+
+
+def parse_file(path) -> S.Spec:
+    """Read and parse a spec file; an unreadable file is a SpecError too."""
+    try:
+        text = open(path, encoding="utf-8").read()
+    except OSError as exc:
+        raise SpecError([Diagnostic(f"cannot read spec: {exc.strerror}", str(path))]) from None
+    except UnicodeDecodeError:
+        raise SpecError([Diagnostic("cannot read spec: not UTF-8 text", str(path))]) from None
+    return parse_text(text, str(path))
+
+
+def _expected(names) -> str:
+    keywords = sorted(n for n in names if n not in _READABLE and not n.startswith("__"))
+    shown = sorted({_READABLE[n] for n in names if n in _READABLE})
+    shown += [f"'{k.lower()}'" for k in keywords]
+    if not shown:
+        return ""
+    return "; expected " + (shown[0] if len(shown) == 1 else ", ".join(shown[:-1]) + " or " + shown[-1])
+
+
+def _syntax_diagnostic(exc: UnexpectedInput, path: str, lines: list[str]) -> Diagnostic:
+    line, column = exc.line, exc.column
+    if isinstance(exc, UnexpectedToken):
+        tok = exc.token
+        what = "end of file" if tok.type == "$END" else f"{str(tok)!r}"
+        msg = f"unexpected {what}{_expected(exc.accepts or exc.expected)}"
+        if tok.type == "$END":
+            line = len(lines) or 1
+            column = len(lines[-1]) + 1 if lines else 1
+    elif isinstance(exc, UnexpectedCharacters):
+        msg = f"unexpected character {exc.char!r}{_expected(exc.allowed)}"
+    elif isinstance(exc, UnexpectedEOF):
+        msg = f"unexpected end of file{_expected(exc.expected)}"
+        line = len(lines) or 1
+        column = len(lines[-1]) + 1 if lines else 1
+    else:  # pragma: no cover - lark has no other kinds
+        msg = "syntax error"
+    src = lines[line - 1] if 0 < line <= len(lines) else None
+    return Diagnostic(msg, path, line, column, src)
+
+
+def _pos(item) -> S.Pos:
+    if isinstance(item, Token):
+        return S.Pos(item.line, item.column)
+    if isinstance(item, (S.Expr, S.Name)):
+        return item.pos
+    meta = item.meta if isinstance(item, Tree) else item
+    return S.Pos(getattr(meta, "line", 0), getattr(meta, "column", 0))
+
+
+def _name(tok: Token) -> S.Name:
+    return S.Name(str(tok).rstrip("["), S.Pos(tok.line, tok.column))
+
+
+@v_args(meta=True)
+class _Builder(Transformer):
+    """Turns the lark tree into syntax nodes; top-level statements are filed into the Spec."""
+
+    def __init__(self, spec: S.Spec):
+        super().__init__()
+        self.spec = spec
+        self.errors: list[Diagnostic] = []
+
+    # ---------------------------------------------------------------- expressions
+    def number(self, meta, c):
+        return S.Expr("number", (float(c[0]),), _pos(c[0]))
+
+    def var(self, meta, c):
+        return S.Expr("var", (str(c[0]),), _pos(c[0]))
+
+    def time_index(self, meta, c):
+        """("abs", n) for x[n]; ("lag", -k) for x[t-k]."""
+        if c[0].type == "INT":
+            return ("abs", int(c[0]))
+        if str(c[0]) != "t":
+            self.errors.append(Diagnostic(
+                f"a time index is t, t-1, ... or a whole number, not {str(c[0])!r}", self.spec.path,
+                c[0].line, c[0].column, self.spec.lines[c[0].line - 1]))
+        return ("lag", -int(c[1]) if len(c) > 1 else 0)
+
+    def indexed(self, meta, c):
+        kind, value = c[1]
+        name = str(c[0])[:-1]
+        if kind == "abs":
+            return S.Expr("indexed", (name, None), _pos(c[0]), index=value)
+        return S.Expr("indexed", (name, value), _pos(c[0]))
+
+    def call(self, meta, c):
+        return S.Expr("call", (str(c[0]), *c[1:]), _pos(c[0]))
+
+    def _op(name):
+        def build(self, meta, c):
+            return S.Expr(name, tuple(c), _pos(meta))
+        return build
+
+    add, sub, mul, div, pow, neg = _op("add"), _op("sub"), _op("mul"), _op("div"), _op("pow"), _op("neg")
+    del _op
+
+    def row(self, meta, c):
+        return tuple(c)
+
+    def matrix(self, meta, c):
+        return S.Expr("matrix", tuple(c), _pos(meta))
+
+    # ---------------------------------------------------------------- declarations
+    def plant(self, meta, c):
+        self._single("plant", meta)
+        self.spec.plant = _name(c[0])
+
+    def sample(self, meta, c):
+        self._single("sample", meta)
+        self.spec.sample = (float(c[0]), _name(c[1]) if len(c) > 1 else None, _pos(c[0]))
+
+    def _item(kind):
+        def build(self, meta, c):
+            name, unit, value, sd = _name(c[0]), None, None, None
+            for x in c[1:]:
+                if isinstance(x, Token) and x.type == "UNIT":
+                    unit = str(x)[1:-1].strip()
+                elif isinstance(x, tuple) and x[0] == "sd":
+                    sd = x[1]
+                elif isinstance(x, tuple):
+                    value = x[1]
+                else:
+                    value = x
+            return S.Decl(kind, name, unit, value, sd)
+        return build
+
+    input_item, output_item, state_item = _item("input"), _item("output"), _item("state")
+    del _item
+
+    def state_value(self, meta, c):
+        return ("value", c[0])
+
+    def state_sd(self, meta, c):
+        return ("sd", c[0])
+
+    def input_decl(self, meta, c):
+        self.spec.decls.extend(c)
+
+    output_decl = state_decl = input_decl
+
+    def assign(self, meta, c):
+        return S.Assign(_name(c[0]), c[1])
+
+    def param_decl(self, meta, c):
+        self.spec.params.extend(c)
+
+    def let_decl(self, meta, c):
+        self.spec.lets.extend(c)
+
+    def mode_item(self, meta, c):
+        desc = next((str(x)[1:-1] for x in c[1:] if isinstance(x, Token) and x.type == "STRING"), None)
+        return S.ModeDecl(_name(c[0]), desc, tuple(x for x in c[1:] if isinstance(x, S.Assign)))
+
+    def modes_decl(self, meta, c):
+        self.spec.modes.extend(c)
+
+    # ---------------------------------------------------------------- probabilities and noise
+    def prob_named(self, meta, c):
+        return S.ProbItem("named", _pos(c[0]), name=_name(c[0]), value=c[1])
+
+    def prob_stay(self, meta, c):
+        return S.ProbItem("stay", _pos(meta), value=c[0])
+
+    def prob_otherwise(self, meta, c):
+        return S.ProbItem("otherwise", _pos(meta), name=_name(c[0]))
+
+    def prob_list(self, meta, c):
+        return tuple(c)
+
+    def arrow_row(self, meta, c):
+        return (_name(c[0]), c[1])
+
+    def _probabilities(keyword):
+        def build(self, meta, c):
+            body = c[0]
+            if isinstance(body, S.Expr):
+                p = S.Probabilities(keyword, _pos(meta), matrix=body)
+            elif isinstance(body, tuple) and body and isinstance(body[0], S.Name):
+                p = S.Probabilities(keyword, _pos(meta), arrows=tuple(c))
+            else:
+                p = S.Probabilities(keyword, _pos(meta), rules=body)
+            getattr(self.spec, keyword).append(p)
+        return build
+
+    initial, transitions = _probabilities("initial"), _probabilities("transitions")
+    del _probabilities
+
+    def noise_item(self, meta, c):
+        return (_name(c[0]), c[1])
+
+    def noise(self, meta, c):
+        return S.Noise(tuple(c), _pos(meta))
+
+    # ---------------------------------------------------------------- modes
+    def target(self, meta, c):
+        if len(c) == 1:
+            return S.Target(_name(c[0]))
+        kind, value = c[1]
+        if kind == "abs":
+            return S.Target(_name(c[0]), index=value)
+        return S.Target(_name(c[0]), lag=value)
+
+    def arg_positional(self, meta, c):
+        return ("pos", c[0])
+
+    def arg_keyword(self, meta, c):
+        return ("kw", _name(c[0]), c[1], str(c[2]) if len(c) > 2 else None)
+
+    def arg_at(self, meta, c):
+        return ("at", _name(c[0]), c[1], c[2])
+
+    def dist_args(self, meta, c):
+        return tuple(c)
+
+    def dist(self, meta, c):
+        args = c[1] if len(c) > 1 else ()
+        return S.Dist(
+            _name(c[0]),
+            positional=tuple(a[1] for a in args if a[0] == "pos"),
+            keywords=tuple((a[1], a[2], a[3]) for a in args if a[0] == "kw"),
+            at=next((a[1:] for a in args if a[0] == "at"), None))
+
+    def sample_stmt(self, meta, c):
+        return S.Statement("sample", _pos(meta), target=c[0], dist=c[1])
+
+    def assign_stmt(self, meta, c):
+        return S.Statement("assign", _pos(meta), target=c[0], expr=c[1])
+
+    def block(self, meta, c):
+        return tuple(S.Statement("noise", x.pos, noise=x) if isinstance(x, S.Noise) else x for x in c)
+
+    def like(self, meta, c):
+        return _name(c[0])
+
+    def mode_block(self, meta, c):
+        like = next((x for x in c[1:] if isinstance(x, S.Name)), None)
+        body = ()
+        for x in c[1:]:
+            if isinstance(x, tuple):
+                body = x
+            elif isinstance(x, S.Statement):
+                body = (x,)
+            elif isinstance(x, S.Noise):
+                body = (S.Statement("noise", x.pos, noise=x),)
+        self.spec.blocks.append(S.ModeBlock(_name(c[0]), like, body, _pos(meta)))
+
+    # ---------------------------------------------------------------- nonlinear plants
+    def der_eq(self, meta, c):
+        return S.Derivative(_name(c[0]), c[1])
+
+    def ode_block(self, meta, c):
+        if c and isinstance(c[0], Token) and c[0].type == "UNIT":
+            self.spec.ode_unit = (str(c[0])[1:-1].strip(), _pos(c[0]))
+            c = c[1:]
+        self.spec.ode.extend(c)
+
+    def linearize_each(self, meta, c):
+        self.spec.linearize.append(S.Linearize("each", _pos(meta)))
+
+    def linearize_mode(self, meta, c):
+        self.spec.linearize.append(S.Linearize("mode", _pos(meta), mode=_name(c[0])))
+
+    def linearize_point(self, meta, c):
+        self.spec.linearize.append(S.Linearize("point", _pos(meta), point=tuple(c)))
+
+    def _single(self, what, meta):
+        """Remember statements that may appear once, so the checker can report a repeat."""
+        if (what == "plant" and self.spec.plant) or (what == "sample" and self.spec.sample):
+            self.spec.repeated.append((what, _pos(meta)))
+
+    def start(self, meta, c):
+        self.spec.noise.extend(x for x in c if isinstance(x, S.Noise))  # plant-level noise defaults
+        return self.spec

@@ -1,0 +1,174 @@
+"""The typed syntax tree of a .jmlg file: small immutable nodes, each with its source position."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+
+@dataclass(frozen=True)
+class Pos:
+    """A 1-based line and column in the source file."""
+
+    line: int = 0
+    column: int = 0
+
+
+@dataclass(frozen=True)
+class Expr:
+    """An expression node. `op` is one of: number (args = (value,)), var (name,),
+    indexed (name, lag) with lag an int offset from t or None for an absolute index in `index`,
+    call (name, *args), add, sub, mul, div, pow, neg (operands), matrix (rows of entries)."""
+
+    op: str
+    args: tuple
+    pos: Pos = Pos()
+    index: int | None = None  # absolute time index for indexed nodes such as h[0]
+
+    def names(self):
+        """Every variable name used in the expression (var and indexed nodes), with its node."""
+        if self.op in ("var", "indexed"):
+            yield self.args[0], self
+        elif self.op == "matrix":
+            for row in self.args:
+                for entry in row:
+                    yield from entry.names()
+        else:
+            for a in self.args[1:] if self.op == "call" else self.args:
+                if isinstance(a, Expr):
+                    yield from a.names()
+
+
+@dataclass(frozen=True)
+class Name:
+    """A name as written, with where it was written."""
+
+    text: str
+    pos: Pos
+
+
+@dataclass(frozen=True)
+class Target:
+    """Left side of a mode statement: `h[t]`, `h[0]`, `level`, or a matrix name such as `A`."""
+
+    name: Name
+    lag: int | None = None  # 0 for x[t]; None when not indexed by t
+    index: int | None = None  # absolute index, as in h[0]
+
+
+@dataclass(frozen=True)
+class Decl:
+    """An input, output or state declaration."""
+
+    kind: str  # "input" | "output" | "state"
+    name: Name
+    unit: str | None = None
+    value: Expr | None = None
+    sd: Expr | None = None
+
+
+@dataclass(frozen=True)
+class Assign:
+    """`name = expr` in param/let declarations, mode overrides and linearisation points."""
+
+    name: Name
+    expr: Expr
+
+
+@dataclass(frozen=True)
+class ModeDecl:
+    name: Name
+    description: str | None = None
+    overrides: tuple[Assign, ...] = ()
+
+
+@dataclass(frozen=True)
+class ProbItem:
+    """One entry of a probability rule list: `name p`, `stay p` or `otherwise uniform`."""
+
+    kind: str  # "named" | "stay" | "otherwise"
+    pos: Pos
+    name: Name | None = None
+    value: Expr | None = None
+
+
+@dataclass(frozen=True)
+class Probabilities:
+    """An `initial` or `transitions` statement in one of its forms."""
+
+    keyword: str  # "initial" | "transitions"
+    pos: Pos
+    matrix: Expr | None = None
+    rules: tuple[ProbItem, ...] = ()
+    arrows: tuple[tuple[Name, tuple[ProbItem, ...]], ...] = ()
+
+
+@dataclass(frozen=True)
+class Noise:
+    items: tuple[tuple[Name, Expr], ...]
+    pos: Pos
+
+
+@dataclass(frozen=True)
+class Dist:
+    """Right side of `~`: Normal(mean, sd), fopdt(...), arx(...)."""
+
+    name: Name
+    positional: tuple[Expr, ...] = ()
+    keywords: tuple[tuple[Name, Expr, str | None], ...] = ()  # (key, value, unit)
+    at: tuple[Name, Expr, Expr] | None = None  # operating point: input value -> output value
+
+
+@dataclass(frozen=True)
+class Statement:
+    """A statement inside a mode: `target ~ dist`, `target = expr` or a mode-level `noise`."""
+
+    kind: str  # "sample" | "assign" | "noise"
+    pos: Pos
+    target: Target | None = None
+    dist: Dist | None = None
+    expr: Expr | None = None
+    noise: Noise | None = None
+
+
+@dataclass(frozen=True)
+class ModeBlock:
+    name: Name
+    like: Name | None
+    statements: tuple[Statement, ...]
+    pos: Pos
+
+
+@dataclass(frozen=True)
+class Derivative:
+    state: Name
+    expr: Expr
+
+
+@dataclass(frozen=True)
+class Linearize:
+    kind: str  # "each" | "mode" | "point"
+    pos: Pos
+    mode: Name | None = None
+    point: tuple[Assign, ...] = ()
+
+
+@dataclass
+class Spec:
+    """A whole parsed file, statements grouped by kind in source order."""
+
+    path: str
+    lines: list[str]
+    plant: Name | None = None
+    sample: tuple[float, Name | None, Pos] | None = None
+    decls: list[Decl] = field(default_factory=list)
+    params: list[Assign] = field(default_factory=list)
+    lets: list[Assign] = field(default_factory=list)
+    modes: list[ModeDecl] = field(default_factory=list)
+    initial: list[Probabilities] = field(default_factory=list)
+    transitions: list[Probabilities] = field(default_factory=list)
+    noise: list[Noise] = field(default_factory=list)
+    blocks: list[ModeBlock] = field(default_factory=list)
+    ode: list[Derivative] = field(default_factory=list)
+    ode_unit: tuple[str, Pos] | None = None
+    linearize: list[Linearize] = field(default_factory=list)
+    repeated: list[tuple[str, Pos]] = field(default_factory=list)  # single statements given twice
