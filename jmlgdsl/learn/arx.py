@@ -90,11 +90,14 @@ def fit(y, u, na, nb, nk=0, start=None) -> ArxFit:
                   aic=n * np.log(rss / n) + 2 * p, bic=n * np.log(rss / n) + p * np.log(n))
 
 
-def select(y, u, max_na=4, max_nb=4, max_nk=0, criterion="bic") -> ArxFit:
-    """The ARX order (na >= 1, nb >= 1, nk) minimising AIC or BIC, all fitted on the same equations."""
+def select_order(data, max_na=4, max_nb=4, max_nk=0, criterion="bic") -> tuple[int, int, int]:
+    """The order (na >= 1, nb >= 1, nk) minimising AIC or BIC summed over experiments [(y, u), ...].
+
+    Every order is fitted on the same equations of each experiment, so the criteria compare.
+    One order for all experiments keeps a mode bank's modes the same size.
+    """
     if criterion not in ("aic", "bic"):
         raise ValueError(f"criterion must be 'aic' or 'bic', not {criterion!r}")
     start = max(max_na, max_nk + max_nb - 1)
-    fits = [fit(y, u, na, nb, nk, start)
-            for na, nb, nk in itertools.product(range(1, max_na + 1), range(1, max_nb + 1), range(max_nk + 1))]
-    return min(fits, key=lambda f: getattr(f, criterion))
+    grid = itertools.product(range(1, max_na + 1), range(1, max_nb + 1), range(max_nk + 1))
+    return min(grid, key=lambda order: sum(getattr(fit(y, u, *order, start=start), criterion) for y, u in data))

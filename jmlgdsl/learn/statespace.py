@@ -73,9 +73,9 @@ class StateSpace:
         """
         if self.C.shape[0] != 1:
             return self
-        O = _observability(self.A, self.C)
-        O_can = _observability(companion(np.poly(self.A)[1:]), np.eye(1, self.nx))
-        return self.transformed(np.linalg.solve(O_can, O))
+        A_can, C_can = companion(np.poly(self.A)[1:]), np.eye(1, self.nx)
+        T = np.linalg.solve(_observability(A_can, C_can), _observability(self.A, self.C))
+        return self.transformed(T).replace(A=A_can, C=C_can)  # exact zeros and ones, not rounded ones
 
 
 def companion(a) -> np.ndarray:

@@ -42,12 +42,12 @@ class FopdtFit:
         """The fitted step response at samples 0..T-1."""
         return _response(self.step, self.delay, self.dt, self.tau, T) * self.gain * self.du + self.y0
 
-    def to_statespace(self) -> StateSpace:
-        """The sampled FOPDT in observer canonical form (delay + 1 states), started at its initial level."""
+    def to_statespace(self, n=None) -> StateSpace:
+        """The sampled FOPDT in observer canonical form (delay + 1 states, or n), started at its initial level."""
         a = self.pole
         c = (1 - a) * (self.y0 - self.gain * self.u0)
         return observer_form([-a], [[self.gain * (1 - a)]], self.delay, c, self.sse / self.n,
-                             [self.u0], self.y0)
+                             [self.u0], self.y0, n)
 
 
 def _response(step, delay, dt, tau, T):

@@ -1,0 +1,120 @@
+"""From one experiment per mode to a mode bank: a common structure (ARX orders by information
+criterion, or FOPDT from step tests), EM from that start, validation, and the assembled Model."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.linalg import solve_discrete_lyapunov
+
+from ..errors import DataError
+from ..model import Model
+from . import arx, steptest
+from .em import EMResult, em
+from .experiment import Experiment
+from .statespace import StateSpace
+from .validate import Validation, validate
+
+
+@dataclass(frozen=True)
+class LearnedMode:
+    """Everything learned about one mode: its data, structure, EM's start and run, and the checks."""
+
+    name: str
+    experiment: Experiment
+    structure: str
+    start: StateSpace
+    em: EMResult
+    validation: Validation
+    fopdt: steptest.FopdtFit | None = None
+
+    @property
+    def model(self) -> StateSpace:
+        return self.em.model
+
+    def summary(self) -> str:
+        """One line: structure, EM, poles, gain, noise, fit and the residual tests."""
+        m, v = self.model, self.validation
+        poles = ", ".join(f"{p:.4g}" for p in m.poles())
+        gain = ", ".join(f"{g:.4g}" for g in m.gain().ravel())
+        verdict = "white residuals" if v.passed else "residual tests FAIL"
+        return (f"{self.name}: {self.structure}, EM {self.em.iterations} iterations"
+                f"{'' if self.em.converged else ' (not converged)'}, log-lik {self.em.loglik[-1]:.6g}; "
+                f"poles {poles}; gain {gain}; measurement sd {np.sqrt(np.diag(m.R)).max():.3g}; "
+                f"fit {', '.join(f'{x:.1f}' for x in v.fit)} %; {verdict}")
+
+
+def learn_modes(experiments: dict, order="auto", fopdt=False, dt=1.0, max_order=4, max_delay=0,
+                criterion="bic", max_iter=100, tol=1e-5) -> list[LearnedMode]:
+    """Fit every mode's experiment with one structure: order (na, nb, nk), "auto", or FOPDT step tests."""
+    for name, e in experiments.items():
+        if e.y.shape[1] != 1:
+            raise DataError(f"{e.source}: learning fits one output per plant; got {e.y.shape[1]}")
+    if fopdt:
+        fits = {k: _fopdt(e, dt) for k, e in experiments.items()}
+        n = max(f.delay for f in fits.values()) + 1
+        starts = {k: (f.to_statespace(n), f"FOPDT gain {f.gain:.4g}, tau {f.tau:.4g} s, dead time "
+                      f"{f.delay * f.dt:g} s", f) for k, f in fits.items()}
+    else:
+        if order == "auto":
+            order = arx.select_order([(e.y[:, 0], e.u) for e in experiments.values()], max_order,
+                                     max_order, max_delay, criterion)
+        na, nb, nk = order
+        starts = {k: (arx.fit(e.y[:, 0], e.u, na, nb, nk).to_statespace(e.u[0], e.y[0, 0]),
+                      f"ARX({na},{nb},{nk})", None) for k, e in experiments.items()}
+    learned = []
+    for name, e in experiments.items():
+        start, structure, fit = starts[name]
+        result = em(start, e.y, e.u, max_iter=max_iter, tol=tol, feedthrough=False)
+        result = EMResult(readable(result.model), result.loglik, result.converged)
+        learned.append(LearnedMode(name, e, structure, start, result, validate(result.model, e.y, e.u), fit))
+    return learned
+
+
+def _fopdt(e: Experiment, dt) -> steptest.FopdtFit:
+    if e.u.shape[1] != 1:
+        raise DataError(f"{e.source}: a step test has one input; got {e.u.shape[1]}")
+    try:
+        return steptest.fit(e.y[:, 0], e.u[:, 0], dt)
+    except DataError as exc:
+        raise DataError(f"{e.source}: {exc}") from None
+
+
+def readable(ss: StateSpace) -> StateSpace:
+    """The observer canonical basis (state 1 = noise-free output) when it is well conditioned."""
+    try:
+        out = ss.observer_form()
+    except np.linalg.LinAlgError:
+        return ss
+    return out if np.isfinite(out.A).all() and np.allclose(out.gain(), ss.gain(), rtol=1e-6) else ss
+
+
+def default_transitions(K: int, stay: float) -> np.ndarray:
+    """`stay p, otherwise uniform`: p on the diagonal, the rest of each row shared evenly."""
+    if K == 1:
+        return np.ones((1, 1))
+    return np.full((K, K), (1 - stay) / (K - 1)) + (stay - (1 - stay) / (K - 1)) * np.eye(K)
+
+
+def initial_spread(ss: StateSpace) -> np.ndarray:
+    """Stationary state variances under the process noise (the Q diagonal for a mode that is not stable)."""
+    if np.abs(ss.poles()).max() < 1:
+        return np.diag(solve_discrete_lyapunov(ss.A, ss.Q))
+    return np.diag(ss.Q)
+
+
+def assemble(learned: list[LearnedMode], *, P, p0, operating_input=None, **names) -> Model:
+    """A Model from the learned modes: B, D as Cholesky factors of Q, R; each mode starts at its
+    steady state under the operating input (default: the mean input of its experiment), with the
+    widest stationary spread of any mode. `names` passes name, dt, inputs, outputs, units, ..."""
+    mods = [lm.model for lm in learned]
+    x0 = [m.steady_state(lm.experiment.u.mean(0) if operating_input is None else operating_input)
+          for m, lm in zip(mods, learned)]
+    spread = np.max([initial_spread(m) for m in mods], axis=0)
+    return Model.from_arrays(
+        A=np.stack([m.A for m in mods]), F=np.stack([m.F for m in mods]), f=np.stack([m.f for m in mods]),
+        C=np.stack([m.C for m in mods]), G=np.stack([m.G for m in mods]), g=np.stack([m.g for m in mods]),
+        B=np.stack([np.linalg.cholesky(m.Q) for m in mods]), D=np.stack([np.linalg.cholesky(m.R) for m in mods]),
+        P=P, p0=p0, mu0=np.stack(x0), Sigma0=np.diag(spread), modes=tuple(lm.name for lm in learned),
+        **names)
