@@ -25,6 +25,12 @@ def symmetrize(S):
     return 0.5 * (S + _t(S))
 
 
+def psd_sqrt(S):
+    """A factor L with L L' = S for a symmetric positive semi-definite S (singular S allowed)."""
+    vals, vecs = np.linalg.eigh(S)
+    return vecs * np.sqrt(np.clip(vals, 0.0, None))
+
+
 def predict_cov(Sig, A, Q):
     """Covariance time update A Sig A' + Q (it never depends on the data)."""
     return symmetrize(A @ Sig @ _t(A) + Q)

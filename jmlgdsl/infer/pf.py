@@ -5,14 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from .engine import Estimate, Resampler, mixture_moments, offsets, predictive_mean, sample_rows, weighted_posterior
-from .kalman import LOG_2PI, MAX_QUAD
+from .kalman import LOG_2PI, MAX_QUAD, psd_sqrt
 from .resample import normalize
-
-
-def _sqrtm_psd(S):
-    """A square root L with L L' = S for a symmetric positive semi-definite S (singular allowed)."""
-    vals, vecs = np.linalg.eigh(S)
-    return vecs * np.sqrt(np.clip(vals, 0.0, None))
 
 
 class BootstrapPF:
@@ -23,7 +17,7 @@ class BootstrapPF:
     def __init__(self, model, particles, rng, resampler: Resampler):
         self.model, self.rng, self.resampler = model, rng, resampler
         self.z = resampler.scheme(model.p0, particles, rng)
-        noise = rng.standard_normal((particles, model.nx)) @ _sqrtm_psd(model.Sigma0).T
+        noise = rng.standard_normal((particles, model.nx)) @ psd_sqrt(model.Sigma0).T
         self.x = model.mu0[self.z] + noise
         self.logw = np.full(particles, -np.log(particles))
         self._noise = {}  # observation mask -> (inverse Cholesky factors of R per mode, log-determinants)

@@ -40,7 +40,7 @@ class Result:
     residuals: np.ndarray  # (T, ny)
     loglik_steps: np.ndarray  # (T,) log p(y_t | y_1:t-1)
     ess: np.ndarray  # (T,)
-    seconds: float  # wall-clock time of the whole run
+    seconds: float  # wall-clock time spent filtering
 
     @classmethod
     def from_steps(cls, model, algorithm, particles, steps, seconds) -> "Result":

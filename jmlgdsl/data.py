@@ -1,0 +1,172 @@
+"""CSV data bound to a model by column name: read measured sequences (also row by row from a
+stream, for on-line monitoring) and write result tables.
+
+Columns named after the model's outputs and inputs are used; `time` and `mode` (the true mode
+names) are optional; any other column is ignored. An empty cell (or NA / NaN) is a missing value:
+an output that was not measured, or an input that takes its default. Every problem is a DataError
+naming the file, the CSV line and the column.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import sys
+from dataclasses import dataclass
+from typing import Iterator
+
+import numpy as np
+
+from .errors import DataError
+
+MISSING = {"", "na", "nan", "n/a"}
+
+
+@dataclass(frozen=True)
+class Row:
+    """One data row: its CSV line, the optional time and true mode index, outputs and inputs."""
+
+    line: int
+    time: float | None
+    y: np.ndarray  # (ny,), NaN where not measured
+    u: np.ndarray  # (nu,), NaN where the default applies
+    mode: int | None
+
+
+@dataclass(frozen=True)
+class Data:
+    """A whole data file as arrays over time steps."""
+
+    time: np.ndarray | None  # (T,)
+    y: np.ndarray  # (T, ny)
+    u: np.ndarray  # (T, nu), defaults filled in
+    modes: np.ndarray | None  # (T,) true mode indices
+    source: str
+
+
+def open_source(path):
+    """A text stream for a path, or standard input for '-'."""
+    if str(path) == "-":
+        return sys.stdin
+    try:
+        return open(path, newline="")
+    except OSError as exc:
+        raise DataError(f"cannot read {path}: {exc.strerror}") from None
+
+
+def _records(stream):
+    """(line number, cells) for each line that is neither blank nor a # comment, read one at a time."""
+    for number, line in enumerate(iter(stream.readline, ""), start=1):
+        if line.strip() and not line.lstrip().startswith("#"):
+            yield number, next(csv.reader([line]))
+
+
+def _number(cells, col, name, where):
+    """The number in cell `col` (NaN when the column is absent or the cell is missing)."""
+    if col is None:
+        return math.nan
+    text = cells[col].strip() if col < len(cells) else ""
+    if text.lower() in MISSING:
+        return math.nan
+    try:
+        value = float(text)
+    except ValueError:
+        raise DataError(f"{where}: column {name!r}: {text!r} is not a number") from None
+    if math.isinf(value):
+        raise DataError(f"{where}: column {name!r}: {text!r} is not a finite number")
+    return value
+
+
+def iter_rows(stream, model, source="<data>", outputs=True) -> Iterator[Row]:
+    """Rows of a CSV stream as they arrive (lines are read one at a time, so a pipe works on-line).
+
+    With outputs=False the output columns may be absent (input-only files, for simulation).
+    """
+    records = _records(stream)
+    _, header = next(records, (0, None))
+    if header is None:
+        raise DataError(f"{source}: no header line (expected columns {', '.join(model.outputs)})")
+    index = {name.strip(): i for i, name in enumerate(header)}
+
+    def column(name, required):
+        if name in index:
+            return index[name]
+        if required:
+            raise DataError(f"{source}: missing column {name!r}; the header has {', '.join(header)}")
+        return None
+
+    y_cols = [column(n, outputs) for n in model.outputs]
+    u_cols = [column(n, math.isnan(d)) for n, d in zip(model.inputs, model.input_defaults)]
+    t_col, mode_col = column("time", False), column("mode", False)
+    defaults = model.input_defaults
+
+    for line, cells in records:
+        where = f"{source}:{line}"
+        y = np.array([_number(cells, c, n, where) for c, n in zip(y_cols, model.outputs)])
+        u = np.array([_number(cells, c, n, where) for c, n in zip(u_cols, model.inputs)])
+        lacking = np.isnan(u) & np.isnan(defaults)
+        if lacking.any():
+            name = model.inputs[int(np.argmax(lacking))]
+            raise DataError(f"{where}: column {name!r}: missing value and the input has no default")
+        time = None if t_col is None else _number(cells, t_col, "time", where)
+        mode = None
+        if mode_col is not None:
+            name = cells[mode_col].strip() if mode_col < len(cells) else ""
+            if name not in model.modes:
+                raise DataError(f"{where}: column 'mode': unknown mode {name!r}; modes are {', '.join(model.modes)}")
+            mode = model.modes.index(name)
+        yield Row(line, time, y, np.where(np.isnan(u), defaults, u), mode)
+
+
+def read_csv(path, model, outputs=True) -> Data:
+    """Read a whole data file ('-' = standard input) into arrays bound to the model's names."""
+    source = "<stdin>" if str(path) == "-" else str(path)
+    stream = open_source(path)
+    try:
+        rows = list(iter_rows(stream, model, source, outputs))
+    finally:
+        if stream is not sys.stdin:
+            stream.close()
+    if not rows:
+        raise DataError(f"{source}: no data rows")
+    has_time = rows[0].time is not None
+    has_modes = rows[0].mode is not None
+    return Data(time=np.array([r.time for r in rows]) if has_time else None,
+                y=np.array([r.y for r in rows]).reshape(len(rows), model.ny),
+                u=np.array([r.u for r in rows]).reshape(len(rows), model.nu),
+                modes=np.array([r.mode for r in rows]) if has_modes else None, source=source)
+
+
+def format_cell(value) -> str:
+    """A CSV cell: text as is, numbers in 10 significant digits, NaN as an empty cell."""
+    if isinstance(value, str):
+        return value
+    value = float(value)
+    return "" if math.isnan(value) else f"{value:.10g}"
+
+
+class CsvWriter:
+    """Writes rows of a table; with flush=True every row reaches the reader at once (on-line use)."""
+
+    def __init__(self, stream, header, flush=False):
+        self._stream, self._flush = stream, flush
+        self._writer = csv.writer(stream, lineterminator="\n")
+        self.write(header)
+
+    def write(self, cells):
+        self._writer.writerow([format_cell(c) for c in cells])
+        if self._flush:
+            self._stream.flush()
+
+
+def write_columns(path, columns: dict):
+    """Write equal-length columns (name -> array of numbers or strings) to a CSV file ('-' = stdout)."""
+    names = list(columns)
+    stream = sys.stdout if str(path) == "-" else open(path, "w", newline="")
+    try:
+        writer = CsvWriter(stream, names)
+        for row in zip(*columns.values()):
+            writer.write(row)
+    finally:
+        if stream is not sys.stdout:
+            stream.close()
