@@ -1,0 +1,97 @@
+"""`jmlgdsl simulate` and `jmlgdsl run` end to end: summaries, output tables, streaming, user errors."""
+
+import csv
+import subprocess
+import sys
+import threading
+
+import pytest
+from infer_models import DRYER_SEQ1, dryer
+
+from jmlgdsl.cli import main
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    d = tmp_path_factory.mktemp("run")
+    spec = d / "dryer.json"
+    dryer().save(spec)
+    data = d / "seq1.csv"
+    assert main(["simulate", str(spec), "--modes", DRYER_SEQ1, "--seed", "3", "-o", str(data)]) == 0
+    return spec, data
+
+
+def test_run_prints_a_diagnosis(files, capsys, tmp_path):
+    spec, data = files
+    out = tmp_path / "out.csv"
+    assert main(["run", str(spec), str(data), "--seed", "1", "-o", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "dryer: 1000 steps, filter fc-rbpf with 4 particles" in text
+    assert "  t 1\u201371: normal (p\u0304 0.99)" in text
+    error = float(text.split("diagnosis error: ")[1].split(" %")[0])
+    assert error < 5.0
+    table = list(csv.DictReader(out.open()))
+    assert len(table) == 1000
+    assert list(table[0]) == ["t", "time", "map_mode", "p_normal", "p_fan", "p_grill", "p_fan_grill",
+                              "x_mean", "temp_pred", "temp_resid", "ess"]
+    assert table[100]["map_mode"] == "fan"
+    probs = [float(table[5][f"p_{m}"]) for m in ("normal", "fan", "grill", "fan_grill")]
+    assert sum(probs) == pytest.approx(1.0, abs=1e-8)
+
+
+def test_same_seed_same_output_bytes(files, tmp_path, capsys):
+    spec, data = files
+    outs = []
+    for name in ("a.csv", "b.csv"):
+        assert main(["run", str(spec), str(data), "--filter", "la-rbpf", "--seed", "4", "-o", str(tmp_path / name)]) == 0
+        outs.append((tmp_path / name).read_bytes())
+    assert outs[0] == outs[1]
+
+
+def test_simulate_writes_to_standard_output(files, capsys):
+    spec, _ = files
+    assert main(["simulate", str(spec), "--steps", "3", "--seed", "0"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0] == "time,one,temp,mode,x_true" and len(lines) == 4
+
+
+@pytest.mark.parametrize("content, message", [
+    ("time,one\n1,1\n", "error: {data}: missing column 'temp'"),
+    ("temp,mode\n50.1,normal\n50.2,oops\n", "error: {data}:3: column 'mode': unknown mode 'oops'"),
+    ("temp\n50.1\nhot\n", "error: {data}:3: column 'temp': 'hot' is not a number"),
+])
+def test_bad_data_is_a_clear_error(files, tmp_path, capsys, content, message):
+    spec, _ = files
+    data = tmp_path / "bad.csv"
+    data.write_text(content)
+    assert main(["run", str(spec), str(data)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(message.format(data=data)) and "Traceback" not in err
+
+
+def test_bad_schedule_is_a_clear_error(files, capsys):
+    spec, _ = files
+    assert main(["simulate", str(spec), "--modes", "1-5:normal,6-9:boom"]) == 2
+    assert "unknown mode 'boom'" in capsys.readouterr().err
+
+
+def test_standard_input_is_filtered_row_by_row(files):
+    spec, _ = files
+    proc = subprocess.Popen([sys.executable, "-m", "jmlgdsl", "run", str(spec), "-", "-o", "-", "--seed", "2"],
+                            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    timer = threading.Timer(60, proc.kill)  # never hang the test run
+    timer.start()
+    try:
+        proc.stdin.write("temp\n50.5\n")
+        proc.stdin.flush()
+        # Both lines arrive while standard input is still open: the row was flushed at once.
+        assert proc.stdout.readline().startswith("t,map_mode,p_normal")
+        assert proc.stdout.readline().startswith("1,normal,")
+        proc.stdin.write("50.4\n")
+        proc.stdin.close()
+        assert proc.stdout.readline().startswith("2,normal,")
+        assert proc.wait() == 0
+        assert "filter fc-rbpf" in proc.stderr.read()
+    finally:
+        timer.cancel()
+        proc.kill()
