@@ -306,8 +306,9 @@ class Lowering:
         return self.layout.inputs.index(name)
 
     def _operating_point(self, d: Dist, k: int) -> tuple[float, float]:
+        """(u_ss, y_ss) from `at INPUT u -> y`; NaN without one (deviation 0, initial mean left open)."""
         if d.at is None:
-            return 0.0, 0.0
+            return math.nan, math.nan
         name, u_expr, y_expr = d.at
         if name.text != self.layout.inputs[k]:
             self.report.error(f"the operating point names the block's input: 'at {self.layout.inputs[k]} "
@@ -369,7 +370,7 @@ class Lowering:
         x = idx[out]
         a = math.exp(-self.dt / tau)
         m.A[x, x] = a
-        m.f[x] = (1 - a) * (y_ss - gain * u_ss)
+        m.f[x] = (1 - a) * np.nan_to_num(y_ss - gain * u_ss)
         m.B[x, x] = self.process
         for lag, b in zip(lags, fopdt_weights(self.dt, tau, fraction, a, gain)):
             if lag == 0:
@@ -421,7 +422,7 @@ class Lowering:
         m.A[y, past_y] = -a
         m.A[y, past_u] = b[1:]
         m.F[y, k] = b[0]
-        m.f[y] = y_ss * (1 + a.sum()) - u_ss * b.sum()
+        m.f[y] = np.nan_to_num(y_ss * (1 + a.sum()) - u_ss * b.sum())
         m.B[y, y] = self.process
         self._measure(m, j, y)
 

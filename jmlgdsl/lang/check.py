@@ -294,7 +294,9 @@ def _transitions(spec: S.Spec, modes: list[str], env, report: Report) -> np.ndar
     t = spec.transitions[0]
     if t.matrix is not None:
         P = _matrix_value(t.matrix, (K, K), "the transition matrix", env, report)
-        rows = [(f"transition row {k + 1} ({modes[k]})", t.matrix.pos) for k in range(K)]
+        row_pos = [row[0].pos if row else t.matrix.pos for row in t.matrix.args]
+        rows = [(f"transition row {k + 1} ({modes[k]})", row_pos[k] if k < len(row_pos) else t.matrix.pos)
+                for k in range(K)]
     elif t.rules:
         P = np.zeros((K, K))
         for k in range(K):
