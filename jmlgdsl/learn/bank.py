@@ -12,9 +12,17 @@ from ..errors import DataError
 from ..model import Model
 from . import arx, steptest
 from .em import EMResult, em
-from .experiment import Experiment
 from .statespace import StateSpace
 from .validate import Validation, validate
+
+
+@dataclass(frozen=True)
+class Experiment:
+    """One mode's identification data: outputs y (T, ny) with NaN where not measured, inputs u (T, nu)."""
+
+    y: np.ndarray
+    u: np.ndarray
+    source: str = "<data>"
 
 
 @dataclass(frozen=True)

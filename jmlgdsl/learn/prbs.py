@@ -46,8 +46,8 @@ def prbs(cells: int, clock: int = 1, amplitude: float = 1.0, around: float = 0.0
 
     Whole periods by default; `samples` cuts or repeats the sequence to an exact length instead.
     """
-    if clock < 1 or periods < 1:
-        raise JmlgError("clock and periods must be at least 1")
+    if min(clock, periods, 1 if samples is None else samples) < 1:
+        raise JmlgError("clock, periods and samples must be at least 1")
     one = np.repeat(mls(cells), clock)
     n = samples if samples is not None else periods * len(one)
     bits = np.resize(one, n)
