@@ -1,0 +1,65 @@
+"""FOPDT step-test fit: exact recovery without noise, tolerance with noise, state-space form, errors."""
+
+import numpy as np
+import pytest
+
+from jmlgdsl.errors import DataError
+from jmlgdsl.learn import steptest
+
+
+def step_data(gain=1.94, tau=30.45, delay=3, dt=1.0, T=300, at=50, noise=0.0, seed=0):
+    """A sampled FOPDT step response from 50.52 at input 15 to input 20, simulated recursively."""
+    a = np.exp(-dt / tau)
+    u = np.full(T, 15.0)
+    u[at:] = 20.0
+    y, prev = np.empty(T), 50.52
+    for t in range(T):
+        prev = a * prev + gain * (1 - a) * u[max(t - delay, 0)] + (1 - a) * (50.52 - gain * 15.0)
+        y[t] = prev
+    return y + noise * np.random.default_rng(seed).standard_normal(T), u
+
+
+def test_noise_free_step_is_recovered_exactly():
+    y, u = step_data()
+    fit = steptest.fit(y, u, dt=1.0, max_delay=10)
+    assert fit.delay == 3 and fit.step == 50
+    assert fit.gain == pytest.approx(1.94, rel=1e-7)
+    assert fit.tau == pytest.approx(30.45, rel=1e-6)
+    assert fit.y0 == pytest.approx(50.52, rel=1e-9)
+    assert np.allclose(fit.response(len(y)), y, atol=1e-6)
+
+
+def test_noisy_step_within_its_standard_errors():
+    """With noise sd s over N samples after the step, the gain's standard error is about
+    s / (du sqrt(N)); the fit must land within a few of them (the time constant likewise)."""
+    s, T, at = 0.05, 400, 50
+    y, u = step_data(noise=s, T=T, at=at, seed=3)
+    fit = steptest.fit(y, u, dt=1.0)
+    assert fit.delay == 3
+    assert abs(fit.gain - 1.94) < 6 * s / (5.0 * np.sqrt(T - at))
+    assert abs(fit.tau - 30.45) / 30.45 < 0.03
+
+
+def test_statespace_reproduces_the_fitted_response():
+    y, u = step_data(delay=2, noise=0.02)
+    fit = steptest.fit(y, u, max_delay=6)
+    ss = fit.to_statespace()
+    assert ss.nx == fit.delay + 1
+    assert np.allclose(ss.free_run(u[:, None])[:, 0], fit.response(len(y)), atol=1e-9)
+    assert ss.gain()[0, 0] == pytest.approx(fit.gain)
+    assert ss.poles()[0] == pytest.approx(np.exp(-1.0 / fit.tau))
+
+
+def test_padding_to_more_states_keeps_the_response():
+    y, u = step_data(delay=0)
+    fit = steptest.fit(y, u, max_delay=3)
+    assert np.allclose(fit.to_statespace(4).free_run(u[:, None]), fit.to_statespace().free_run(u[:, None]))
+
+
+def test_input_must_change_exactly_once():
+    y, u = step_data()
+    u[200:] = 15.0
+    with pytest.raises(DataError, match="changes exactly once; this one changes 2 times"):
+        steptest.fit(y, u)
+    with pytest.raises(DataError, match="changes 0 times"):
+        steptest.fit(y, np.full_like(u, 15.0))
