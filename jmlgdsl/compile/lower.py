@@ -73,7 +73,8 @@ def lower_linear(plant: Plant, report: Report) -> Model:
                              f"(write {y} ~ Normal(...), a block such as fopdt, or a matrix C)", mode.pos)
         modes.append(arrays)
     report.raise_errors()
-    state_means = declared_values(plant, plant.states, params[0], report)
+    declared = dict(zip((d.name.text for d in plant.states), declared_values(plant, plant.states, params[0], report)))
+    state_means = np.array([declared.get(s, np.nan) for s in layout.states])
     for m in modes:
         _fill_initial_mean(m, state_means, layout.input_defaults)
     return stack(plant, layout, modes, report)

@@ -207,7 +207,7 @@ def _resolve_like(info: ModeInfo, infos: dict[str, ModeInfo], report: Report, ch
         return
     base_name = info.like.text
     if base_name in chain or base_name == info.name:
-        report.error(f"mode {info.name!r} is 'like' itself through {' -> '.join(chain + [base_name])}",
+        report.error(f"mode {info.name!r} is 'like' itself through {' -> '.join(chain + [info.name, base_name])}",
                      info.like.pos)
         info.like = None
         return
