@@ -63,7 +63,7 @@ class CovarianceGraph:
         self.rtol = rtol
         nx = model.nx
         self._Sig = _Growing((nx, nx))
-        self._keys: dict[bytes, int] = {}
+        self._keys_seen: dict[bytes, int] = {}
         self._rows: dict[bytes, _Rows] = {}
 
     @property
@@ -75,21 +75,25 @@ class CovarianceGraph:
         """Node covariances, (size, nx, nx)."""
         return self._Sig.data
 
-    def _key(self, S):
-        scale = np.frexp(np.max(np.abs(np.diagonal(S))))[1]
-        grid = np.ldexp(self.rtol, int(scale))
-        return int(scale).to_bytes(4, "little", signed=True) + np.round(S / grid).astype(np.int64).tobytes()
+    def _keys(self, Sigs):
+        """Hashable keys equal for covariances that agree to rtol relative to their largest variance."""
+        scale = np.frexp(np.abs(np.diagonal(Sigs, axis1=1, axis2=2)).max(axis=1))[1]
+        grid = np.ldexp(self.rtol, scale)
+        ticks = np.round(Sigs.reshape(len(Sigs), -1) / grid[:, None]).astype(np.int64)
+        return [row.tobytes() for row in np.column_stack([scale.astype(np.int64), ticks])]
 
     def add(self, Sigs) -> np.ndarray:
         """Node indices for covariances (n, nx, nx), creating nodes for the ones not seen before."""
         out = np.empty(len(Sigs), dtype=np.int64)
-        for i, S in enumerate(Sigs):
-            key = self._key(S)
-            node = self._keys.get(key)
+        new = []
+        for i, key in enumerate(self._keys(Sigs)):
+            node = self._keys_seen.get(key)
             if node is None:
-                node = self._keys[key] = self._Sig.size
-                self._Sig.extend(S[None])
+                node = self._keys_seen[key] = self._Sig.size + len(new)
+                new.append(i)
             out[i] = node
+        if new:
+            self._Sig.extend(Sigs[new])
         return out
 
     def rows(self, mask) -> _Rows:
@@ -136,7 +140,7 @@ class CovarianceGraph:
         live, renumbered = np.unique(nodes, return_inverse=True)
         Sig = self.Sig[live].copy()
         self._Sig = _Growing(Sig.shape[1:])
-        self._keys.clear()
+        self._keys_seen.clear()
         self._rows.clear()
         self.add(Sig)
         return renumbered.reshape(np.shape(nodes))

@@ -53,7 +53,8 @@ def sample_rows(probs, rng):
 class Resampler:
     """The resampling policy of a particle filter: a scheme, a target count and an ESS threshold.
 
-    Resampling happens when ESS < threshold * n; a threshold of 1 resamples at every step.
+    Resampling happens when ESS < threshold * n; a threshold of 1 resamples at every step. A
+    particle may stand for several identical copies (`copies`), which counts in the ESS.
     """
 
     def __init__(self, scheme, n, rng, threshold=1.0):
@@ -61,13 +62,17 @@ class Resampler:
             raise FilterError(f"the ESS threshold must be in (0, 1], got {threshold}")
         self.scheme, self.n, self.rng, self.threshold = scheme, n, rng, threshold
 
-    def __call__(self, w):
-        """(ancestor indices, their new log-weights, ESS of w) for normalised weights w."""
-        size = ess(w)
+    def __call__(self, w, copies=None):
+        """(ancestor indices, their new log-weights and copy counts, ESS) for normalised weights w."""
+        if copies is None:
+            copies = np.ones(len(w), dtype=np.int64)
+            size = ess(w)
+        else:
+            size = 1.0 / np.sum(w * w / copies)  # each of the c_i copies holds w_i / c_i
         if self.threshold >= 1.0 or size < self.threshold * self.n:
-            return self.scheme(w, self.n, self.rng), np.full(self.n, -np.log(self.n)), size
+            return self.scheme(w, self.n, self.rng), np.full(self.n, -np.log(self.n)), np.ones(self.n, np.int64), size
         with np.errstate(divide="ignore"):
-            return np.arange(len(w)), np.log(w), size
+            return np.arange(len(w)), np.log(w), copies, size
 
 
 def weighted_posterior(q, modes, K):

@@ -10,7 +10,9 @@ next particle set from them:
 - `exact`:   all candidates, all kept: every mode history, as long as their number stays bounded.
 
 Kalman covariances live in a shared CovarianceGraph, so the per-step cost of the covariance work
-does not grow with the number of particles.
+does not grow with the number of particles. Identical particles (the same candidate selected more
+than once) are kept once with a copy count, so the work per step grows with the number of distinct
+mode histories, not with N.
 """
 
 from __future__ import annotations
@@ -43,15 +45,17 @@ class RaoBlackwellised:
         self.z = atoms
         self.mu = model.mu0[atoms]
         self.node = np.full(len(atoms), root)
+        self.copies = np.ones(len(atoms), dtype=np.int64)
 
     # Subclasses: which candidates to evaluate, and how to select the next particles from them.
     def candidates(self):
-        """(parent, mode, log proposal probability) of the candidates to evaluate."""
+        """(parent, mode, log share) of the candidates to evaluate: a candidate carries its parent's
+        weight times P[z, mode] / exp(log share); None means every (particle, mode) pair in order."""
         n, K = len(self.z), self.model.K
         return np.repeat(np.arange(n), K), np.tile(np.arange(K), n), None
 
     def select(self, q, parent, mode):
-        """(chosen candidate indices, their new log-weights, ESS) from normalised candidate weights q."""
+        """(chosen candidate indices, their log-weights and copy counts, ESS) from normalised weights q."""
         raise NotImplementedError
 
     def step(self, y, mask, u) -> Estimate:
@@ -82,13 +86,26 @@ class RaoBlackwellised:
         posterior = weighted_posterior(q, mode, K)
         yp = predictive_mean(log_prior, y_pred)
 
-        chosen, self.logw, size = self.select(q, parent, mode)
+        chosen, logw, copies, size = self.select(q, parent, mode)
+        chosen, self.logw, self.copies = merge_copies(parent[chosen] * K + mode[chosen], chosen, logw, copies)
         self.z = mode[chosen]
         self.mu = mu_f[chosen]
         self.node = self.graph.children(rows, self.node[parent[chosen]], self.z)
         if self.graph.size > 4 * len(self.node) + 4096:
             self.node = self.graph.compact(self.node)
         return Estimate(posterior, mean, cov, yp, loglik, size)
+
+
+def merge_copies(key, chosen, logw, copies):
+    """Chosen candidates with equal keys (same parent, same mode) are identical particles: keep one
+    of each with the summed weight and copy count. Returns (chosen, log-weights, copies)."""
+    distinct, first, inverse = np.unique(key, return_index=True, return_inverse=True)
+    if len(distinct) == len(key):
+        return chosen, logw, copies
+    top = logw.max()
+    w = np.bincount(inverse, weights=np.exp(logw - top))
+    with np.errstate(divide="ignore"):
+        return chosen[first], np.log(w) + top, np.bincount(inverse, weights=copies).astype(np.int64)
 
 
 class RBPF(RaoBlackwellised):
@@ -102,10 +119,13 @@ class RBPF(RaoBlackwellised):
         ancestors = resampler.scheme(np.exp(self.logw), particles, rng)
         self.logw = np.full(particles, -np.log(particles))
         self.z, self.mu, self.node = self.z[ancestors], self.mu[ancestors], self.node[ancestors]
+        self.copies = np.ones(particles, dtype=np.int64)
 
     def candidates(self):
-        mode = sample_rows(self.model.P[self.z], self.rng)
-        return np.arange(len(self.z)), mode, self.model.logP[self.z, mode]
+        # Every copy of a particle draws its own next mode, and takes its share of the weight.
+        parent = np.repeat(np.arange(len(self.z)), self.copies)
+        mode = sample_rows(self.model.P[self.z[parent]], self.rng)
+        return parent, mode, self.model.logP[self.z[parent], mode] + np.log(self.copies[parent])
 
     def select(self, q, parent, mode):
         return self.resampler(q)
@@ -117,8 +137,8 @@ class LookAheadRBPF(RaoBlackwellised):
     def select(self, q, parent, mode):
         K = self.model.K
         q = q.reshape(-1, K)
-        ancestors, logw, size = self.resampler(q.sum(axis=1))
-        return ancestors * K + sample_rows(q[ancestors], self.rng), logw, size
+        ancestors, logw, copies, size = self.resampler(q.sum(axis=1), self.copies)
+        return ancestors * K + sample_rows(q[ancestors], self.rng), logw, copies, size
 
 
 class FearnheadCliffordRBPF(RaoBlackwellised):
@@ -129,7 +149,7 @@ class FearnheadCliffordRBPF(RaoBlackwellised):
     def select(self, q, parent, mode):
         chosen, w = fearnhead_clifford(q, self.n, self.rng)
         w = w / w.sum()
-        return chosen, np.log(w), 1.0 / np.dot(w, w)
+        return chosen, np.log(w), np.ones(len(w), np.int64), 1.0 / np.dot(w, w)
 
 
 class Exact(RaoBlackwellised):
@@ -146,4 +166,4 @@ class Exact(RaoBlackwellised):
                 f"more than the limit of {self.max_gaussians}; use fc-rbpf, which is exact while "
                 f"the particles outnumber the mode histories")
         w = q[chosen]
-        return chosen, np.log(w), 1.0 / np.dot(w, w)
+        return chosen, np.log(w), np.ones(len(w), np.int64), 1.0 / np.dot(w, w)
