@@ -108,11 +108,12 @@ def test_fc_rbpf_is_exact_while_particles_cover_every_history(small):
     np.testing.assert_allclose(partial.mode_posterior[:3], post[:3], atol=1e-10)
 
 
-@pytest.mark.parametrize("algorithm, particles", [("pf", 4000), ("rbpf", 1000), ("la-rbpf", 300), ("fc-rbpf", 12)])
-def test_posteriors_converge_to_exact(small, algorithm, particles):
+@pytest.mark.parametrize("algorithm, particles, threshold", [
+    ("pf", 4000, 1.0), ("rbpf", 1000, 1.0), ("la-rbpf", 300, 1.0), ("la-rbpf", 300, 0.5), ("fc-rbpf", 12, 1.0)])
+def test_posteriors_converge_to_exact(small, algorithm, particles, threshold):
     model, y, (post, _) = small
-    runs = np.array([jmlgdsl.filter(model, y, algorithm=algorithm, particles=particles, seed=s).mode_posterior
-                     for s in range(8)])
+    runs = np.array([jmlgdsl.filter(model, y, algorithm=algorithm, particles=particles, seed=s,
+                                    ess_threshold=threshold).mode_posterior for s in range(8)])
     se = runs.std(axis=0) / np.sqrt(len(runs))
     # Monte Carlo error of the average of 8 runs (5 standard errors) plus the O(1/N) bias of a
     # self-normalised estimate, bounded generously by 2/N.

@@ -3,6 +3,8 @@
 import numpy as np
 import pytest
 
+from jmlgdsl.infer import FilterError
+from jmlgdsl.infer.engine import Resampler
 from jmlgdsl.infer.resample import SCHEMES, ess, fearnhead_clifford, normalize, scheme
 
 W = np.array([0.005, 0.3, 0.0, 0.12, 0.375, 0.2])
@@ -78,3 +80,16 @@ def test_fearnhead_clifford_distinct_and_unbiased():
     assert (total[:, big] == q[big]).all()
     se = total.std(axis=0) / np.sqrt(REPEATS)
     assert np.all(np.abs(total.mean(axis=0) - q) <= 4.5 * se + 1e-12)
+
+
+def test_resampler_counts_copies_in_the_ess_and_honours_the_threshold():
+    rng = np.random.default_rng(0)
+    lazy = Resampler(SCHEMES["systematic"], 4, rng, threshold=0.5)
+    # Particle 0 stands for 3 equal copies of weight 1/6 each, particle 1 for one of weight 1/2.
+    ancestors, logw, copies, size = lazy(np.array([0.5, 0.5]), np.array([3, 1]))
+    assert size == pytest.approx(3.0)
+    assert list(ancestors) == [0, 1] and list(copies) == [3, 1]  # 3 >= 0.5 * 4: no resampling
+    ancestors, logw, copies, size = lazy(np.array([0.9, 0.1]), np.array([1, 1]))
+    assert len(ancestors) == 4 and (copies == 1).all() and np.allclose(logw, -np.log(4))
+    with pytest.raises(FilterError, match="ESS threshold must be in"):
+        Resampler(SCHEMES["systematic"], 4, rng, threshold=0.0)
