@@ -37,7 +37,7 @@ CASES = [
     ("syntax", replace("0.9 * x[t-1] + u, 0.1)", "0.9 * x[t-1] + , 0.1)"), 9, 44, "unexpected ','; expected"),
     ("misspelt mode", replace("mode fault like", "mode fualt like"), 10, 6, "unknown mode 'fualt'; did you mean 'fault'?"),
     ("misspelt like", replace("like normal", "like normla"), 10, 17, "unknown mode 'normla'; did you mean 'normal'?"),
-    ("duplicate", replace("state x\n", "state x\ninput y\n"), 6, 7, "'y' is already declared as a output at line 4"),
+    ("duplicate", replace("state x\n", "state x\ninput y\n"), 6, 7, "'y' is already declared as an output at line 4"),
     ("matrix size", replace("{ x[t] ~ Normal(0.8 * x[t-1] + u, 0.1) }", "{ A = [0.8 0; 0 1] }"), 10, 30,
      "A must be 1 x 1 (nx = 1, nu = 1, ny = 1), got 2 x 2"),
     ("row sum", replace("transitions stay 0.99, otherwise uniform", "transitions [0.9 0.2; 0.1 0.9]"), 7, 14,

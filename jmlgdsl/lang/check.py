@@ -130,16 +130,21 @@ def _check_declarations(spec: S.Spec, report: Report):
                 out = next(d for d in spec.decls if d.kind == "output" and d.name.text == name.text)
                 if out.value is None:
                     continue
-            report.error(f"{name.text!r} is already declared as a {first_kind} at line {first.pos.line}",
+            report.error(f"{name.text!r} is already declared as {_a(first_kind)} at line {first.pos.line}",
                          name.pos)
         else:
             seen[name.text] = (kind, name)
     for d in spec.decls:
         if d.sd is not None and d.kind != "state":
             report.error("only states take an initial standard deviation ('sd')", d.sd.pos)
-    for b in spec.blocks:
-        if b.name.text in seen and seen[b.name.text][0] not in ("mode",) and spec.modes:
-            report.error(f"{b.name.text!r} is declared as a {seen[b.name.text][0]}, not a mode", b.name.pos)
+    if not spec.modes:  # mode blocks declare the modes
+        for b in spec.blocks:
+            if b.name.text in seen:
+                report.error(f"{b.name.text!r} is declared as {_a(seen[b.name.text][0])}, not a mode", b.name.pos)
+
+
+def _a(kind: str) -> str:
+    return f"an {kind}" if kind[0] in "aeiou" else f"a {kind}"
 
 
 def _sample_time(spec: S.Spec, report: Report) -> tuple[float, str]:
