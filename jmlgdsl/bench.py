@@ -1,0 +1,258 @@
+"""Diagnosis-error studies: every filter at every particle count over independent runs.
+
+The unit of work is `run_job(job) -> record`, a plain top-level function of picklable arguments, so a
+sweep runs the same in a local process pool or on a Dask cluster. Seeds come from one root seed
+through `numpy.random.SeedSequence.spawn`, so a sweep reproduces bit for bit wherever it runs.
+Diagnosis error = percentage of steps whose most probable (MAP) mode differs from the true mode.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import os
+import sys
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import DataError
+from .infer import ALGORITHMS, filter as run_filter
+from .model import Model
+from .prefilter import moving_average
+from .simulate import simulate
+
+DEFAULT_PARTICLES = (1, 4, 10, 25, 50, 100, 200, 400, 800, 1600)
+DEFAULT_FILTERS = ("pf", "rbpf", "la-rbpf", "fc-rbpf", "imm")
+DETERMINISTIC = ("imm", "exact")
+RECORD_FIELDS = ("data", "filter", "particles", "run", "error", "ms_per_step", "loglik")
+
+
+@dataclass(frozen=True)
+class Sequence:
+    """Data with the true mode at every step: y (T, ny), u (T, nu), modes (T,) indices."""
+
+    name: str
+    y: np.ndarray
+    u: np.ndarray
+    modes: np.ndarray
+
+
+@dataclass(frozen=True)
+class Simulated:
+    """Fresh sequences of `steps` steps, one per run, with modes from the chain or a fixed schedule."""
+
+    steps: int | None
+    schedule: str | None = None
+    name: str = "simulated"
+
+
+@dataclass(frozen=True)
+class Job:
+    """One filter run: a filter at one particle count on one sequence, with its own seeds."""
+
+    model: Model
+    source: Sequence | Simulated
+    algorithm: str
+    particles: int | None
+    run: int
+    data_seed: np.random.SeedSequence  # draws the simulated sequence (shared by every filter of a run)
+    filter_seed: np.random.SeedSequence
+    prefilter: int | None = None  # moving-average window applied to the outputs
+
+
+def sequence_of(job: Job) -> Sequence:
+    """The data a job filters: the given sequence, or the run's simulated one."""
+    source = job.source
+    if isinstance(source, Sequence):
+        return source
+    sim = simulate(job.model, source.steps, rng=np.random.default_rng(job.data_seed), modes=source.schedule)
+    return Sequence(source.name, sim.y, sim.u, sim.modes)
+
+
+def run_job(job: Job) -> dict:
+    """Filter one sequence and measure it: diagnosis error %, milliseconds per step, log-likelihood."""
+    data = sequence_of(job)
+    y = data.y if job.prefilter is None else moving_average(data.y, job.prefilter)
+    result = run_filter(job.model, y, data.u, algorithm=job.algorithm, particles=job.particles,
+                        rng=np.random.default_rng(job.filter_seed))
+    return {"data": data.name, "filter": job.algorithm, "particles": job.particles, "run": job.run,
+            "error": result.diagnosis_error(data.modes), "ms_per_step": 1e3 * result.seconds / result.T,
+            "loglik": result.loglik}
+
+
+def make_jobs(model, sources, filters=DEFAULT_FILTERS, particles=DEFAULT_PARTICLES, runs=25, seed=0,
+              prefilter=None) -> list[Job]:
+    """Every (source, filter, particle count, run) with seeds spawned from `seed`.
+
+    Run r draws its data from the same seed for every filter (paired comparisons); each filter and
+    particle count gets its own stream. Deterministic filters (imm, exact) run once per run.
+    """
+    for name in filters:
+        if name not in ALGORITHMS:
+            raise DataError(f"unknown filter {name!r}; choose from {', '.join(ALGORITHMS)}")
+    if runs < 1:
+        raise DataError(f"the number of runs must be at least 1, got {runs}")
+    cells = [(f, None) if f in DETERMINISTIC else (f, n) for f in filters for n in particles]
+    cells = list(dict.fromkeys(cells))
+    jobs = []
+    for run, run_seed in enumerate(np.random.SeedSequence(seed).spawn(runs)):
+        data_seed, filter_root = run_seed.spawn(2)
+        for (algorithm, n), filter_seed in zip(cells, filter_root.spawn(len(cells))):
+            jobs += [Job(model, source, algorithm, n, run, data_seed, filter_seed, prefilter) for source in sources]
+    return jobs
+
+
+class Progress:
+    """A plain-text progress bar on a stream: done/total, elapsed time and an estimate of the rest."""
+
+    def __init__(self, total, stream=sys.stderr, width=30):
+        self.total, self.stream, self.width = total, stream, width
+        self.done, self.start, self.shown = 0, time.perf_counter(), -1
+        self.live = hasattr(stream, "isatty") and stream.isatty()
+
+    def update(self, n=1):
+        self.done += n
+        percent = 100 * self.done // self.total
+        if not self.live and percent < self.shown + 10 and self.done < self.total:
+            return
+        self.shown = percent
+        elapsed = time.perf_counter() - self.start
+        left = elapsed * (self.total - self.done) / self.done
+        bar = "#" * (self.width * self.done // self.total)
+        line = (f"[{bar:<{self.width}}] {self.done}/{self.total} runs, {_clock(elapsed)} elapsed, "
+                f"~{_clock(left)} left")
+        self.stream.write(("\r" + line) if self.live else line + "\n")
+        if self.live and self.done == self.total:
+            self.stream.write("\n")
+        self.stream.flush()
+
+
+def _clock(seconds):
+    minutes, seconds = divmod(int(round(seconds)), 60)
+    return f"{minutes}m{seconds:02d}s"
+
+
+def execute(jobs, workers=None, scheduler=None, progress=None) -> list[dict]:
+    """Run every job (in order of the list): serially for workers=1, in a process pool over
+    `workers` processes (default: every core), or on the Dask scheduler at address `scheduler`."""
+    bar = Progress(len(jobs), progress) if progress is not None else None
+    records = [None] * len(jobs)
+
+    def collect(futures, as_completed):
+        index = {f: i for i, f in enumerate(futures)}
+        for future in as_completed(futures):
+            records[index[future]] = future.result()
+            if bar:
+                bar.update()
+
+    if scheduler is not None:
+        try:
+            from distributed import Client, as_completed
+        except ImportError:
+            raise DataError("--scheduler needs Dask: pip install 'jmlgdsl[dask]'") from None
+        with Client(scheduler) as client:
+            collect(client.map(run_job, jobs, pure=False), as_completed)
+    elif (workers or os.cpu_count() or 1) == 1:
+        for i, job in enumerate(jobs):
+            records[i] = run_job(job)
+            if bar:
+                bar.update()
+    else:
+        from concurrent.futures import ProcessPoolExecutor, as_completed
+
+        with ProcessPoolExecutor(max_workers=workers) as pool:
+            collect([pool.submit(run_job, job) for job in jobs], as_completed)
+    return records
+
+
+def sweep(model, sources, filters=DEFAULT_FILTERS, particles=DEFAULT_PARTICLES, runs=25, seed=0,
+          prefilter=None, workers=None, scheduler=None, progress=None) -> list[dict]:
+    """Per-run records (see RECORD_FIELDS) of every filter at every particle count on every source."""
+    jobs = make_jobs(model, sources, filters, particles, runs, seed, prefilter)
+    return execute(jobs, workers, scheduler, progress)
+
+
+def summarise(records) -> list[dict]:
+    """Mean and SD over runs for each (data, filter, particles), in order of first appearance."""
+    groups = {}
+    for r in records:
+        groups.setdefault((r["data"], r["filter"], r["particles"]), []).append(r)
+    rows = []
+    for (data, name, n), group in groups.items():
+        row = {"data": data, "filter": name, "particles": n, "runs": len(group)}
+        for key in ("error", "ms_per_step", "loglik"):
+            values = np.array([r[key] for r in group])
+            row[f"{key}_mean"] = float(values.mean())
+            row[f"{key}_sd"] = float(values.std(ddof=1)) if len(values) > 1 else math.nan
+        rows.append(row)
+    return rows
+
+
+def _wide(summary):
+    """(particle-count rows, filter columns, cell lookup) for one data source; deterministic filters
+    (no particle count) share a last row."""
+    filters = list(dict.fromkeys(r["filter"] for r in summary))
+    counts = sorted({r["particles"] for r in summary if r["particles"] is not None})
+    if any(r["particles"] is None for r in summary):
+        counts.append(None)
+    return counts, filters, {(r["filter"], r["particles"]): r for r in summary}
+
+
+QUANTITIES = {
+    "error": ("Diagnosis error %, mean (SD) over runs", lambda r: f"{r['error_mean']:.2f} ({r['error_sd']:.2f})"),
+    "ms_per_step": ("Time per step, ms (mean over runs)", lambda r: f"{r['ms_per_step_mean']:.3g}"),
+    "loglik": ("Log-likelihood, mean (SD) over runs", lambda r: f"{r['loglik_mean']:.1f} ({r['loglik_sd']:.1f})"),
+}
+
+
+def markdown_table(summary, quantity="error") -> str:
+    """A Markdown table shaped like the published Table 5.5: one row per particle count N, one
+    column per filter; deterministic filters fill the row N = '—'."""
+    title, cell = QUANTITIES[quantity]
+    counts, filters, cells = _wide(summary)
+    lines = [f"{title}", "", "| N | " + " | ".join(filters) + " |", "|---|" + "---|" * len(filters)]
+    for n in counts:
+        row = [cell(cells[f, n]) if (f, n) in cells else "" for f in filters]
+        lines.append(f"| {'—' if n is None else n} | " + " | ".join(row) + " |")
+    return "\n".join(lines)
+
+
+def report(summary) -> str:
+    """Every quantity's table, as Markdown."""
+    return "\n\n".join(markdown_table(summary, q) for q in QUANTITIES) + "\n"
+
+
+def write_table_csv(path, summary):
+    """The same table as CSV: one row per particle count, per filter error mean/SD, ms/step, log-lik."""
+    counts, filters, cells = _wide(summary)
+    keys = ("error_mean", "error_sd", "ms_per_step_mean", "loglik_mean", "loglik_sd")
+    with open(path, "w", newline="") as stream:
+        writer = csv.writer(stream, lineterminator="\n")
+        writer.writerow(["particles"] + [f"{f}_{k}" for f in filters for k in keys])
+        for n in counts:
+            writer.writerow(["" if n is None else n] + [
+                _cell(cells[f, n][k]) if (f, n) in cells else "" for f in filters for k in keys])
+
+
+def _cell(value):
+    return "" if value is None or (isinstance(value, float) and math.isnan(value)) else f"{value:.6g}"
+
+
+def write_records_csv(path, records):
+    """Every run as one CSV row (RECORD_FIELDS), for box plots and re-analysis."""
+    with open(path, "w", newline="") as stream:
+        writer = csv.writer(stream, lineterminator="\n")
+        writer.writerow(RECORD_FIELDS)
+        for r in records:
+            writer.writerow([r["data"], r["filter"], "" if r["particles"] is None else r["particles"], r["run"],
+                             *(f"{r[k]:.10g}" for k in ("error", "ms_per_step", "loglik"))])
+
+
+def read_records_csv(path) -> list[dict]:
+    """Run records written by write_records_csv."""
+    with open(path, newline="") as stream:
+        rows = list(csv.DictReader(stream))
+    return [{"data": r["data"], "filter": r["filter"], "particles": int(r["particles"]) if r["particles"] else None,
+             "run": int(r["run"]), **{k: float(r[k]) for k in ("error", "ms_per_step", "loglik")}} for r in rows]

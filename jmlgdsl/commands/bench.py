@@ -1,0 +1,124 @@
+"""`jmlgdsl bench SPEC [DATA ...]`: diagnosis error of every filter at every particle count over many runs."""
+
+from __future__ import annotations
+
+import sys
+
+
+def _list(kind):
+    """An argparse type for a comma-separated list of `kind`."""
+    def parse(text):
+        try:
+            return tuple(kind(item) for item in text.split(",") if item.strip())
+        except ValueError:
+            raise ValueError(text) from None
+    parse.__name__ = f"comma-separated {kind.__name__} list"
+    return parse
+
+
+def register(subparsers):
+    from ..bench import DEFAULT_FILTERS, DEFAULT_PARTICLES
+
+    p = subparsers.add_parser(
+        "bench", help="compare filters and particle counts: diagnosis error, time per step",
+        description="Run every filter at every particle count on data whose true mode is known (a "
+                    "'mode' column) or on freshly simulated sequences, --runs times each with seeds "
+                    "derived from --seed. Prints the diagnosis error (%% of steps whose most probable "
+                    "mode is wrong), time per step and log-likelihood as Markdown tables, and writes "
+                    "the tables (Markdown, CSV), every run (CSV) and figures to the output folder.")
+    p.add_argument("spec", help="plant spec (.jmlg) or compiled model (.json/.npz)")
+    p.add_argument("data", nargs="*", help="CSV data files with a 'mode' column (or use --simulate)")
+    p.add_argument("--filters", type=_list(str), default=DEFAULT_FILTERS,
+                   help=f"comma-separated filters (default {','.join(DEFAULT_FILTERS)})")
+    p.add_argument("--particles", type=_list(int), default=DEFAULT_PARTICLES,
+                   help=f"comma-separated particle counts (default {','.join(map(str, DEFAULT_PARTICLES))})")
+    p.add_argument("--runs", type=int, default=25, help="independent runs per setting (default 25)")
+    p.add_argument("--seed", type=int, default=0, help="root seed; the same seed repeats the sweep exactly")
+    p.add_argument("--simulate", type=int, metavar="T", help="simulate a fresh sequence of T steps for each run")
+    p.add_argument("--modes", metavar="SCHEDULE",
+                   help='with --simulate: a fixed mode schedule instead of the Markov chain, e.g. "1-70:normal,71-238:fan"')
+    p.add_argument("--prefilter", metavar="ma:K", help="moving average over K readings before filtering")
+    p.add_argument("--workers", type=int, help="processes (default: every core; 1 runs in this process)")
+    p.add_argument("--scheduler", metavar="ADDRESS", help="run on this Dask scheduler (needs the dask extra)")
+    p.add_argument("-o", "--output", default="bench", help="folder for tables and figures (default ./bench)")
+    p.add_argument("--no-figures", action="store_true", help="write the tables only")
+    p.set_defaults(func=main)
+
+
+def sources(args, model):
+    """The data sources named on the command line: the files, or one simulated source."""
+    from pathlib import Path
+
+    from ..bench import Sequence, Simulated
+    from ..data import read_csv
+    from ..errors import DataError
+
+    if args.data and (args.simulate or args.modes):
+        raise DataError("give data files or --simulate, not both")
+    if not args.data:
+        if args.simulate is None and args.modes is None:
+            raise DataError("give data files with a 'mode' column, or --simulate T for simulated sequences")
+        if args.simulate is not None and args.simulate < 1:
+            raise DataError(f"--simulate must be a positive number of steps, got {args.simulate}")
+        return [Simulated(args.simulate, args.modes)]
+    found = []
+    for path in args.data:
+        data = read_csv(path, model)
+        if data.modes is None:
+            raise DataError(f"{path}: no 'mode' column, so the diagnosis error cannot be measured")
+        found.append(Sequence(Path(path).stem, data.y, data.u, data.modes))
+    return found
+
+
+def write_outputs(folder, model, records, figures=True) -> list:
+    """Tables, run records and figures for each data source; returns the paths written."""
+    from pathlib import Path
+
+    from .. import bench
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    written = [folder / "runs.csv"]
+    bench.write_records_csv(written[0], records)
+    for name in dict.fromkeys(r["data"] for r in records):
+        mine = [r for r in records if r["data"] == name]
+        summary = bench.summarise(mine)
+        table = folder / f"{name}-table.md"
+        table.write_text(bench.report(summary))
+        bench.write_table_csv(folder / f"{name}-table.csv", summary)
+        written += [table, folder / f"{name}-table.csv"]
+        if figures:
+            written += draw(folder, name, model, summary, mine)
+    return written
+
+
+def draw(folder, name, model, summary, records) -> list:
+    """The study figures of one data source."""
+    from .. import plots
+
+    paths = [folder / f"{name}-{kind}.png" for kind in ("error-vs-particles", "error-vs-time", "boxplots")]
+    title = f"{model.name}, {name}"
+    plots.error_vs_particles(summary, paths[0], title=f"{title}: diagnosis error (mean ± SD over runs)")
+    plots.error_vs_time(summary, paths[1], model.dt, title=f"{title}: diagnosis error against computing time")
+    if any(r["particles"] is not None for r in records):
+        plots.error_boxplots(records, paths[2], title=f"{title}: diagnosis error per run")
+    else:
+        paths.pop()
+    return paths
+
+
+def main(args) -> int:
+    import jmlgdsl
+
+    from .. import bench, prefilter
+
+    model = jmlgdsl.load(args.spec)
+    window = prefilter.parse(args.prefilter)
+    records = bench.sweep(model, sources(args, model), args.filters, args.particles, args.runs, args.seed,
+                          window, args.workers, args.scheduler, progress=sys.stderr)
+    for name in dict.fromkeys(r["data"] for r in records):
+        print(f"## {model.name}, {name}: {args.runs} runs per setting\n")
+        print(bench.report(bench.summarise([r for r in records if r["data"] == name])))
+    written = write_outputs(args.output, model, records, figures=not args.no_figures)
+    print("wrote " + ", ".join(str(p) for p in written))
+    return 0

@@ -1,0 +1,220 @@
+"""Figures for diagnosis studies and single runs (matplotlib, Agg backend, PNG files).
+
+Study figures take the summaries and run records of `jmlgdsl.bench`; the diagnosis figure shows one
+run: the mode posterior over time with the MAP and true modes, measured vs predicted outputs and the
+residuals.
+"""
+
+from __future__ import annotations
+
+import matplotlib
+
+matplotlib.use("Agg")
+
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+from matplotlib.colors import ListedColormap  # noqa: E402
+
+STYLE = {"pf": ("tab:red", "v"), "rbpf": ("tab:orange", "s"), "la-rbpf": ("tab:blue", "o"),
+         "fc-rbpf": ("tab:green", "D"), "imm": ("tab:purple", None), "exact": ("black", None)}
+DPI = 100
+
+
+def _style(name):
+    return STYLE.get(name, ("tab:gray", "x"))
+
+
+def _by_filter(summary):
+    """{filter: rows sorted by particle count}, in order of first appearance."""
+    groups = {}
+    for row in summary:
+        groups.setdefault(row["filter"], []).append(row)
+    return {f: sorted(rows, key=lambda r: r["particles"] or 0) for f, rows in groups.items()}
+
+
+def _save(fig, path):
+    fig.savefig(path, dpi=DPI)
+    plt.close(fig)
+
+
+def error_vs_particles(summary, path, title="", reference=None):
+    """Diagnosis error (mean ± SD over runs) against the number of particles on a log axis; filters
+    without particles (imm, exact) are horizontal lines. `reference` adds published points:
+    {filter: [(N, mean, sd), ...]} drawn hollow and dashed."""
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    for name, rows in _by_filter(summary).items():
+        color, marker = _style(name)
+        if rows[0]["particles"] is None:
+            ax.axhline(rows[0]["error_mean"], color=color, ls="--", label=f"{name} (no particles)")
+            continue
+        n = [r["particles"] for r in rows]
+        ax.errorbar(n, [r["error_mean"] for r in rows], yerr=np.nan_to_num([r["error_sd"] for r in rows]),
+                    color=color, marker=marker, capsize=3, label=name)
+    for name, points in (reference or {}).items():
+        color, marker = _style(name)
+        n, mean, sd = np.array(points, dtype=float).T
+        ax.errorbar(n * 1.08, mean, yerr=sd, color=color, marker=marker or "o", mfc="none", ls=":", capsize=2,
+                    alpha=0.8, label=f"{name}, published")
+    ax.set_xscale("log")
+    counts = sorted({r["particles"] for r in summary if r["particles"] is not None})
+    ax.set_xticks(counts, [str(n) for n in counts])
+    ax.minorticks_off()
+    ax.set_xlabel("number of particles N (log scale)")
+    ax.set_ylabel("diagnosis error (% of steps)")
+    ax.set_ylim(bottom=0)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.set_title(title or "Diagnosis error against particles (mean ± SD over runs)")
+    ax.legend(fontsize="small", ncol=2)
+    fig.tight_layout()
+    _save(fig, path)
+
+
+def error_vs_time(summary, path, sample_time, title=""):
+    """Diagnosis error (mean ± SD) against the mean computing time per step (log axis), one curve per
+    filter through its particle counts; a vertical line marks the sample time (the real-time limit).
+    `sample_time` is in seconds."""
+    fig, ax = plt.subplots(figsize=(8, 4.5))
+    for name, rows in _by_filter(summary).items():
+        color, marker = _style(name)
+        ax.errorbar([r["ms_per_step_mean"] for r in rows], [r["error_mean"] for r in rows],
+                    yerr=np.nan_to_num([r["error_sd"] for r in rows]), color=color, marker=marker or "*",
+                    ms=9 if marker is None else 6, capsize=3, label=name)
+    ax.axvline(1e3 * sample_time, color="black", ls="--", lw=1)
+    ax.text(1e3 * sample_time, 0.98, f" sample time\n {_duration(sample_time)}\n (real-time limit)",
+            transform=ax.get_xaxis_transform(), va="top", ha="right", fontsize="small")
+    ax.set_xscale("log")
+    ax.set_xlabel("computing time per step (ms, log scale)")
+    ax.set_ylabel("diagnosis error (% of steps)")
+    ax.set_ylim(bottom=0)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.set_title(title or "Diagnosis error against computing time")
+    ax.legend(fontsize="small", loc="upper left", bbox_to_anchor=(1.01, 1), title="filter\n(N increases\nto the right)",
+              title_fontsize="small")
+    fig.tight_layout()
+    _save(fig, path)
+
+
+def _duration(seconds):
+    return f"{seconds:g} s" if seconds >= 1 else f"{1e3 * seconds:g} ms"
+
+
+def error_boxplots(records, path, title=""):
+    """Box plots of the per-run diagnosis error for each particle count, one panel per particle filter."""
+    groups = {}
+    for r in records:
+        if r["particles"] is not None:
+            groups.setdefault(r["filter"], {}).setdefault(r["particles"], []).append(r["error"])
+    if not groups:
+        raise ValueError("no particle-filter runs to draw")
+    fig, axes = plt.subplots(1, len(groups), figsize=(3.2 * len(groups) + 0.8, 4.2), sharey=True, squeeze=False)
+    for ax, (name, by_n) in zip(axes[0], groups.items()):
+        counts = sorted(by_n)
+        ax.boxplot([by_n[n] for n in counts], tick_labels=[str(n) for n in counts], widths=0.6,
+                   flierprops={"marker": "+", "markersize": 4})
+        ax.set_title(name, color=_style(name)[0])
+        ax.set_xlabel("particles N")
+        ax.tick_params(axis="x", labelrotation=90, labelsize="small")
+        ax.grid(True, axis="y", alpha=0.3)
+    axes[0, 0].set_ylabel("diagnosis error (% of steps)")
+    fig.suptitle(title or "Diagnosis error per run")
+    fig.tight_layout()
+    _save(fig, path)
+
+
+def _mode_colors(K):
+    return plt.get_cmap("tab10" if K <= 10 else "tab20")(np.arange(K) % 20)
+
+
+def diagnosis_figure(path, mode_names, posterior, time, y, y_pred, output_names, true_modes=None,
+                     time_label="time (s)", output_units=None, title=""):
+    """One run at a glance: MAP (and true) mode over time, the mode posterior as a heat map, then for
+    each output the measured and predicted values, and the residuals.
+
+    posterior (T, K); time (T,); y, y_pred (T, ny) with NaN where not measured; true_modes (T,) indices
+    or None; output_units maps output names to unit text.
+    """
+    posterior = np.asarray(posterior, dtype=float)
+    y, y_pred = np.atleast_2d(np.asarray(y, float).T).T, np.atleast_2d(np.asarray(y_pred, float).T).T
+    T, K = posterior.shape
+    ny = y.shape[1]
+    units = output_units or {}
+    heights = [max(1.0, 0.25 * K), max(1.5, 0.3 * K)] + [1.6] * ny + [1.2]
+    fig, axes = plt.subplots(len(heights), 1, sharex=True, figsize=(9, 1.0 + sum(heights)),
+                             gridspec_kw={"height_ratios": heights}, layout="constrained")
+    colors = _mode_colors(K)
+    edges = _edges(time)
+    map_modes = posterior.argmax(axis=1)
+
+    ax = axes[0]
+    if true_modes is not None:
+        ax.step(time, np.asarray(true_modes), where="mid", color="black", lw=4, alpha=0.25, label="true mode")
+        wrong = 100.0 * np.mean(map_modes != np.asarray(true_modes))
+        ax.set_title(f"diagnosis error {wrong:.1f} % of steps", fontsize="small", loc="right")
+    ax.step(time, map_modes, where="mid", color="tab:blue", lw=1.2, label="MAP mode")
+    ax.set_ylabel("mode")
+    ax.legend(loc="lower left", bbox_to_anchor=(0, 1), fontsize="small", ncol=2, frameon=False, borderaxespad=0)
+
+    ax = axes[1]
+    image = ax.pcolormesh(edges, np.arange(K + 1) - 0.5, posterior.T, cmap="Greys", vmin=0, vmax=1,
+                          shading="flat", rasterized=True)
+    ax.set_ylabel("p(mode | data\nso far)")
+    fig.colorbar(image, ax=ax, pad=0.01, aspect=10).set_label("probability", fontsize="small")
+    for ax in axes[:2]:
+        ax.set_yticks(np.arange(K), mode_names, fontsize="small" if K <= 10 else "x-small")
+        ax.set_ylim(K - 0.5, -0.5)
+        for label, color in zip(ax.get_yticklabels(), colors):
+            label.set_color(color)
+
+    for j in range(ny):
+        ax = axes[2 + j]
+        ax.plot(time, y[:, j], color="0.35", lw=1.6, alpha=0.6, label="measured")
+        ax.plot(time, y_pred[:, j], color="tab:blue", lw=0.7, label="predicted (one step ahead)")
+        unit = units.get(output_names[j])
+        ax.set_ylabel(output_names[j] + (f"\n({unit})" if unit else ""))
+        _shade_true_modes(ax, edges, true_modes, colors)
+    axes[2].legend(loc="lower right", bbox_to_anchor=(1, 1), fontsize="small", ncol=3, frameon=False,
+                   borderaxespad=0, title="background: true mode (colours as the mode names)" if true_modes
+                   is not None else None, title_fontsize="x-small")
+
+    ax = axes[-1]
+    residuals = y - y_pred
+    for j in range(ny):
+        ax.plot(time, residuals[:, j], lw=0.7, label=output_names[j])
+    ax.axhline(0, color="black", lw=0.6)
+    ax.set_ylabel("residual\n(measured −\npredicted)")
+    if ny > 1:
+        ax.legend(loc="upper right", fontsize="small", ncol=min(ny, 4))
+    ax.set_xlabel(time_label)
+    ax.set_xlim(edges[0], edges[-1])
+    fig.suptitle(title or "Mode diagnosis")
+    fig.align_ylabels(axes)
+    _save(fig, path)
+
+
+def _edges(time):
+    """Cell edges around sample times, for the heat map."""
+    time = np.asarray(time, dtype=float)
+    step = np.diff(time).mean() if len(time) > 1 else 1.0
+    mids = (time[1:] + time[:-1]) / 2
+    return np.concatenate([[time[0] - step / 2], mids, [time[-1] + step / 2]])
+
+
+def _shade_true_modes(ax, edges, true_modes, colors):
+    """Faint background bands in the colour of the true mode, so changes line up across panels."""
+    if true_modes is None:
+        return
+    modes = np.asarray(true_modes)
+    starts = np.flatnonzero(np.r_[True, modes[1:] != modes[:-1]])
+    ends = np.r_[starts[1:], len(modes)]
+    for a, b in zip(starts, ends):
+        ax.axvspan(edges[a], edges[b], color=colors[modes[a]], alpha=0.12, lw=0)
+
+
+def result_figure(result, y, path, true_modes=None, title=""):
+    """The diagnosis figure of a filter Result on its data y (T, ny)."""
+    model = result.model
+    time = model.dt * np.arange(1, result.T + 1)
+    who = result.algorithm + (f", {result.particles} particles" if result.particles else "")
+    diagnosis_figure(path, model.modes, result.mode_posterior, time, y, result.y_pred, model.outputs,
+                     true_modes=true_modes, output_units=model.units,
+                     title=title or f"{model.name}: mode diagnosis ({who})")
