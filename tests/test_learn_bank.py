@@ -1,0 +1,178 @@
+"""Spec -> simulate each mode under a PRBS -> learn -> the learned bank matches the truth within
+its standard errors and diagnoses nearly as well as the true bank; the `jmlgdsl learn` command."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import jmlgdsl
+from jmlgdsl.cli import main
+from jmlgdsl.data import write_columns
+from jmlgdsl.infer import filter as run_filter
+from jmlgdsl.learn import bank
+from jmlgdsl.learn.em import forward
+from jmlgdsl.learn.prbs import prbs
+from jmlgdsl.learn.statespace import StateSpace
+from jmlgdsl.simulate import simulate
+
+DRYER = Path(__file__).resolve().parents[1] / "specs" / "dryer.jmlg"
+SEQUENCE_1 = "1-70:normal,71-238:fan,239-365:grill,366-513:normal,514-705:grill,706-1000:fan"
+
+
+@pytest.fixture(scope="module")
+def dryer():
+    return jmlgdsl.load(DRYER)
+
+
+@pytest.fixture(scope="module")
+def experiments(dryer):
+    """One PRBS experiment per mode: 6 cells clocked every 16 samples (longest pulse 96 s, about three
+    time constants), 15 +- 5 %, 1008 samples."""
+    u = prbs(6, clock=16, amplitude=5.0, around=15.0)[:, None]
+    return {name: bank.Experiment(simulate(dryer, modes=[name] * len(u), u=u, seed=20 + k).y, u, name)
+            for k, name in enumerate(dryer.modes)}
+
+
+@pytest.fixture(scope="module")
+def learned(experiments):
+    # At this tolerance EM's remaining steps move the estimates by under a hundredth of their
+    # standard errors (checked against tol 1e-8 when the test was written).
+    return bank.learn_modes(experiments, order=(1, 1, 0), max_iter=500, tol=1e-6)
+
+
+def first_order(theta, mode: StateSpace) -> StateSpace:
+    """The first-order mode for (pole, gain, offset, log process sd, log measurement sd)."""
+    a, k, c, log_w, log_v = theta
+    return mode.replace(A=np.array([[a]]), F=np.array([[k * (1 - a)]]), f=np.array([c]),
+                        Q=np.array([[np.exp(2 * log_w)]]), R=np.array([[np.exp(2 * log_v)]]))
+
+
+def standard_errors(mode: StateSpace, y, u) -> np.ndarray:
+    """Standard errors of (pole, gain, offset, log sd_w, log sd_v) from the observed information:
+    the inverse of minus the log-likelihood's Hessian (central differences) at the estimate."""
+    theta = np.array([mode.A[0, 0], mode.gain()[0, 0], mode.f[0], 0.5 * np.log(mode.Q[0, 0]),
+                      0.5 * np.log(mode.R[0, 0])])
+    h = 1e-4 * np.maximum(np.abs(theta), 0.1)
+
+    def ll(step):
+        return forward(first_order(theta + step, mode), y, u).loglik
+
+    n = len(theta)
+    H = np.empty((n, n))
+    for i in range(n):
+        for j in range(i, n):
+            ei, ej = np.eye(n)[i] * h[i], np.eye(n)[j] * h[j]
+            H[i, j] = H[j, i] = (ll(ei + ej) - ll(ei - ej) - ll(ej - ei) + ll(-ei - ej)) / (4 * h[i] * h[j])
+    return np.sqrt(np.diag(np.linalg.inv(-H)))
+
+
+def test_em_likelihood_never_decreases(learned):
+    for lm in learned:
+        assert lm.em.converged
+        assert np.all(np.diff(lm.em.loglik) >= -1e-9 * np.abs(lm.em.loglik[:-1]))
+
+
+def test_learned_modes_match_the_truth_within_their_standard_errors(dryer, learned):
+    """Pole, steady-state gain and both noise sds of every mode within 4 standard errors of the
+    truth (16 comparisons: a 4-sigma miss has probability about 1e-3 in all)."""
+    for k, lm in enumerate(learned):
+        m = lm.model
+        assert np.array_equal(m.C, [[1.0]])
+        se = standard_errors(m, lm.experiment.y, lm.experiment.u)
+        true_gain = dryer.F[k, 0, 0] / (1 - dryer.A[k, 0, 0])
+        assert abs(m.A[0, 0] - dryer.A[k, 0, 0]) < 4 * se[0], lm.name
+        assert abs(m.gain()[0, 0] - true_gain) < 4 * se[1], lm.name
+        assert abs(0.5 * np.log(m.Q[0, 0]) - np.log(dryer.B[k, 0, 0])) < 4 * se[3], lm.name
+        assert abs(0.5 * np.log(m.R[0, 0]) - np.log(dryer.D[k, 0, 0])) < 4 * se[4], lm.name
+        assert se[1] < 0.05 * true_gain  # the experiment is informative: gains known to 5 %
+
+
+def test_validation_of_the_true_structure(learned):
+    for lm in learned:
+        assert lm.validation.fit[0] > 75
+        assert lm.validation.autocorr.shape == (1, 25) and lm.validation.crosscorr.shape == (1, 1, 26)
+    assert sum(lm.validation.passed for lm in learned) >= 3
+
+
+def test_learned_bank_diagnoses_nearly_as_well_as_the_true_bank(dryer, learned):
+    model = bank.assemble(learned, P=dryer.P, p0=dryer.p0, operating_input=dryer.input_defaults,
+                          name="dryer", dt=dryer.dt, inputs=dryer.inputs, outputs=dryer.outputs,
+                          input_defaults=dryer.input_defaults)
+    sim = simulate(dryer, modes=SEQUENCE_1, seed=7)
+    true_error = run_filter(dryer, sim.y, sim.u, algorithm="imm").diagnosis_error(sim.modes)
+    learned_error = run_filter(model, sim.y, sim.u, algorithm="imm").diagnosis_error(sim.modes)
+    assert true_error < 5
+    assert learned_error <= true_error + 2
+
+
+def test_default_transitions_stay_and_share_the_rest():
+    P = bank.default_transitions(4, 0.97)
+    assert np.allclose(P, [[0.97, 0.01, 0.01, 0.01], [0.01, 0.97, 0.01, 0.01],
+                           [0.01, 0.01, 0.97, 0.01], [0.01, 0.01, 0.01, 0.97]])
+    assert np.array_equal(bank.default_transitions(1, 0.9), [[1.0]])
+
+
+def test_fopdt_structure_from_step_tests(dryer, tmp_path):
+    u = np.full((400, 1), 15.0)
+    u[40:] = 20.0
+    exps = {name: bank.Experiment(simulate(dryer, modes=[name] * 400, u=u, seed=40 + k).y, u, name)
+            for k, name in enumerate(dryer.modes[:2])}
+    learned = bank.learn_modes(exps, fopdt=True, max_iter=50)
+    for k, lm in enumerate(learned):
+        assert lm.fopdt.delay == 0 and lm.structure.startswith("FOPDT gain")
+        true_gain = dryer.F[k, 0, 0] / (1 - dryer.A[k, 0, 0])
+        assert lm.fopdt.gain == pytest.approx(true_gain, rel=0.05)
+        assert lm.model.gain()[0, 0] == pytest.approx(true_gain, rel=0.05)
+
+
+def write_experiments(dryer, experiments, folder):
+    paths = {}
+    for name, e in experiments.items():
+        paths[name] = folder / f"{name}.csv"
+        write_columns(paths[name], {"time": np.arange(1, len(e.u) + 1.0), "current": e.u[:, 0],
+                                    "temp": e.y[:, 0]})
+    return paths
+
+
+def test_cli_learn_writes_a_spec_that_loads_checks_and_runs(dryer, experiments, tmp_path, capsys):
+    paths = write_experiments(dryer, experiments, tmp_path)
+    spec = tmp_path / "learned.jmlg"
+    figures = tmp_path / "figures"
+    argv = ["learn", "--template", str(DRYER), "--order", "1", "-o", str(spec), "--figures", str(figures)]
+    for name in reversed(dryer.modes):  # the template's order wins
+        argv += ["--mode", f"{name}={paths[name]}"]
+    assert main(argv) == 0
+    out = capsys.readouterr().out
+    assert "normal: ARX(1,1,0), EM" in out and "fan_grill:" in out
+    text = spec.read_text()
+    assert text.startswith("# Learned by jmlgdsl learn from ")
+    model = jmlgdsl.load(spec)
+    assert model.modes == dryer.modes and model.descriptions == dryer.descriptions
+    assert np.array_equal(model.P, dryer.P) and model.units == dryer.units
+    assert sorted(p.name for p in figures.iterdir()) == sorted(f"validation_{m}.png" for m in dryer.modes)
+    assert main(["check", str(spec)]) == 0
+    assert main(["run", str(spec), str(paths["fan"]), "--filter", "imm"]) == 0
+
+
+def test_cli_learn_without_template(dryer, experiments, tmp_path, capsys):
+    paths = write_experiments(dryer, dict(list(experiments.items())[:2]), tmp_path)
+    spec = tmp_path / "two.jmlg"
+    assert main(["learn", "--output", "temp", "--input", "current", "--order", "auto", "--max-order", "2",
+                 "--stay", "0.95", "--name", "dryer2", "-o", str(spec)]
+                + [f"--mode={n}={p}" for n, p in paths.items()]) == 0
+    model = jmlgdsl.load(spec)
+    assert model.name == "dryer2" and model.modes == tuple(paths)
+    assert np.allclose(model.P, [[0.95, 0.05], [0.05, 0.95]]) and np.allclose(model.p0, 0.5)
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--mode", "normal"], "--mode takes NAME=CSV"),
+    (["--mode", "a=x.csv", "--mode", "a=y.csv"], "mode 'a' given twice"),
+    (["--mode", "a=x.csv", "--order", "0"], "--order must be auto, N or NA,NB,NK"),
+    (["--mode", "a=x.csv"], "name the output column with --output"),
+    (["--mode", "normal=x.csv", "--template", str(DRYER)], "give one experiment for each"),
+])
+def test_cli_learn_user_errors(argv, message, capsys):
+    assert main(["learn"] + argv) == 2
+    assert message in capsys.readouterr().err
