@@ -1,0 +1,195 @@
+"""Filter sweeps: seeds, the unit of work, summaries and tables, the process pool, Dask and the CLI."""
+
+import csv
+import io
+
+import numpy as np
+import pytest
+from infer_models import dryer
+
+import jmlgdsl
+from jmlgdsl import bench
+from jmlgdsl.cli import main
+from jmlgdsl.errors import DataError
+from jmlgdsl.simulate import simulate
+
+SHORT = "1-20:normal,21-40:fan,41-60:grill"
+
+
+@pytest.fixture(scope="module")
+def model():
+    return dryer()
+
+
+@pytest.fixture(scope="module")
+def sequence(model):
+    sim = simulate(model, modes=SHORT, seed=5)
+    return bench.Sequence("short", sim.y, sim.u, sim.modes)
+
+
+def _without_time(records):
+    return [{k: v for k, v in r.items() if k != "ms_per_step"} for r in records]
+
+
+def test_jobs_cover_every_setting_and_deterministic_filters_once_per_run(model, sequence):
+    jobs = bench.make_jobs(model, [sequence], ("pf", "imm", "la-rbpf"), (1, 10), runs=3, seed=0)
+    settings = [(j.algorithm, j.particles, j.run) for j in jobs]
+    assert len(settings) == len(set(settings)) == 3 * (2 + 1 + 2)
+    assert {(a, n) for a, n, _ in settings} == {("pf", 1), ("pf", 10), ("imm", None), ("la-rbpf", 1), ("la-rbpf", 10)}
+
+
+def test_each_filter_run_has_its_own_stream_and_each_run_its_own_data(model):
+    jobs = bench.make_jobs(model, [bench.Simulated(None, SHORT)], ("rbpf", "la-rbpf"), (4,), runs=2, seed=7)
+    states = [tuple(j.filter_seed.generate_state(4)) for j in jobs]
+    assert len(set(states)) == len(jobs)
+    first, second = [[j for j in jobs if j.run == r] for r in (0, 1)]
+    np.testing.assert_array_equal(bench.sequence_of(first[0]).y, bench.sequence_of(first[1]).y)
+    assert not np.array_equal(bench.sequence_of(first[0]).y, bench.sequence_of(second[0]).y)
+    np.testing.assert_array_equal(bench.sequence_of(first[0]).modes, simulate(model, modes=SHORT).modes)
+
+
+def test_a_job_reports_the_map_error_of_the_filter_it_names(model, sequence):
+    job = bench.make_jobs(model, [sequence], ("la-rbpf",), (3,), runs=1, seed=2)[0]
+    record = bench.run_job(job)
+    result = jmlgdsl.filter(model, sequence.y, sequence.u, algorithm="la-rbpf", particles=3,
+                            rng=np.random.default_rng(job.filter_seed))
+    wrong = np.count_nonzero(result.map_modes != sequence.modes)
+    assert record["error"] == pytest.approx(100.0 * wrong / 60)
+    assert record["loglik"] == result.loglik
+    assert record["ms_per_step"] > 0
+    assert (record["data"], record["filter"], record["particles"], record["run"]) == ("short", "la-rbpf", 3, 0)
+
+
+def test_a_one_reading_prefilter_changes_nothing_and_a_longer_one_changes_the_data(model, sequence):
+    plain, one, five = (bench.make_jobs(model, [sequence], ("imm",), (1,), runs=1, seed=0, prefilter=w)[0]
+                        for w in (None, 1, 5))
+    assert bench.run_job(one)["loglik"] == bench.run_job(plain)["loglik"]
+    assert bench.run_job(five)["loglik"] != bench.run_job(plain)["loglik"]
+
+
+def test_sweeps_repeat_exactly_and_the_pool_matches_serial_runs(model, sequence):
+    args = (model, [sequence], ("pf", "fc-rbpf"), (1, 5), 2, 11)
+    serial = bench.sweep(*args, workers=1)
+    pooled = bench.sweep(*args, workers=2)
+    assert _without_time(serial) == _without_time(pooled)
+    other = bench.sweep(model, [sequence], ("pf", "fc-rbpf"), (1, 5), 2, 12, workers=1)
+    assert _without_time(other) != _without_time(serial)
+
+
+def test_the_sweep_runs_on_a_dask_cluster_with_the_same_results(model, sequence):
+    distributed = pytest.importorskip("distributed")
+    args = (model, [sequence], ("la-rbpf",), (2,), 2, 3)
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, dashboard_address=None) as cluster:
+        remote = bench.sweep(*args, scheduler=cluster.scheduler_address)
+    assert _without_time(remote) == _without_time(bench.sweep(*args, workers=1))
+
+
+def test_bad_sweeps_are_user_errors(model, sequence):
+    with pytest.raises(DataError, match="unknown filter 'kalman'"):
+        bench.make_jobs(model, [sequence], ("kalman",), (1,))
+    with pytest.raises(DataError, match="at least 1"):
+        bench.make_jobs(model, [sequence], ("pf",), (1,), runs=0)
+
+
+RECORDS = [
+    {"data": "d", "filter": "pf", "particles": 10, "run": 0, "error": 10.0, "ms_per_step": 1.0, "loglik": -5.0},
+    {"data": "d", "filter": "pf", "particles": 10, "run": 1, "error": 20.0, "ms_per_step": 3.0, "loglik": -7.0},
+    {"data": "d", "filter": "pf", "particles": 1, "run": 0, "error": 50.0, "ms_per_step": 0.5, "loglik": -9.0},
+    {"data": "d", "filter": "pf", "particles": 1, "run": 1, "error": 70.0, "ms_per_step": 0.5, "loglik": -11.0},
+    {"data": "d", "filter": "imm", "particles": None, "run": 0, "error": 4.0, "ms_per_step": 0.2, "loglik": -1.0},
+    {"data": "d", "filter": "imm", "particles": None, "run": 1, "error": 4.0, "ms_per_step": 0.2, "loglik": -1.0},
+]
+
+
+def test_summary_is_the_mean_and_sample_sd_over_runs():
+    rows = {(r["filter"], r["particles"]): r for r in bench.summarise(RECORDS)}
+    pf10 = rows["pf", 10]
+    assert pf10["runs"] == 2
+    assert pf10["error_mean"] == 15.0
+    assert pf10["error_sd"] == pytest.approx(np.sqrt(50.0))
+    assert pf10["ms_per_step_mean"] == 2.0
+    assert rows["imm", None]["error_sd"] == 0.0
+
+
+def test_markdown_table_has_the_published_shape():
+    table = bench.markdown_table(bench.summarise(RECORDS)).splitlines()
+    assert table[2:] == ["| N | pf | imm |", "|---|---|---|", "| 1 | 60.00 (14.14) |  |",
+                         "| 10 | 15.00 (7.07) |  |", "| — |  | 4.00 (0.00) |"]
+    assert "| 10 | 2 |  |" in bench.markdown_table(bench.summarise(RECORDS), "ms_per_step")
+
+
+def test_table_and_record_csv_files(tmp_path):
+    bench.write_table_csv(tmp_path / "t.csv", bench.summarise(RECORDS))
+    rows = list(csv.DictReader((tmp_path / "t.csv").open()))
+    assert [r["particles"] for r in rows] == ["1", "10", ""]
+    assert float(rows[1]["pf_error_mean"]) == 15.0 and rows[1]["imm_error_mean"] == ""
+    assert float(rows[2]["imm_error_mean"]) == 4.0
+    bench.write_records_csv(tmp_path / "runs.csv", RECORDS)
+    assert bench.read_records_csv(tmp_path / "runs.csv") == RECORDS
+
+
+def test_progress_bar_reports_runs_done_on_a_plain_stream():
+    stream = io.StringIO()
+    bar = bench.Progress(20, stream)
+    for _ in range(20):
+        bar.update()
+    lines = stream.getvalue().splitlines()
+    assert len(lines) == 10  # one line per tenth on a stream that is not a terminal
+    assert lines[-1].startswith("[" + "#" * 30 + "] 20/20 runs")
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory, model):
+    d = tmp_path_factory.mktemp("bench")
+    spec = d / "dryer.json"
+    model.save(spec)
+    data = d / "seq.csv"
+    assert main(["simulate", str(spec), "--modes", SHORT, "--seed", "3", "-o", str(data)]) == 0
+    return spec, data
+
+
+def test_bench_command_prints_the_table_and_writes_tables_and_figures(files, tmp_path, capsys):
+    spec, data = files
+    out = tmp_path / "out"
+    assert main(["bench", str(spec), str(data), "--runs", "2", "--particles", "1,4", "--filters",
+                 "la-rbpf,imm", "--workers", "1", "-o", str(out)]) == 0
+    captured = capsys.readouterr()
+    assert "## dryer, seq: 2 runs per setting" in captured.out
+    assert "| N | la-rbpf | imm |" in captured.out
+    assert "2/6 runs" not in captured.out and "6/6 runs" in captured.err
+    names = {p.name for p in out.iterdir()}
+    assert names == {"runs.csv", "seq-table.md", "seq-table.csv", "seq-error-vs-particles.png",
+                     "seq-error-vs-time.png", "seq-boxplots.png"}
+    assert len(bench.read_records_csv(out / "runs.csv")) == 6
+
+
+def test_bench_command_on_simulated_sequences(files, tmp_path, capsys):
+    spec, _ = files
+    assert main(["bench", str(spec), "--modes", SHORT, "--runs", "2", "--particles", "2", "--filters", "rbpf",
+                 "--workers", "1", "--prefilter", "ma:2", "--no-figures", "-o", str(tmp_path)]) == 0
+    assert "## dryer, simulated: 2 runs per setting" in capsys.readouterr().out
+    assert not list(tmp_path.glob("*.png"))
+
+
+@pytest.mark.parametrize("extra, message", [
+    ([], "give data files with a 'mode' column, or --simulate T"),
+    (["--simulate", "0"], "--simulate must be a positive number of steps"),
+    (["--simulate", "10", "--prefilter", "box:3"], "write ma:K"),
+    (["--simulate", "10", "--filters", "pf,nope"], "unknown filter 'nope'"),
+])
+def test_bench_command_user_errors(files, extra, message, capsys):
+    spec, _ = files
+    assert main(["bench", str(spec), "--workers", "1", "--runs", "1", *extra]) == 2
+    assert message in capsys.readouterr().err
+
+
+def test_bench_command_needs_the_true_modes(files, tmp_path, capsys):
+    spec, data = files
+    rows = data.read_text().splitlines()
+    header = rows[0].split(",")
+    keep = [i for i, h in enumerate(header) if h != "mode"]
+    bare = tmp_path / "bare.csv"
+    bare.write_text("\n".join(",".join(r.split(",")[i] for i in keep) for r in rows) + "\n")
+    assert main(["bench", str(spec), str(bare), "--workers", "1"]) == 2
+    assert "bare.csv: no 'mode' column" in capsys.readouterr().err
+
