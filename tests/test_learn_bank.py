@@ -162,6 +162,7 @@ def test_cli_learn_without_template(dryer, experiments, tmp_path, capsys):
                  "--stay", "0.95", "--name", "dryer2", "-o", str(spec)]
                 + [f"--mode={n}={p}" for n, p in paths.items()]) == 0
     model = jmlgdsl.load(spec)
+    assert model.nx == 1  # first order, as the plant is
     assert model.name == "dryer2" and model.modes == tuple(paths)
     assert np.allclose(model.P, [[0.95, 0.05], [0.05, 0.95]]) and np.allclose(model.p0, 0.5)
 

@@ -99,7 +99,9 @@ def header(args, paths, learned) -> str:
     """The comment block at the top of the written spec: where it came from and how well it fits."""
     from ..learn import validate
 
-    how = "FOPDT fits of step tests" if args.fopdt else f"ARX order {args.order}"
+    how = ("FOPDT fits of step tests" if args.fopdt else
+           f"states chosen by {args.criterion.upper()} of the EM fits, started from ARX" if args.order == "auto"
+           else f"ARX order {args.order}")
     lines = [f"Learned by jmlgdsl learn from {', '.join(paths.values())}",
              f"Structure: {how}; EM up to {args.max_iter} iterations, relative tolerance {args.tol:g}.",
              "State 1 is the noise-free output (observer canonical form); B, D are Cholesky factors",

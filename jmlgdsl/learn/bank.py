@@ -52,25 +52,50 @@ class LearnedMode:
                 f"poles {poles}; gain {gain}; measurement sd {np.sqrt(np.diag(m.R)).max():.3g}; "
                 f"fit {', '.join(f'{x:.1f}' for x in v.fit)} %; {verdict}")
 
+    def criterion(self, kind="bic") -> float:
+        """AIC or BIC of the fitted state-space model. It counts the identifiable parameters of an
+        n-state single-output model in innovations form: n poles, n numerator coefficients per
+        input, n noise-model coefficients, the offset and the innovation variance."""
+        n, nu = self.model.nx, self.model.F.shape[1]
+        p = n * (2 + nu) + 2
+        N = int((~np.isnan(self.experiment.y)).all(axis=1).sum())
+        return -2 * self.em.loglik[-1] + p * (np.log(N) if kind == "bic" else 2.0)
+
 
 def learn_modes(experiments: dict, order="auto", fopdt=False, dt=1.0, max_order=4, max_delay=0,
                 criterion="bic", max_iter=100, tol=1e-5) -> list[LearnedMode]:
-    """Fit every mode's experiment with one structure: order (na, nb, nk), "auto", or FOPDT step tests."""
-    for name, e in experiments.items():
+    """Fit every mode's experiment with one structure: ARX order (na, nb, nk), "auto", or FOPDT step tests.
+
+    "auto": the ARX order with the least criterion (over na, nb <= max_order, nk <= max_delay) bounds
+    the number of states from above, since ARX spends extra lags imitating measurement noise; EM then
+    fits 1..that many states and the bank with the least criterion summed over modes is kept.
+    """
+    for e in experiments.values():
         if e.y.shape[1] != 1:
             raise DataError(f"{e.source}: learning fits one output per plant; got {e.y.shape[1]}")
     if fopdt:
         fits = {k: _fopdt(e, dt) for k, e in experiments.items()}
         n = max(f.delay for f in fits.values()) + 1
-        starts = {k: (f.to_statespace(n), f"FOPDT gain {f.gain:.4g}, tau {f.tau:.4g} s, dead time "
-                      f"{f.delay * f.dt:g} s", f) for k, f in fits.items()}
-    else:
-        if order == "auto":
-            order = arx.select_order([(e.y[:, 0], e.u) for e in experiments.values()], max_order,
-                                     max_order, max_delay, criterion)
-        na, nb, nk = order
-        starts = {k: (arx.fit(e.y[:, 0], e.u, na, nb, nk).to_statespace(e.u[0], e.y[0, 0]),
-                      f"ARX({na},{nb},{nk})", None) for k, e in experiments.items()}
+        return _fit_all(experiments, {k: (f.to_statespace(n), f"FOPDT gain {f.gain:.4g}, tau {f.tau:.4g} s, "
+                                          f"dead time {f.delay * f.dt:g} s", f) for k, f in fits.items()},
+                        max_iter, tol)
+    if order != "auto":
+        return _fit_arx(experiments, order, max_iter, tol)
+    na, nb, nk = arx.select_order([(e.y[:, 0], e.u) for e in experiments.values()], max_order, max_order,
+                                  max_delay, criterion)
+    banks = [_fit_arx(experiments, (n, n, 0), max_iter, tol) for n in range(1, max(na, nk + nb) + 1)]
+    return min(banks, key=lambda bank: sum(lm.criterion(criterion) for lm in bank))
+
+
+def _fit_arx(experiments, order, max_iter, tol):
+    na, nb, nk = order
+    return _fit_all(experiments, {k: (arx.fit(e.y[:, 0], e.u, na, nb, nk).to_statespace(e.u[0], e.y[0, 0]),
+                                      f"ARX({na},{nb},{nk})", None) for k, e in experiments.items()},
+                    max_iter, tol)
+
+
+def _fit_all(experiments, starts, max_iter, tol):
+    """EM from each mode's start (structure text and FOPDT fit alongside), then validation."""
     learned = []
     for name, e in experiments.items():
         start, structure, fit = starts[name]
