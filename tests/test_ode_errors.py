@@ -1,0 +1,106 @@
+"""The mistakes a user meets in an ODE plant, each reported at file:line:col with a clear message."""
+
+import pytest
+
+from jmlgdsl.compile.lower import compile_text
+from jmlgdsl.errors import SpecError, SpecWarning
+
+BASE = """\
+plant tank
+sample 1 s
+param k = 0.5, area = 2
+let   out = k * sqrt(h)
+input q = 1
+state h = 3
+output h
+ode
+  der(h) = (q - out) / area
+noise process 0.01, measurement 0.1
+modes normal, leak "a leak": k = 0.6
+transitions stay 0.99, otherwise uniform
+"""
+
+
+def errors_of(text):
+    with pytest.raises(SpecError) as info:
+        compile_text(text, "tank.jmlg")
+    return info.value.diagnostics
+
+
+def replace(old, new):
+    assert old in BASE
+    return BASE.replace(old, new)
+
+
+CASES = [
+    # (case, spec text, line, column, message fragment)
+    ("state without der", replace("state h = 3", "state h = 3, v = 1"), 6, 14,
+     "state 'v' has no equation: add 'der(v) = ...' to the ode block"),
+    ("der of an undeclared name", replace("  der(h) = (q - out) / area\n", "  der(h) = (q - out) / area\n  der(hh) = 0\n"),
+     10, 7, "der(hh): 'hh' is not declared, not a state; did you mean 'h'?"),
+    ("der of a parameter", replace("  der(h) = (q - out) / area\n", "  der(h) = (q - out) / area\n  der(k) = 0\n"),
+     10, 7, "der(k): 'k' is a parameter, not a state; declare it with 'state k = GUESS'"),
+    ("duplicate der", replace("  der(h) = (q - out) / area\n", "  der(h) = (q - out) / area\n  der(h) = 0\n"),
+     10, 7, "der(h) is given twice (first at line 9)"),
+    ("unknown function", replace("k * sqrt(h)", "k * sqrtt(h)"), 4, 17, "unknown function 'sqrtt'; did you mean 'sqrt'?"),
+    ("unknown name", replace("(q - out) / area", "(q - out) / aera"), 9, 24, "unknown name 'aera'; did you mean 'area'?"),
+    ("time index", replace("(q - out) / area", "(q[t] - out) / area"), 9, 13,
+     "an ODE uses values at the current time: write q, not q[...]"),
+    ("let cycle", replace("let   out = k * sqrt(h)", "let   out = k * sqrt(h) + out2, out2 = out"), 4, 40,
+     "'let out' depends on itself through out -> out2 -> out"),
+    ("output without a state", replace("output h", "output y = 2 * k"), 7, 12,
+     "output 'y' depends on no state, so it measures nothing of the plant; write it in terms of the states (h)"),
+    ("output that is not a state", replace("output h", "output level"), 7, 8,
+     "output 'level' is not a state: measure a state ('output STATE') or give its expression"),
+    ("no steady state", replace("(q - out) / area", "1 + h^2"), 11, 7,
+     "no steady state found for mode 'normal': der(h) is still"),
+    ("input without operating value", replace("input q = 1", "input q"), 5, 7,
+     "input 'q' needs an operating value to linearise around: input q = VALUE"),
+    ("state without guess", replace("state h = 3", "state h"), 6, 7,
+     "state 'h' needs a guess of its steady state: state h = VALUE"),
+    ("unknown linearisation mode", BASE + "linearize at steady state of norml\n", 13, 30,
+     "unknown mode 'norml'; did you mean 'normal'?"),
+    ("point without every state", replace("state h = 3", "state h = 3, v = 1").replace(
+        "/ area\n", "/ area\n  der(v) = h - v\n") + "linearize at h = 4\n", 14, 1,
+     "the operating point needs every state: add v = ..."),
+    ("point with an unknown name", BASE + "linearize at h = 4, qq = 1\n", 13, 21,
+     "'qq' is not a state or an input; did you mean 'q'?"),
+    ("two linearize statements", BASE + "linearize at h = 4\nlinearize at steady state of each mode\n", 14, 1,
+     "'linearize' is given more than once (first at line 13)"),
+    ("linear statement in a mode", BASE + "mode leak { h[t] ~ Normal(h[t-1], 1) }\n", 13, 13,
+     "in an ODE plant a mode changes parameters (e.g. 'U = 1.1') or noise; 'h' is not a parameter"),
+    ("unknown derivative unit", replace("ode\n", "ode [days]\n"), 8, 5, "unknown time unit 'days'; use s, min or h"),
+]
+
+
+@pytest.mark.parametrize("case, text, line, column, fragment", CASES, ids=[c[0] for c in CASES])
+def test_located_error(case, text, line, column, fragment):
+    diagnostics = errors_of(text)
+    found = [d for d in diagnostics if fragment in d.message]
+    assert found, [d.format() for d in diagnostics]
+    d = found[0]
+    assert (d.file, d.line, d.column) == ("tank.jmlg", line, column), d.format()
+    assert d.source_line == text.splitlines()[line - 1]
+
+
+def test_no_steady_state_says_the_residual_and_what_to_try():
+    d = errors_of(replace("(q - out) / area", "1 + h^2"))[0]
+    residual = float(d.message.split("is still ")[1].split(" ")[0])
+    assert residual >= 1.0  # 1 + h^2 never falls below 1
+    assert "give better guesses ('state h = ...')" in d.message
+    assert "linearize at h = ..." in d.message
+
+
+def test_unstable_linearisation_is_a_warning_with_the_eigenvalue():
+    text = replace("(q - out) / area", "0.1 * (h - 2) - q + 1")  # steady at h = 2, growing at rate 0.1
+    with pytest.warns(SpecWarning, match=r"is unstable: eigenvalue of modulus 1\.10517") as caught:
+        model = compile_text(text, "tank.jmlg")  # e^{0.1 dt}, in both modes
+    assert model.mu0[0, 0] == pytest.approx(2.0)
+    assert [(w.message.diagnostic.line, w.message.diagnostic.column) for w in caught] == [(11, 7), (11, 15)]
+
+
+def test_modes_in_blocks_override_parameters():
+    """`mode leak { k = 0.6 }` is the same plant as the override in the modes list."""
+    block = replace('modes normal, leak "a leak": k = 0.6', 'modes normal, leak\nmode leak { k = 0.6 }')
+    a, b = compile_text(BASE), compile_text(block)
+    assert a.A[1, 0, 0] == b.A[1, 0, 0] != a.A[0, 0, 0]
