@@ -9,6 +9,7 @@ import pytest
 from infer_models import DRYER_SEQ1, dryer
 
 from jmlgdsl.cli import main
+from jmlgdsl.infer import DEFAULT_ALGORITHM
 
 
 @pytest.fixture(scope="module")
@@ -24,7 +25,7 @@ def files(tmp_path_factory):
 def test_run_prints_a_diagnosis(files, capsys, tmp_path):
     spec, data = files
     out = tmp_path / "out.csv"
-    assert main(["run", str(spec), str(data), "--seed", "1", "-o", str(out)]) == 0
+    assert main(["run", str(spec), str(data), "--filter", "fc-rbpf", "--seed", "1", "-o", str(out)]) == 0
     text = capsys.readouterr().out
     assert "dryer: 1000 steps, filter fc-rbpf with 4 particles" in text
     assert "  t 1\u201371: normal (p\u0304 0.99)" in text
@@ -91,7 +92,7 @@ def test_standard_input_is_filtered_row_by_row(files):
         proc.stdin.close()
         assert proc.stdout.readline().startswith("2,normal,")
         assert proc.wait() == 0
-        assert "filter fc-rbpf" in proc.stderr.read()
+        assert f"filter {DEFAULT_ALGORITHM}" in proc.stderr.read()
     finally:
         timer.cancel()
         proc.kill()
