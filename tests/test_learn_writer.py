@@ -1,5 +1,7 @@
 """The spec writer: repr-exact numbers, and writing then loading gives back the same model."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -43,6 +45,18 @@ def test_written_spec_loads_back_to_the_same_model(tmp_path):
         ("tank", 0.1, ("normal", "leak"), ("x1", "x2"), ("valve", "pump"), ("level",))
     assert back.units == model.units
     assert back.descriptions == {"leak": "A 'small' leak"}
+
+
+def test_uniform_rests_are_written_as_rules_and_read_back_exactly(tmp_path):
+    dryer = jmlgdsl.load(Path(__file__).resolve().parents[1] / "specs" / "dryer.jmlg")
+    text = write_spec(dryer)
+    assert "initial     normal 0.988, otherwise uniform\ntransitions stay 0.994, otherwise uniform\n" in text
+    path = tmp_path / "dryer.jmlg"
+    path.write_text(text)
+    back = jmlgdsl.load(path)
+    for key in ("A", "B", "C", "D", "F", "G", "f", "g", "P", "p0", "mu0", "Sigma0", "input_defaults"):
+        assert np.array_equal(getattr(back, key), getattr(dryer, key)), key
+    assert back.descriptions == dryer.descriptions
 
 
 def test_header_becomes_comments():

@@ -40,6 +40,27 @@ def _quoted(text: str) -> str:
     return '"' + " ".join(str(text).replace('"', "'").split()) + '"'
 
 
+def _rest_uniform(values, keep) -> bool:
+    """Whether every entry but `keep` equals exactly (1 - values[keep]) / (K - 1): "otherwise uniform"."""
+    K = len(values)
+    rest = np.delete(values, keep)
+    return K > 1 and bool(np.all(rest == (1 - values[keep]) / (K - 1)))
+
+
+def _initial(model: Model) -> str:
+    k = int(np.argmax(model.p0))
+    if _rest_uniform(model.p0, k):
+        return f"initial     {model.modes[k]} {number(model.p0[k])}, otherwise uniform"
+    return f"initial     {matrix(model.p0[None])}"
+
+
+def _transitions(model: Model) -> str:
+    stay = model.P[0, 0]
+    if np.all(np.diag(model.P) == stay) and all(_rest_uniform(row, k) for k, row in enumerate(model.P)):
+        return f"transitions stay {number(stay)}, otherwise uniform"
+    return f"transitions {matrix(model.P)}"
+
+
 def _mode_block(model: Model, k: int) -> list[str]:
     lines = [f"mode {model.modes[k]} {{", f"  A = {matrix(model.A[k])}"]
     if model.nu:
@@ -73,8 +94,7 @@ def write_spec(model: Model, header: str = "") -> str:
     for name in model.modes:
         text = model.descriptions.get(name)
         lines.append(f"  {name}" + (f"  {_quoted(text)}" if text else ""))
-    lines.append(f"initial     {matrix(model.p0[None])}")
-    lines.append(f"transitions {matrix(model.P)}")
+    lines += [_initial(model), _transitions(model)]
     for k in range(model.K):
         lines += [""] + _mode_block(model, k)
     return "\n".join(lines) + "\n"
