@@ -5,18 +5,17 @@ The result is the same Simulation as the linear simulator's, so its CSV feeds `j
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.integrate import solve_ivp
 
 from .compile.ode import OdeSystem, check_ode_file, linearise, mode_parameters, ode_system
 from .errors import DataError
-from .infer.kalman import psd_sqrt
 from .model import Model
-from .simulate import Simulation, _mode_sequence, parse_schedule
+from .simulate import Simulation, simulate
 
-RTOL, ATOL = 1e-9, 1e-12  # integration tolerances: far below any noise level the language can express
+RTOL, ATOL = 1e-9, 1e-12  # integration tolerances, far below the noise of any realistic plant
 
 
 @dataclass(frozen=True)
@@ -49,25 +48,25 @@ def load_nonlinear(path) -> NonlinearPlant:
 
 
 def simulate_nonlinear(plant, T: int | None = None, seed=None, rng=None, modes=None, u=None) -> Simulation:
-    """Simulate T steps of the ODEs (`plant`: a spec path or a NonlinearPlant). Arguments and the order
-    of the random draws are those of jmlgdsl.simulate.simulate, so one seed gives both simulators the
-    same modes and noise: x_t = Phi_k(x_{t-1}, u_t) + B_k w_t, y_t = h_k(x_t, u_t) + D_k v_t."""
-    plant = plant if isinstance(plant, NonlinearPlant) else load_nonlinear(plant)
-    model = plant.model
-    rng = rng if rng is not None else np.random.default_rng(seed)
-    if T is None:
-        if modes is None and u is None:
-            raise DataError("give the number of steps, a mode schedule or the inputs")
-        T = len(parse_schedule(modes, model)) if isinstance(modes, str) else len(modes if modes is not None else u)
-    u = model.resolve_inputs(u, T)
-    z0, seq = _mode_sequence(model, T, modes, rng)
-    x0 = model.mu0[z0] + psd_sqrt(model.Sigma0) @ rng.standard_normal(model.nx)
-    w = rng.standard_normal((T, model.B.shape[2]))
-    v = rng.standard_normal((T, model.D.shape[2]))
-    x, y = np.empty((T, model.nx)), np.empty((T, model.ny))
-    prev = x0
-    for t, k in enumerate(seq):
-        prev = x[t] = plant.step(prev, u[t], k) + model.B[k] @ w[t]
-        y[t] = plant.system.output(prev, u[t], plant.params[k]) + model.D[k] @ v[t]
-    return Simulation(model, seq, x, y, u, z0, x0)
+    """Simulate T steps of the ODEs (`plant`: a spec path or a NonlinearPlant), with the arguments of
+    jmlgdsl.simulate.simulate: x_t = Phi_k(x_{t-1}, u_t) + B_k w_t, y_t = h_k(x_t, u_t) + D_k v_t.
 
+    The modes, the initial state and the noise terms B_k w_t and D_k v_t are those of the linearised
+    model's simulation with the same seed, so the two runs differ only by the linearisation."""
+    plant = plant if isinstance(plant, NonlinearPlant) else load_nonlinear(plant)
+    m, system = plant.model, plant.system
+    lin = simulate(m, T, seed=seed, rng=rng, modes=modes, u=u)
+    k, prev = lin.modes, np.vstack([lin.x0, lin.x[:-1]])
+    process = lin.x - _apply(m.A[k], prev) - _apply(m.F[k], lin.u) - m.f[k]
+    measurement = lin.y - _apply(m.C[k], lin.x) - _apply(m.G[k], lin.u) - m.g[k]
+    x, y = np.empty_like(lin.x), np.empty_like(lin.y)
+    state = lin.x0
+    for t in range(len(k)):
+        state = x[t] = plant.step(state, lin.u[t], k[t]) + process[t]
+        y[t] = system.output(state, lin.u[t], plant.params[k[t]]) + measurement[t]
+    return replace(lin, x=x, y=y)
+
+
+def _apply(M: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Row-wise matrix-vector products: M (T, n, m) times v (T, m)."""
+    return np.einsum("tij,tj->ti", M, v)

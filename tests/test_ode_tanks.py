@@ -8,6 +8,7 @@ import pytest
 from scipy.linalg import expm, solve_discrete_lyapunov
 
 import jmlgdsl
+from jmlgdsl.errors import SpecError
 from jmlgdsl.compile.lower import compile_text
 from jmlgdsl.compile.ode import zoh
 from jmlgdsl.nonlinear import load_nonlinear, simulate_nonlinear
@@ -154,3 +155,8 @@ def test_nonlinear_simulation_is_reproducible():
     b = simulate_nonlinear(plant, 50, rng=np.random.default_rng(3))
     np.testing.assert_array_equal(a.y, b.y)
     np.testing.assert_array_equal(a.modes, b.modes)
+
+
+def test_nonlinear_simulation_of_a_linear_plant_is_an_error():
+    with pytest.raises(SpecError, match="a nonlinear simulation needs a nonlinear plant"):
+        simulate_nonlinear(SPECS / "dryer.jmlg", 10, seed=0)
