@@ -8,9 +8,9 @@ import pytest
 from scipy.linalg import expm, solve_discrete_lyapunov
 
 import jmlgdsl
-from jmlgdsl.errors import SpecError
 from jmlgdsl.compile.lower import compile_text
 from jmlgdsl.compile.ode import zoh
+from jmlgdsl.errors import SpecError
 from jmlgdsl.nonlinear import load_nonlinear, simulate_nonlinear
 from jmlgdsl.simulate import simulate
 
