@@ -59,8 +59,7 @@ class Filter:
         """
         model = self.model
         y = np.asarray(y, dtype=float).reshape(model.ny)
-        with np.errstate(invalid="ignore"):
-            y = np.where(np.abs(y) < MAX_READING, y, np.nan)
+        y = np.where(np.abs(y) < MAX_READING, y, np.nan)  # NaN compares False: stays NaN
         if u is None:
             u = model.resolve_inputs(None, 1)[0]
         else:

@@ -46,13 +46,25 @@ class RaoBlackwellised:
         self.mu = model.mu0[atoms]
         self.node = np.full(len(atoms), root)
         self.copies = np.ones(len(atoms), dtype=np.int64)
+        self._pairs = {}  # particle count -> every (particle, mode) pair
+        self._u = None  # the last input and its per-mode offsets (inputs rarely change)
+
+    def _offsets(self, u):
+        """Per-mode state offsets (K, nx) and output offsets of the predicted mean (K, ny) for input u."""
+        key = u.tobytes()
+        if key != self._u:
+            b, c = offsets(self.model, u)
+            self._u, self._b, self._c = key, b, np.einsum("kij,kj->ki", self.model.C, b) + c
+        return self._b, self._c
 
     # Subclasses: which candidates to evaluate, and how to select the next particles from them.
     def candidates(self):
         """(parent, mode, log share) of the candidates to evaluate: a candidate carries its parent's
         weight times P[z, mode] / exp(log share); None means every (particle, mode) pair in order."""
         n, K = len(self.z), self.model.K
-        return np.repeat(np.arange(n), K), np.tile(np.arange(K), n), None
+        if n not in self._pairs:
+            self._pairs[n] = np.repeat(np.arange(n), K), np.tile(np.arange(K), n)
+        return (*self._pairs[n], None)
 
     def select(self, q, parent, mode):
         """(chosen candidate indices, their log-weights and copy counts, ESS) from normalised weights q."""
@@ -62,17 +74,17 @@ class RaoBlackwellised:
         model, K = self.model, self.model.K
         rows = self.graph.rows(mask)
         parent, mode, log_prop = self.candidates()
-        b, c = offsets(model, u)
+        b, c = self._offsets(u)
         n, nx, ny = len(self.z), model.nx, model.ny
         mu_p = (self.mu @ self._A).reshape(n, K, nx) + b
-        y_pred = (self.mu @ self._CA).reshape(n, K, ny) + (np.einsum("kij,kj->ki", model.C, b) + c)
+        y_pred = (self.mu @ self._CA).reshape(n, K, ny) + c
         if log_prop is None:  # every (particle, mode) pair, in order
             mu_p, y_pred = mu_p.reshape(n * K, nx), y_pred.reshape(n * K, ny)
         else:
             mu_p, y_pred = mu_p[parent, mode], y_pred[parent, mode]
         flat = self.node[parent] * K + mode
         m = int(mask.sum())
-        r = y[mask] - y_pred[:, mask]
+        r = y - y_pred if m == ny else y[mask] - y_pred[:, mask]
         z = np.einsum("jab,jb->ja", rows.take("Linv", flat), r)
         quad = np.minimum(np.einsum("ja,ja->j", z, z), MAX_QUAD)
         ll = -0.5 * (quad + rows.take("logdet", flat) + m * LOG_2PI)
