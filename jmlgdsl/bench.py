@@ -9,6 +9,7 @@ Diagnosis error = percentage of steps whose most probable (MAP) mode differs fro
 from __future__ import annotations
 
 import csv
+import functools
 import math
 import os
 import sys
@@ -41,11 +42,17 @@ class Sequence:
 
 @dataclass(frozen=True)
 class Simulated:
-    """Fresh sequences of `steps` steps, one per run, with modes from the chain or a fixed schedule."""
+    """Fresh sequences of `steps` steps, one per run, with modes from the chain or a fixed schedule.
+
+    `plant` is what generates them: None for the filters' own model, another Model (the true plant,
+    when the filters use a perturbed one), or the path of an ODE spec to simulate its nonlinear
+    equations, so that model mismatch is real.
+    """
 
     steps: int | None
     schedule: str | None = None
     name: str = "simulated"
+    plant: Model | str | None = None
 
 
 @dataclass(frozen=True)
@@ -67,8 +74,23 @@ def sequence_of(job: Job) -> Sequence:
     source = job.source
     if isinstance(source, Sequence):
         return source
-    sim = simulate(job.model, source.steps, rng=np.random.default_rng(job.data_seed), modes=source.schedule)
+    rng = np.random.default_rng(job.data_seed)
+    if isinstance(source.plant, str):
+        from .nonlinear import simulate_nonlinear
+
+        sim = simulate_nonlinear(nonlinear_plant(source.plant), source.steps, rng=rng, modes=source.schedule)
+    else:
+        plant = job.model if source.plant is None else source.plant
+        sim = simulate(plant, source.steps, rng=rng, modes=source.schedule)
     return Sequence(source.name, sim.y, sim.u, sim.modes)
+
+
+@functools.lru_cache(maxsize=4)
+def nonlinear_plant(path):
+    """An ODE plant, compiled once per process."""
+    from .nonlinear import load_nonlinear
+
+    return load_nonlinear(path)
 
 
 def run_job(job: Job) -> dict:

@@ -121,6 +121,18 @@ def error_boxplots(records, path, title=""):
     _save(fig, path)
 
 
+def study_figures(folder, prefix, title, sample_time, summary, records, reference=None) -> list:
+    """The three study figures of one sweep as folder/prefix-{error-vs-particles,error-vs-time,boxplots}.png
+    (no box plots when no particle filter ran); returns the paths written."""
+    paths = [folder / f"{prefix}-{kind}.png" for kind in ("error-vs-particles", "error-vs-time", "boxplots")]
+    error_vs_particles(summary, paths[0], f"{title}: diagnosis error (mean ± SD over runs)", reference)
+    error_vs_time(summary, paths[1], sample_time, f"{title}: diagnosis error against computing time")
+    if not any(r["particles"] is not None for r in records):
+        return paths[:2]
+    error_boxplots(records, paths[2], f"{title}: diagnosis error per run")
+    return paths
+
+
 def _mode_colors(K):
     return plt.get_cmap("tab10" if K <= 10 else "tab20")(np.arange(K) % 20)
 

@@ -48,6 +48,14 @@ def test_each_filter_run_has_its_own_stream_and_each_run_its_own_data(model):
     np.testing.assert_array_equal(bench.sequence_of(first[0]).modes, simulate(model, modes=SHORT).modes)
 
 
+def test_data_can_come_from_another_plant_than_the_filters_model(model):
+    other = model.replace(P=np.full((4, 4), 0.25))
+    job = bench.make_jobs(other, [bench.Simulated(None, SHORT, plant=model)], ("imm",), (1,), runs=1, seed=4)[0]
+    expected = simulate(model, modes=SHORT, rng=np.random.default_rng(job.data_seed))
+    np.testing.assert_array_equal(bench.sequence_of(job).y, expected.y)
+    assert job.model is other
+
+
 def test_a_job_reports_the_map_error_of_the_filter_it_names(model, sequence):
     job = bench.make_jobs(model, [sequence], ("la-rbpf",), (3,), runs=1, seed=2)[0]
     record = bench.run_job(job)
@@ -171,11 +179,21 @@ def test_bench_command_on_simulated_sequences(files, tmp_path, capsys):
     assert not list(tmp_path.glob("*.png"))
 
 
+def test_bench_command_simulates_the_nonlinear_equations(capsys, tmp_path):
+    assert main(["bench", "specs/dryer.jmlg", "--simulate", "5", "--nonlinear"]) == 2
+    assert "has no 'ode' block" in capsys.readouterr().err
+    assert main(["bench", "specs/cstr4.jmlg", "--modes", "1-15:normal,16-30:fouling3", "--nonlinear", "--runs", "1",
+                 "--filters", "imm", "--workers", "1", "--no-figures", "-o", str(tmp_path)]) == 0
+    record = bench.read_records_csv(tmp_path / "runs.csv")[0]
+    assert record["filter"] == "imm" and 0 <= record["error"] <= 100
+
+
 @pytest.mark.parametrize("extra, message", [
     ([], "give data files with a 'mode' column, or --simulate T"),
     (["--simulate", "0"], "--simulate must be a positive number of steps"),
     (["--simulate", "10", "--prefilter", "box:3"], "write ma:K"),
     (["--simulate", "10", "--filters", "pf,nope"], "unknown filter 'nope'"),
+    (["--simulate", "10", "--nonlinear"], "--nonlinear needs a .jmlg spec with an 'ode' block"),
 ])
 def test_bench_command_user_errors(files, extra, message, capsys):
     spec, _ = files

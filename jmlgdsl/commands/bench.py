@@ -37,6 +37,8 @@ def register(subparsers):
     p.add_argument("--simulate", type=int, metavar="T", help="simulate a fresh sequence of T steps for each run")
     p.add_argument("--modes", metavar="SCHEDULE",
                    help='with --simulate: a fixed mode schedule instead of the Markov chain, e.g. "1-70:normal,71-238:fan"')
+    p.add_argument("--nonlinear", action="store_true",
+                   help="with --simulate/--modes: simulate the spec's ODEs, not its linearised modes")
     p.add_argument("--prefilter", metavar="ma:K", help="moving average over K readings before filtering")
     p.add_argument("--workers", type=int, help="processes (default: every core; 1 runs in this process)")
     p.add_argument("--scheduler", metavar="ADDRESS", help="run on this Dask scheduler (needs the dask extra)")
@@ -49,18 +51,22 @@ def sources(args, model):
     """The data sources named on the command line: the files, or one simulated source."""
     from pathlib import Path
 
-    from ..bench import Sequence, Simulated
+    from ..bench import Sequence, Simulated, nonlinear_plant
     from ..data import read_csv
     from ..errors import DataError
 
-    if args.data and (args.simulate or args.modes):
+    if args.data and (args.simulate or args.modes or args.nonlinear):
         raise DataError("give data files or --simulate, not both")
     if not args.data:
         if args.simulate is None and args.modes is None:
             raise DataError("give data files with a 'mode' column, or --simulate T for simulated sequences")
         if args.simulate is not None and args.simulate < 1:
             raise DataError(f"--simulate must be a positive number of steps, got {args.simulate}")
-        return [Simulated(args.simulate, args.modes)]
+        if args.nonlinear:
+            if Path(args.spec).suffix.lower() != ".jmlg":
+                raise DataError("--nonlinear needs a .jmlg spec with an 'ode' block")
+            nonlinear_plant(args.spec)  # a spec without equations fails here, before any run starts
+        return [Simulated(args.simulate, args.modes, plant=args.spec if args.nonlinear else None)]
     found = []
     for path in args.data:
         data = read_csv(path, model)
@@ -74,7 +80,7 @@ def write_outputs(folder, model, records, figures=True) -> list:
     """Tables, run records and figures for each data source; returns the paths written."""
     from pathlib import Path
 
-    from .. import bench
+    from .. import bench, plots
 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
@@ -88,23 +94,8 @@ def write_outputs(folder, model, records, figures=True) -> list:
         bench.write_table_csv(folder / f"{name}-table.csv", summary)
         written += [table, folder / f"{name}-table.csv"]
         if figures:
-            written += draw(folder, name, model, summary, mine)
+            written += plots.study_figures(folder, name, f"{model.name}, {name}", model.dt, summary, mine)
     return written
-
-
-def draw(folder, name, model, summary, records) -> list:
-    """The study figures of one data source."""
-    from .. import plots
-
-    paths = [folder / f"{name}-{kind}.png" for kind in ("error-vs-particles", "error-vs-time", "boxplots")]
-    title = f"{model.name}, {name}"
-    plots.error_vs_particles(summary, paths[0], title=f"{title}: diagnosis error (mean ± SD over runs)")
-    plots.error_vs_time(summary, paths[1], model.dt, title=f"{title}: diagnosis error against computing time")
-    if any(r["particles"] is not None for r in records):
-        plots.error_boxplots(records, paths[2], title=f"{title}: diagnosis error per run")
-    else:
-        paths.pop()
-    return paths
 
 
 def main(args) -> int:
