@@ -4,6 +4,7 @@ import csv
 import subprocess
 import sys
 import threading
+from pathlib import Path
 
 import pytest
 from infer_models import DRYER_SEQ1, dryer
@@ -96,3 +97,22 @@ def test_standard_input_is_filtered_row_by_row(files):
     finally:
         timer.cancel()
         proc.kill()
+
+
+ROOT = Path(__file__).resolve().parent.parent
+EXAMPLE_COMMAND = ["simulate", "specs/dryer.jmlg", "--steps", "1000", "--modes", DRYER_SEQ1, "--seed", "1"]
+
+
+def test_bundled_example_is_what_its_command_makes(tmp_path, monkeypatch):
+    monkeypatch.chdir(ROOT)
+    assert main(EXAMPLE_COMMAND + ["-o", str(tmp_path / "seq1.csv")]) == 0
+    assert (tmp_path / "seq1.csv").read_bytes() == (ROOT / "examples" / "dryer_seq1.csv").read_bytes()
+
+
+def test_main_command_diagnoses_the_bundled_example(capsys, monkeypatch):
+    monkeypatch.chdir(ROOT)
+    assert main(["run", "specs/dryer.jmlg", "examples/dryer_seq1.csv"]) == 0
+    text = capsys.readouterr().out
+    for segment in ("t 1\u201371: normal", "t 72\u2013239: fan", "t 706\u20131000: fan"):
+        assert segment in text
+    assert float(text.split("diagnosis error: ")[1].split(" %")[0]) < 2.0
