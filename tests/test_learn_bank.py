@@ -126,6 +126,23 @@ def test_fopdt_structure_from_step_tests(dryer, tmp_path):
         assert lm.model.gain()[0, 0] == pytest.approx(true_gain, rel=0.05)
 
 
+def test_missing_outputs_are_allowed(dryer, experiments):
+    e = experiments["fan"]
+    y = e.y.copy()
+    y[np.random.default_rng(3).random(len(y)) < 0.1] = np.nan
+    y[0] = np.nan
+    (lm,) = bank.learn_modes({"fan": bank.Experiment(y, e.u, "fan.csv")}, order=(1, 1, 0))
+    assert np.all(np.diff(lm.em.loglik) >= -1e-9 * np.abs(lm.em.loglik[:-1]))
+    true_gain = dryer.F[1, 0, 0] / (1 - dryer.A[1, 0, 0])
+    assert lm.model.gain()[0, 0] == pytest.approx(true_gain, rel=0.05)
+    assert np.isnan(lm.validation.residuals[0, 0]) and lm.validation.fit[0] > 75
+
+
+def test_step_fit_errors_name_the_experiment(experiments):
+    with pytest.raises(jmlgdsl.DataError, match="^fan: a step test needs an input that changes exactly once"):
+        bank.learn_modes({"fan": experiments["fan"]}, fopdt=True)
+
+
 def write_experiments(dryer, experiments, folder):
     paths = {}
     for name, e in experiments.items():

@@ -65,20 +65,21 @@ def observer_form(a, b, nk, c, noise_var, u0, y0, n=None) -> StateSpace:
 
 def fit(y, u, na, nb, nk=0, start=None) -> ArxFit:
     """Least-squares ARX fit of one output y (T,) on inputs u (T, nu); `start` is the first equation's
-    time index (defaults to the largest lag, so that fits of different orders can share it)."""
+    time index (defaults to the largest lag, so that fits of different orders can share it).
+    Equations touching a missing value (NaN) are left out."""
     y = np.asarray(y, float).ravel()
     u = np.asarray(u, float).reshape(len(y), -1)
-    if np.isnan(y).any() or np.isnan(u).any():
-        raise DataError("ARX needs complete data: the experiment has missing values")
     lag = max(na, nk + nb - 1)
     start = lag if start is None else start
     rows = np.arange(start, len(y))
     cols = [-y[rows - i] for i in range(1, na + 1)]
     cols += [u[rows - nk - j, m] for j in range(nb) for m in range(u.shape[1])]
     X = np.column_stack(cols + [np.ones(len(rows))])
+    complete = np.isfinite(X).all(axis=1) & np.isfinite(y[rows])
+    X, rows = X[complete], rows[complete]
     n, p = X.shape
     if n <= p:
-        raise DataError(f"ARX({na},{nb},{nk}) has {p} parameters but only {n} equations")
+        raise DataError(f"ARX({na},{nb},{nk}) has {p} parameters but only {n} complete equations")
     Qm, Rm = qr(X, mode="economic")
     theta = solve_triangular(Rm, Qm.T @ y[rows])
     rss = float(np.sum((y[rows] - X @ theta) ** 2))

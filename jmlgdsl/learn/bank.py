@@ -73,8 +73,13 @@ def learn_modes(experiments: dict, order="auto", fopdt=False, dt=1.0, max_order=
     for e in experiments.values():
         if e.y.shape[1] != 1:
             raise DataError(f"{e.source}: learning fits one output per plant; got {e.y.shape[1]}")
+        if np.isnan(e.y).all():
+            raise DataError(f"{e.source}: no measured output")
     if fopdt:
-        fits = {k: _fopdt(e, dt) for k, e in experiments.items()}
+        for e in experiments.values():
+            if e.u.shape[1] != 1:
+                raise DataError(f"{e.source}: a step test has one input; got {e.u.shape[1]}")
+        fits = {k: _located(e, steptest.fit, e.y[:, 0], e.u[:, 0], dt) for k, e in experiments.items()}
         n = max(f.delay for f in fits.values()) + 1
         return _fit_all(experiments, {k: (f.to_statespace(n), f"FOPDT gain {f.gain:.4g}, tau {f.tau:.4g} s, "
                                           f"dead time {f.delay * f.dt:g} s", f) for k, f in fits.items()},
@@ -89,9 +94,12 @@ def learn_modes(experiments: dict, order="auto", fopdt=False, dt=1.0, max_order=
 
 def _fit_arx(experiments, order, max_iter, tol):
     na, nb, nk = order
-    return _fit_all(experiments, {k: (arx.fit(e.y[:, 0], e.u, na, nb, nk).to_statespace(e.u[0], e.y[0, 0]),
-                                      f"ARX({na},{nb},{nk})", None) for k, e in experiments.items()},
-                    max_iter, tol)
+    starts = {}
+    for k, e in experiments.items():
+        fit = _located(e, arx.fit, e.y[:, 0], e.u, na, nb, nk)
+        first = e.y[np.isfinite(e.y[:, 0]), 0][0]
+        starts[k] = (fit.to_statespace(e.u[0], first), f"ARX({na},{nb},{nk})", None)
+    return _fit_all(experiments, starts, max_iter, tol)
 
 
 def _fit_all(experiments, starts, max_iter, tol):
@@ -105,11 +113,10 @@ def _fit_all(experiments, starts, max_iter, tol):
     return learned
 
 
-def _fopdt(e: Experiment, dt) -> steptest.FopdtFit:
-    if e.u.shape[1] != 1:
-        raise DataError(f"{e.source}: a step test has one input; got {e.u.shape[1]}")
+def _located(e: Experiment, fit, *args):
+    """fit(*args), with a DataError naming the experiment's file."""
     try:
-        return steptest.fit(e.y[:, 0], e.u[:, 0], dt)
+        return fit(*args)
     except DataError as exc:
         raise DataError(f"{e.source}: {exc}") from None
 
