@@ -31,7 +31,7 @@ class NonlinearPlant:
         p = self.params[k]
         span = self.model.dt / self.system.seconds_per_unit
         sol = solve_ivp(lambda _, s: self.system.derivative(s, u, p), (0.0, span), x, method="LSODA",
-                        jac=lambda _, s: self.system.evaluate("f_x", s, u, p), rtol=RTOL, atol=ATOL)
+                        jac=lambda _, s: self.system.jacobian("f_x", s, u, p), rtol=RTOL, atol=ATOL)
         if not sol.success:
             raise DataError(f"the ODE integration failed in mode {self.model.modes[k]!r} from state "
                             f"{np.array2string(x, precision=6)}: {sol.message}")

@@ -138,7 +138,7 @@ def test_continuous_jacobian_and_affine_term_of_the_normal_mode(cstr4):
     system = ode_system(plant, report)
     p = mode_parameters(plant, system, report)[1][0]
     x, u = np.array([3.5955, 190.0611, 120.0222]), np.zeros(0)
-    J = system.evaluate("f_x", x, u, p)
+    J = system.jacobian("f_x", x, u, p)
     c = system.derivative(x, u, p) - J @ x
     np.testing.assert_allclose(J, [[-0.2504, -0.002182, 0], [2.413, -0.05706, 0.03333], [0, 0.15, -0.4125]],
                                rtol=5e-4, atol=1e-12)

@@ -53,7 +53,7 @@ class OdeSystem:
         """Noise-free outputs at the state x, input u and parameter vector p."""
         return self.numeric["h"](x, u, p).ravel()
 
-    def evaluate(self, name: str, x, u, p) -> np.ndarray:
+    def jacobian(self, name: str, x, u, p) -> np.ndarray:
         """A Jacobian ("f_x", "f_u", "h_x", "h_u") as a 2-D array."""
         shape = self.jacobians[name].shape
         return np.asarray(self.numeric[name](x, u, p), dtype=float).reshape(shape)
@@ -207,10 +207,10 @@ def linearise(plant: Plant, system: OdeSystem, report: Report) -> Model:
     for mode, env, p, x_bar in zip(plant.modes, params, pvecs, points):
         process, measurement = mode_noise(plant, mode, env, report)
         m = ModeArrays.empty(layout, process, 0.0 if np.isnan(measurement) else measurement)
-        f_x, f_u = system.evaluate("f_x", x_bar, u_lin, p), system.evaluate("f_u", x_bar, u_lin, p)
+        f_x, f_u = system.jacobian("f_x", x_bar, u_lin, p), system.jacobian("f_u", x_bar, u_lin, p)
         c = system.derivative(x_bar, u_lin, p) - f_x @ x_bar - f_u @ u_lin
         m.A, m.F, m.f = zoh(f_x, f_u, c, dt)
-        m.C, m.G = system.evaluate("h_x", x_bar, u_lin, p), system.evaluate("h_u", x_bar, u_lin, p)
+        m.C, m.G = system.jacobian("h_x", x_bar, u_lin, p), system.jacobian("h_u", x_bar, u_lin, p)
         m.g = system.output(x_bar, u_lin, p) - m.C @ x_bar - m.G @ u_lin
         m.x0 = x_bar if per_mode else _fixed_point(m, u_bar, x_bar)
         modes.append(m)
@@ -299,7 +299,7 @@ def steady_state(system: OdeSystem, guess, u, p, mode: str, pos: S.Pos, report: 
     """The state where every derivative vanishes, by Powell's hybrid method with the exact Jacobian
     from the guesses; a located error says the largest residual left when it does not converge."""
     with np.errstate(all="ignore"):
-        sol = root(lambda x: system.derivative(x, u, p), guess, jac=lambda x: system.evaluate("f_x", x, u, p),
+        sol = root(lambda x: system.derivative(x, u, p), guess, jac=lambda x: system.jacobian("f_x", x, u, p),
                    method="hybr", options={"xtol": 1e-13})
         residual = system.derivative(sol.x, u, p)
     scaled = np.abs(residual) / (1.0 + np.abs(sol.x))
