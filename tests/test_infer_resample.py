@@ -86,10 +86,12 @@ def test_resampler_counts_copies_in_the_ess_and_honours_the_threshold():
     rng = np.random.default_rng(0)
     lazy = Resampler(SCHEMES["systematic"], 4, rng, threshold=0.5)
     # Particle 0 stands for 3 equal copies of weight 1/6 each, particle 1 for one of weight 1/2.
-    ancestors, logw, copies, size = lazy(np.array([0.5, 0.5]), np.array([3, 1]))
+    ancestors, logw, size = lazy(np.array([0.5, 0.5]), np.array([3, 1]))
     assert size == pytest.approx(3.0)
-    assert list(ancestors) == [0, 1] and list(copies) == [3, 1]  # 3 >= 0.5 * 4: no resampling
-    ancestors, logw, copies, size = lazy(np.array([0.9, 0.1]), np.array([1, 1]))
-    assert len(ancestors) == 4 and (copies == 1).all() and np.allclose(logw, -np.log(4))
+    # 3 >= 0.5 * 4, so no resampling: every copy comes back with its share of the weight.
+    assert list(ancestors) == [0, 0, 0, 1]
+    np.testing.assert_allclose(np.exp(logw), [1 / 6, 1 / 6, 1 / 6, 1 / 2])
+    ancestors, logw, size = lazy(np.array([0.9, 0.1]))
+    assert len(ancestors) == 4 and np.allclose(logw, -np.log(4))
     with pytest.raises(FilterError, match="ESS threshold must be in"):
         Resampler(SCHEMES["systematic"], 4, rng, threshold=0.0)

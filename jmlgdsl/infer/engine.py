@@ -54,7 +54,8 @@ class Resampler:
     """The resampling policy of a particle filter: a scheme, a target count and an ESS threshold.
 
     Resampling happens when ESS < threshold * n; a threshold of 1 resamples at every step. A
-    particle may stand for several identical copies (`copies`), which counts in the ESS.
+    particle may stand for several identical copies (`copies`): they count in the ESS, and when no
+    resampling happens each copy comes back as an entry of its own, holding its share of the weight.
     """
 
     def __init__(self, scheme, n, rng, threshold=1.0):
@@ -63,16 +64,15 @@ class Resampler:
         self.scheme, self.n, self.rng, self.threshold = scheme, n, rng, threshold
 
     def __call__(self, w, copies=None):
-        """(ancestor indices, their new log-weights and copy counts, ESS) for normalised weights w."""
+        """(ancestor indices, their new log-weights, ESS) for normalised weights w."""
         if copies is None:
             copies = np.ones(len(w), dtype=np.int64)
-            size = ess(w)
-        else:
-            size = 1.0 / np.sum(w * w / copies)  # each of the c_i copies holds w_i / c_i
+        size = 1.0 / np.sum(w * w / copies)  # each of the c_i copies holds w_i / c_i
         if self.threshold >= 1.0 or size < self.threshold * self.n:
-            return self.scheme(w, self.n, self.rng), np.full(self.n, -np.log(self.n)), np.ones(self.n, np.int64), size
+            return self.scheme(w, self.n, self.rng), np.full(self.n, -np.log(self.n)), size
+        ancestors = np.repeat(np.arange(len(w)), copies)
         with np.errstate(divide="ignore"):
-            return np.arange(len(w)), np.log(w), copies, size
+            return ancestors, np.log(w / copies)[ancestors], size
 
 
 def weighted_posterior(q, modes, K):

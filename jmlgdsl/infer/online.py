@@ -40,7 +40,7 @@ class Filter:
         if resampling not in SCHEMES:
             raise FilterError(f"unknown resampling scheme {resampling!r}; choose from {', '.join(SCHEMES)}")
         engine = ALGORITHMS[algorithm]
-        if particles is None:
+        if particles is None or engine.default_particles is None:  # imm and exact have no particles
             particles = engine.default_particles
         elif isinstance(particles, bool) or not isinstance(particles, (int, np.integer)) or particles < 1:
             raise FilterError(f"the number of particles must be a positive whole number, got {particles!r}")

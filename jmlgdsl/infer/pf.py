@@ -43,6 +43,6 @@ class BootstrapPF:
         q, loglik = normalize(log_prior - 0.5 * (quad + logdet[z] + mask.sum() * LOG_2PI))
         mean, cov = mixture_moments(q, x, np.zeros((model.nx, model.nx)))
         posterior = weighted_posterior(q, z, model.K)
-        ancestors, self.logw, _, size = self.resampler(q)
+        ancestors, self.logw, size = self.resampler(q)
         self.z, self.x = z[ancestors], x[ancestors]
         return Estimate(posterior, mean, cov, predictive_mean(log_prior, y_pred), loglik, size)

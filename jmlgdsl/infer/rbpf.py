@@ -67,7 +67,8 @@ class RaoBlackwellised:
         return (*self._pairs[n], None)
 
     def select(self, q, parent, mode):
-        """(chosen candidate indices, their log-weights and copy counts, ESS) from normalised weights q."""
+        """(chosen candidate indices, their log-weights, ESS) from normalised candidate weights q.
+        A candidate chosen several times becomes one particle with that many copies."""
         raise NotImplementedError
 
     def step(self, y, mask, u) -> Estimate:
@@ -98,8 +99,8 @@ class RaoBlackwellised:
         posterior = weighted_posterior(q, mode, K)
         yp = predictive_mean(log_prior, y_pred)
 
-        chosen, logw, copies, size = self.select(q, parent, mode)
-        chosen, self.logw, self.copies = merge_copies(parent[chosen] * K + mode[chosen], chosen, logw, copies)
+        chosen, logw, size = self.select(q, parent, mode)
+        chosen, self.logw, self.copies = merge_copies(parent[chosen] * K + mode[chosen], chosen, logw)
         self.z = mode[chosen]
         self.mu = mu_f[chosen]
         self.node = self.graph.children(rows, self.node[parent[chosen]], self.z)
@@ -108,16 +109,15 @@ class RaoBlackwellised:
         return Estimate(posterior, mean, cov, yp, loglik, size)
 
 
-def merge_copies(key, chosen, logw, copies):
+def merge_copies(key, chosen, logw):
     """Chosen candidates with equal keys (same parent, same mode) are identical particles: keep one
-    of each with the summed weight and copy count. Returns (chosen, log-weights, copies)."""
-    distinct, first, inverse = np.unique(key, return_index=True, return_inverse=True)
+    of each with the summed weight. Returns (chosen, log-weights, copy counts)."""
+    distinct, first, inverse, counts = np.unique(key, return_index=True, return_inverse=True, return_counts=True)
     if len(distinct) == len(key):
-        return chosen, logw, copies
+        return chosen, logw, counts
     top = logw.max()
-    w = np.bincount(inverse, weights=np.exp(logw - top))
     with np.errstate(divide="ignore"):
-        return chosen[first], np.log(w) + top, np.bincount(inverse, weights=copies).astype(np.int64)
+        return chosen[first], np.log(np.bincount(inverse, weights=np.exp(logw - top))) + top, counts
 
 
 class RBPF(RaoBlackwellised):
@@ -149,8 +149,8 @@ class LookAheadRBPF(RaoBlackwellised):
     def select(self, q, parent, mode):
         K = self.model.K
         q = q.reshape(-1, K)
-        ancestors, logw, copies, size = self.resampler(q.sum(axis=1), self.copies)
-        return ancestors * K + sample_rows(q[ancestors], self.rng), logw, copies, size
+        ancestors, logw, size = self.resampler(q.sum(axis=1), self.copies)
+        return ancestors * K + sample_rows(q[ancestors], self.rng), logw, size
 
 
 class FearnheadCliffordRBPF(RaoBlackwellised):
@@ -161,7 +161,7 @@ class FearnheadCliffordRBPF(RaoBlackwellised):
     def select(self, q, parent, mode):
         chosen, w = fearnhead_clifford(q, self.n, self.rng)
         w = w / w.sum()
-        return chosen, np.log(w), np.ones(len(w), np.int64), 1.0 / np.dot(w, w)
+        return chosen, np.log(w), 1.0 / np.dot(w, w)
 
 
 class Exact(RaoBlackwellised):
@@ -178,4 +178,4 @@ class Exact(RaoBlackwellised):
                 f"more than the limit of {self.max_gaussians}; use fc-rbpf, which is exact while "
                 f"the particles outnumber the mode histories")
         w = q[chosen]
-        return chosen, np.log(w), np.ones(len(w), np.int64), 1.0 / np.dot(w, w)
+        return chosen, np.log(w), 1.0 / np.dot(w, w)
