@@ -10,7 +10,7 @@ import jmlgdsl
 from jmlgdsl.cli import main
 from jmlgdsl.data import write_columns
 from jmlgdsl.infer import filter as run_filter
-from jmlgdsl.learn import bank
+from jmlgdsl.learn import bank, figures
 from jmlgdsl.learn.em import forward
 from jmlgdsl.learn.prbs import prbs
 from jmlgdsl.learn.statespace import StateSpace
@@ -124,6 +124,8 @@ def test_fopdt_structure_from_step_tests(dryer, tmp_path):
         true_gain = dryer.F[k, 0, 0] / (1 - dryer.A[k, 0, 0])
         assert lm.fopdt.gain == pytest.approx(true_gain, rel=0.05)
         assert lm.model.gain()[0, 0] == pytest.approx(true_gain, rel=0.05)
+    png = figures.plot_step(learned[0].fopdt, learned[0].experiment.y, tmp_path / "step.png")
+    assert png.read_bytes().startswith(b"\x89PNG")
 
 
 def test_missing_outputs_are_allowed(dryer, experiments):

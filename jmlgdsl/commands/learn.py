@@ -9,7 +9,7 @@ def register(subparsers):
         description="Fit one linear-Gaussian model per mode: an ARX least-squares fit (or an FOPDT "
                     "fit of a step test) gives the structure and the start for EM, which learns the "
                     "matrices and both noise levels. Every mode is validated (residual whiteness and "
-                    "input-residual correlation up to lag 25 with 99 %% bands, free-run fit) and the "
+                    "input-residual correlation up to lag 25 with 99 % bands, free-run fit) and the "
                     "bank is written as a readable, commented spec that 'jmlgdsl run' accepts.")
     p.add_argument("--mode", action="append", required=True, metavar="NAME=CSV",
                    help="a mode's experiment (repeat for every mode)")
@@ -23,8 +23,8 @@ def register(subparsers):
     p.add_argument("--criterion", choices=("bic", "aic"), default="bic", help="order selection criterion")
     p.add_argument("--max-order", type=int, default=4, help="largest na and nb tried by --order auto")
     p.add_argument("--max-delay", type=int, default=0, help="largest input delay nk tried by --order auto")
-    p.add_argument("--input", default="", help="input column names, comma separated (without --template)")
-    p.add_argument("--output", dest="outputs", default=None, help="output column name (without --template)")
+    p.add_argument("--input", default="", metavar="NAMES", help="input column names, comma separated (without --template)")
+    p.add_argument("--output", dest="outputs", default=None, metavar="NAME", help="output column name (without --template)")
     p.add_argument("--dt", type=float, default=1.0, help="sample time in seconds (without --template)")
     p.add_argument("--name", default="plant", help="plant name (without --template)")
     p.add_argument("--stay", type=float, default=0.99,
@@ -32,7 +32,7 @@ def register(subparsers):
     p.add_argument("--max-iter", type=int, default=100, help="EM iteration cap (default 100)")
     p.add_argument("--tol", type=float, default=1e-5, help="EM relative log-likelihood tolerance (default 1e-5)")
     p.add_argument("--figures", metavar="DIR", help="write validation (and step-fit) figures here")
-    p.add_argument("-o", "--output-spec", dest="spec_out", default="-", help="spec file to write (default: standard output)")
+    p.add_argument("-o", "--output-spec", dest="spec_out", default="-", metavar="FILE", help="spec file to write (default: standard output)")
     p.set_defaults(func=main)
 
 
