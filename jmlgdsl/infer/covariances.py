@@ -49,10 +49,13 @@ class _Rows:
     Sig_f: _Growing  # filtered covariance, (nx, nx)
     child: _Growing  # node of Sig_f, -1 until a particle needs it
 
-    def take(self, name, flat):
-        """Entries of one field at flat indices node * K + mode."""
+    def take(self, name, node, mode=None):
+        """Entries of one field at (node, mode) pairs; with mode None, every mode of each node in turn."""
         a = getattr(self, name).data
-        return a.reshape((a.shape[0] * a.shape[1],) + a.shape[2:])[flat]
+        if mode is not None:
+            return a[node, mode]
+        rows = a[node]
+        return rows.reshape((rows.shape[0] * rows.shape[1],) + a.shape[2:])
 
 
 class CovarianceGraph:

@@ -81,21 +81,22 @@ class RaoBlackwellised:
         y_pred = (self.mu @ self._CA).reshape(n, K, ny) + c
         if log_prop is None:  # every (particle, mode) pair, in order
             mu_p, y_pred = mu_p.reshape(n * K, nx), y_pred.reshape(n * K, ny)
+            node, node_mode = self.node, None
         else:
             mu_p, y_pred = mu_p[parent, mode], y_pred[parent, mode]
-        flat = self.node[parent] * K + mode
+            node, node_mode = self.node[parent], mode
         m = int(mask.sum())
         r = y - y_pred if m == ny else y[mask] - y_pred[:, mask]
-        z = np.einsum("jab,jb->ja", rows.take("Linv", flat), r)
+        z = np.einsum("jab,jb->ja", rows.take("Linv", node, node_mode), r)
         quad = np.minimum(np.einsum("ja,ja->j", z, z), MAX_QUAD)
-        ll = -0.5 * (quad + rows.take("logdet", flat) + m * LOG_2PI)
-        mu_f = mu_p + np.einsum("jai,ja->ji", rows.take("gain_t", flat), r)
+        ll = -0.5 * (quad + rows.take("logdet", node, node_mode) + m * LOG_2PI)
+        mu_f = mu_p + np.einsum("jai,ja->ji", rows.take("gain_t", node, node_mode), r)
 
         log_prior = self.logw[parent] + model.logP[self.z[parent], mode]
         if log_prop is not None:
             log_prior = log_prior - log_prop
         q, loglik = normalize(log_prior + ll)
-        mean, cov = mixture_moments(q, mu_f, np.einsum("j,jab->ab", q, rows.take("Sig_f", flat)))
+        mean, cov = mixture_moments(q, mu_f, np.einsum("j,jab->ab", q, rows.take("Sig_f", node, node_mode)))
         posterior = weighted_posterior(q, mode, K)
         yp = predictive_mean(log_prior, y_pred)
 

@@ -76,22 +76,21 @@ def fearnhead_clifford(q, n, rng):
     their weight; n - L of the rest are chosen by stratified sampling with spacing alpha = 1/c and get
     weight alpha. E[new weight of j] = q_j, and the selected candidates are distinct.
     """
-    positive = np.flatnonzero(q > 0)
-    if len(positive) <= n:
-        return positive, q[positive]
-    order = positive[np.argsort(-q[positive], kind="stable")]
-    qs = q[order]
-    # With the L largest kept, c = (n - L) / (sum of the others); the right L is the first with c q_L < 1.
-    tail = np.cumsum(qs[::-1])[::-1]  # tail[L] = sum of qs[L:]
+    positive = q > 0
+    if positive.sum() <= n:
+        idx = np.flatnonzero(positive)
+        return idx, q[idx]
+    # L < n, so the candidates kept whole are among the n largest: sort only those.
+    top = np.argpartition(-q, n - 1)[:n]
+    top = top[np.argsort(-q[top], kind="stable")]
+    qs = q[top]
+    tail = q.sum() - np.concatenate([[0.0], np.cumsum(qs[:-1])])  # tail[L] = sum of all but the L largest
     L = np.arange(n)
-    ok = (n - L) * qs[L] < tail[L]
-    kept = int(np.argmax(ok))
+    kept = int(np.argmax((n - L) * qs < tail))  # the first L with c q_L < 1 for c = (n - L) / tail[L]
     alpha = tail[kept] / (n - kept)
-    rest = qs[kept:]
-    # Stratified walk: the j-th point alpha * (j + U) falls in candidate i when cumsum covers it.
+    positive[top[:kept]] = False
+    rest = np.flatnonzero(positive)
+    # Stratified walk over the rest (each q_j < alpha, so no candidate is hit twice).
     points = alpha * (np.arange(n - kept) + rng.random())
-    chosen = np.searchsorted(np.cumsum(rest), points, side="right")
-    chosen = np.minimum(chosen, len(rest) - 1)
-    idx = np.concatenate([order[:kept], order[kept:][chosen]])
-    weights = np.concatenate([qs[:kept], np.full(n - kept, alpha)])
-    return idx, weights
+    chosen = np.minimum(np.searchsorted(np.cumsum(q[rest]), points, side="right"), len(rest) - 1)
+    return np.concatenate([top[:kept], rest[chosen]]), np.concatenate([qs[:kept], np.full(n - kept, alpha)])
