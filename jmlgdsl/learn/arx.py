@@ -34,6 +34,7 @@ class ArxFit:
 
     @property
     def order(self) -> tuple[int, int, int]:
+        """(na, nb, nk)."""
         return len(self.a), len(self.b), self.nk
 
     def to_statespace(self, u0, y0, n=None) -> StateSpace:

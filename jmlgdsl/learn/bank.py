@@ -39,6 +39,7 @@ class LearnedMode:
 
     @property
     def model(self) -> StateSpace:
+        """The learned state-space model."""
         return self.em.model
 
     def summary(self) -> str:
@@ -93,6 +94,7 @@ def learn_modes(experiments: dict, order="auto", fopdt=False, dt=1.0, max_order=
 
 
 def _fit_arx(experiments, order, max_iter, tol):
+    """Every mode from an ARX start of the given order, started at its first measured output."""
     na, nb, nk = order
     starts = {}
     for k, e in experiments.items():

@@ -43,6 +43,7 @@ class EMResult:
 
     @property
     def iterations(self) -> int:
+        """EM iterations whose parameters were kept."""
         return len(self.loglik) - 1
 
 
@@ -93,11 +94,11 @@ def smooth(ss: StateSpace, y, u) -> Smoothed:
     return Smoothed(mu_s, Sig_s, cross, fw.loglik)
 
 
-def m_step(ss: StateSpace, y, u, e: Smoothed, offset=True, feedthrough=True, initial=True) -> StateSpace:
+def m_step(ss: StateSpace, y, u, e: Smoothed, offset=True, feedthrough=True) -> StateSpace:
     """Closed-form parameter update from the smoothed moments.
 
-    offset: learn f (and g with feedthrough); feedthrough: learn G (else G, g stay as they are);
-    initial: learn mu0 and Sigma0. Parameters not learned are held at their current values.
+    offset: learn f (and g with feedthrough); feedthrough: learn G (else G, g stay as they are).
+    Parameters not learned are held at their current values.
     """
     T = len(y)
     ones = np.ones((T, 1 if offset else 0))
@@ -118,11 +119,7 @@ def m_step(ss: StateSpace, y, u, e: Smoothed, offset=True, feedthrough=True, ini
     else:
         H, R = _regress(y[o] - u[o] @ ss.G.T - ss.g, xs, None, Sx, None)
         C, G, g = H, ss.G, ss.g
-    if not initial:
-        mu0, Sigma0 = ss.mu0, ss.Sigma0
-    else:
-        mu0, Sigma0 = e.mean[0], spd(e.cov[0])
-    return StateSpace(A=A, F=F, f=f, C=C, G=G, g=g, Q=Q, R=R, mu0=mu0, Sigma0=Sigma0)
+    return StateSpace(A=A, F=F, f=f, C=C, G=G, g=g, Q=Q, R=R, mu0=e.mean[0], Sigma0=spd(e.cov[0]))
 
 
 def _regress(X, Z, Sxx_cov, Szz_cov, Sxz_cov):
@@ -150,8 +147,7 @@ def spd(S) -> np.ndarray:
     return kalman.symmetrize((V * w) @ V.T)
 
 
-def em(ss: StateSpace, y, u=None, max_iter=100, tol=1e-5, offset=True, feedthrough=True,
-       initial=True) -> EMResult:
+def em(ss: StateSpace, y, u=None, max_iter=100, tol=1e-5, offset=True, feedthrough=True) -> EMResult:
     """Run EM from `ss` until the log-likelihood gains less than tol relative, or max_iter iterations.
 
     The log-likelihood cannot decrease in exact arithmetic; if it falls by more than rounding, the
@@ -163,7 +159,7 @@ def em(ss: StateSpace, y, u=None, max_iter=100, tol=1e-5, offset=True, feedthrou
     history = [e.loglik]
     converged = False
     for _ in range(max_iter):
-        new = m_step(ss, y, u, e, offset, feedthrough, initial)
+        new = m_step(ss, y, u, e, offset, feedthrough)
         e_new = smooth(new, y, u)
         gain = e_new.loglik - history[-1]
         if gain < -1e-9 * max(1.0, abs(history[-1])):

@@ -7,6 +7,7 @@ import numpy as np
 
 
 def _pyplot():
+    """matplotlib.pyplot on the headless Agg backend (imported only when a figure is drawn)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -34,6 +35,7 @@ def plot_step(fit, y, path, title="Step test", ylabel="output"):
 
 
 def _stems(ax, lags, values, band, title):
+    """Correlations as stems over lags, with the 99 % band shaded."""
     ax.axhspan(-band, band, color="C0", alpha=0.15, label="99 % band")
     ax.vlines(lags, 0, values, color="k", lw=1)
     ax.plot(lags, values, "o", ms=3, color="k")

@@ -32,6 +32,7 @@ class StateSpace:
 
     @property
     def nx(self) -> int:
+        """Number of states."""
         return self.A.shape[0]
 
     def replace(self, **changes) -> "StateSpace":
@@ -88,6 +89,7 @@ def companion(a) -> np.ndarray:
 
 
 def _observability(A, C):
+    """[C; CA; ...; CA^(n-1)]."""
     rows = [C]
     for _ in range(A.shape[0] - 1):
         rows.append(rows[-1] @ A)
@@ -95,4 +97,5 @@ def _observability(A, C):
 
 
 def _sym(S):
+    """(S + S') / 2."""
     return 0.5 * (S + S.T)

@@ -36,6 +36,7 @@ class FopdtFit:
 
     @property
     def pole(self) -> float:
+        """exp(-dt / tau), the sampled pole."""
         return float(np.exp(-self.dt / self.tau))
 
     def response(self, T: int) -> np.ndarray:
@@ -51,6 +52,7 @@ class FopdtFit:
 
 
 def _response(step, delay, dt, tau, T):
+    """Unit-gain, unit-step FOPDT response at samples 0..T-1."""
     k = np.arange(T) - step - delay + 1
     return np.where(k >= 1, 1.0 - np.exp(-np.maximum(k, 0) * dt / tau), 0.0)
 

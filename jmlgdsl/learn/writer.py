@@ -27,6 +27,7 @@ def matrix(M) -> str:
 
 
 def _declaration(keyword, names, units, values=None) -> str:
+    """An input/output declaration line: names with their [unit] and constant default where known."""
     items = []
     for i, name in enumerate(names):
         item = name + (f" [{units[name]}]" if name in units else "")
@@ -37,6 +38,7 @@ def _declaration(keyword, names, units, values=None) -> str:
 
 
 def _quoted(text: str) -> str:
+    """A mode description as a one-line string literal (the language has no escapes)."""
     return '"' + " ".join(str(text).replace('"', "'").split()) + '"'
 
 
@@ -48,6 +50,7 @@ def _rest_uniform(values, keep) -> bool:
 
 
 def _initial(model: Model) -> str:
+    """The prior: `NAME p, otherwise uniform` when it is exactly that, else a vector."""
     k = int(np.argmax(model.p0))
     if _rest_uniform(model.p0, k):
         return f"initial     {model.modes[k]} {number(model.p0[k])}, otherwise uniform"
@@ -55,6 +58,7 @@ def _initial(model: Model) -> str:
 
 
 def _transitions(model: Model) -> str:
+    """The chain: `stay p, otherwise uniform` when it is exactly that, else the matrix."""
     stay = model.P[0, 0]
     if np.all(np.diag(model.P) == stay) and all(_rest_uniform(row, k) for k, row in enumerate(model.P)):
         return f"transitions stay {number(stay)}, otherwise uniform"
@@ -62,6 +66,7 @@ def _transitions(model: Model) -> str:
 
 
 def _mode_block(model: Model, k: int) -> list[str]:
+    """Lines of mode k's matrix block; zero offsets and feedthrough are left out."""
     lines = [f"mode {model.modes[k]} {{", f"  A = {matrix(model.A[k])}"]
     if model.nu:
         lines.append(f"  F = {matrix(model.F[k])}")
