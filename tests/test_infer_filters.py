@@ -227,3 +227,12 @@ def test_exact_refuses_too_many_gaussians(small, monkeypatch):
     monkeypatch.setattr(Exact, "max_gaussians", 20)
     with pytest.raises(FilterError, match="exact filtering would need 32 Gaussians.*limit of 20"):
         jmlgdsl.filter(model, y, algorithm="exact")
+
+
+def test_result_shapes_and_deterministic_filters_have_no_particles(small):
+    model, y, _ = small
+    res = jmlgdsl.filter(model, y, algorithm="imm", particles=50)
+    assert res.particles is None and np.isnan(res.ess).all()
+    assert res.mode_posterior.shape == (5, 2) and res.state_cov.shape == (5, 2, 2) and res.T == 5
+    empty = jmlgdsl.filter(model, np.zeros((0, 2)))
+    assert empty.mode_posterior.shape == (0, 2) and empty.state_cov.shape == (0, 2, 2) and empty.loglik == 0.0

@@ -116,3 +116,14 @@ def test_main_command_diagnoses_the_bundled_example(capsys, monkeypatch):
     for segment in ("t 1\u201371: normal", "t 72\u2013239: fan", "t 706\u20131000: fan"):
         assert segment in text
     assert float(text.split("diagnosis error: ")[1].split(" %")[0]) < 2.0
+
+
+def test_simulate_takes_inputs_from_a_csv(files, tmp_path, capsys):
+    spec, _ = files
+    inputs = tmp_path / "in.csv"
+    inputs.write_text("one\n1\n2\n\n3\n")
+    assert main(["simulate", str(spec), "--inputs", str(inputs), "--seed", "0"]) == 0
+    rows = list(csv.DictReader(capsys.readouterr().out.splitlines()))
+    assert [r["one"] for r in rows] == ["1", "2", "3"]
+    assert main(["simulate", str(spec), "--inputs", str(inputs), "--steps", "5"]) == 2
+    assert "has 3 rows, fewer than --steps 5" in capsys.readouterr().err
