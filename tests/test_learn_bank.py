@@ -121,6 +121,7 @@ def test_fopdt_structure_from_step_tests(dryer, tmp_path):
     learned = bank.learn_modes(exps, fopdt=True, max_iter=50)
     for k, lm in enumerate(learned):
         assert lm.fopdt.delay == 0 and lm.structure.startswith("FOPDT gain")
+        assert np.all(np.diff(lm.em.loglik) >= -1e-9 * np.abs(lm.em.loglik[:-1]))
         true_gain = dryer.F[k, 0, 0] / (1 - dryer.A[k, 0, 0])
         assert lm.fopdt.gain == pytest.approx(true_gain, rel=0.05)
         assert lm.model.gain()[0, 0] == pytest.approx(true_gain, rel=0.05)

@@ -134,6 +134,7 @@ def test_stops_on_relative_tolerance():
     y = simulate(truth, u, rng)
     result = em(truth, y, u, max_iter=500, tol=1e-6)
     assert result.converged and result.iterations < 500
+    assert_non_decreasing(result.loglik)
     gains = np.diff(result.loglik)
     assert gains[-1] < 1e-6 * abs(result.loglik[-2]) <= gains[-2]
 
@@ -155,6 +156,7 @@ def test_a_falling_likelihood_keeps_the_last_good_parameters(monkeypatch):
     with pytest.warns(RuntimeWarning, match="log-likelihood fell"):
         result = em(truth, y, u, max_iter=10, tol=0.0)
     assert result.iterations == 2 and not result.converged
+    assert_non_decreasing(result.loglik)
     assert result.loglik[-1] == pytest.approx(forward(result.model, y, u).loglik, rel=1e-12)
 
 
