@@ -106,6 +106,19 @@ def test_learned_bank_diagnoses_nearly_as_well_as_the_true_bank(dryer, learned):
     assert learned_error <= true_error + 2
 
 
+def test_assembled_modes_start_at_their_steady_state_unless_they_integrate(learned):
+    stable = learned[0]
+    integrating = bank.LearnedMode("tank", stable.experiment, "ARX(1,1,0)", stable.start,
+                                   bank.EMResult(stable.model.replace(A=np.eye(1)), stable.em.loglik, True), None)
+    model = bank.assemble([stable, integrating], P=np.eye(2), p0=[0.5, 0.5], operating_input=[15.0])
+    assert model.mu0[0] == pytest.approx(stable.model.steady_state([15.0]))
+    assert model.mu0[1] == stable.model.mu0
+    m = stable.model
+    stationary = m.Q[0, 0] / (1 - m.A[0, 0] ** 2)
+    assert model.Sigma0[0, 0] == pytest.approx(stationary)  # the stable mode's spread is the wider
+    assert np.allclose(model.B[:, 0, 0], np.sqrt(m.Q[0, 0])) and np.allclose(model.D[:, 0, 0], np.sqrt(m.R[0, 0]))
+
+
 def test_default_transitions_stay_and_share_the_rest():
     P = bank.default_transitions(4, 0.97)
     assert np.allclose(P, [[0.97, 0.01, 0.01, 0.01], [0.01, 0.97, 0.01, 0.01],

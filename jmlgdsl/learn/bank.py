@@ -139,20 +139,31 @@ def default_transitions(K: int, stay: float) -> np.ndarray:
     return np.full((K, K), (1 - stay) / (K - 1)) + (stay - (1 - stay) / (K - 1)) * np.eye(K)
 
 
+def _stable(ss: StateSpace) -> bool:
+    """Whether every pole lies inside the unit circle."""
+    return bool(np.abs(ss.poles()).max() < 1)
+
+
 def initial_spread(ss: StateSpace) -> np.ndarray:
     """Stationary state variances under the process noise (the Q diagonal for a mode that is not stable)."""
-    if np.abs(ss.poles()).max() < 1:
-        return np.diag(solve_discrete_lyapunov(ss.A, ss.Q))
-    return np.diag(ss.Q)
+    return np.diag(solve_discrete_lyapunov(ss.A, ss.Q) if _stable(ss) else ss.Q)
+
+
+def initial_state(lm: LearnedMode, operating_input=None) -> np.ndarray:
+    """Where a mode starts: its steady state under the operating input (default: its experiment's
+    mean input); a mode that is not stable has none, so it starts where its experiment began."""
+    m = lm.model
+    if not _stable(m):
+        return m.mu0
+    return m.steady_state(lm.experiment.u.mean(0) if operating_input is None else operating_input)
 
 
 def assemble(learned: list[LearnedMode], *, P, p0, operating_input=None, **names) -> Model:
     """A Model from the learned modes: B, D as Cholesky factors of Q, R; each mode starts at its
-    steady state under the operating input (default: the mean input of its experiment), with the
-    widest stationary spread of any mode. `names` passes name, dt, inputs, outputs, units, ..."""
+    `initial_state`, with the widest stationary spread of any mode. `names` passes name, dt,
+    inputs, outputs, units, ... on to the Model."""
     mods = [lm.model for lm in learned]
-    x0 = [m.steady_state(lm.experiment.u.mean(0) if operating_input is None else operating_input)
-          for m, lm in zip(mods, learned)]
+    x0 = [initial_state(lm, operating_input) for lm in learned]
     spread = np.max([initial_spread(m) for m in mods], axis=0)
     return Model.from_arrays(
         A=np.stack([m.A for m in mods]), F=np.stack([m.F for m in mods]), f=np.stack([m.f for m in mods]),
