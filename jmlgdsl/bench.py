@@ -71,16 +71,22 @@ class Job:
 
 def sequence_of(job: Job) -> Sequence:
     """The data a job filters: the given sequence, or the run's simulated one."""
-    source = job.source
-    if isinstance(source, Sequence):
-        return source
-    rng = np.random.default_rng(job.data_seed)
-    if isinstance(source.plant, str):
+    if isinstance(job.source, Sequence):
+        return job.source
+    seed = job.data_seed
+    return _simulated(job.source, job.model if job.source.plant is None else job.source.plant, seed.entropy,
+                      tuple(seed.spawn_key))
+
+
+@functools.lru_cache(maxsize=8)
+def _simulated(source, plant, entropy, spawn_key) -> Sequence:
+    """One run's simulated sequence, kept while a worker's consecutive jobs filter the same run."""
+    rng = np.random.default_rng(np.random.SeedSequence(entropy, spawn_key=spawn_key))
+    if isinstance(plant, str):
         from .nonlinear import simulate_nonlinear
 
-        sim = simulate_nonlinear(nonlinear_plant(source.plant), source.steps, rng=rng, modes=source.schedule)
+        sim = simulate_nonlinear(nonlinear_plant(plant), source.steps, rng=rng, modes=source.schedule)
     else:
-        plant = job.model if source.plant is None else source.plant
         sim = simulate(plant, source.steps, rng=rng, modes=source.schedule)
     return Sequence(source.name, sim.y, sim.u, sim.modes)
 

@@ -54,7 +54,7 @@ def error_vs_particles(summary, path, title="", reference=None):
         color, marker = _style(name)
         n, mean, sd = np.array(points, dtype=float).T
         ax.errorbar(n * 1.08, mean, yerr=sd, color=color, marker=marker or "o", mfc="none", ls=":", capsize=2,
-                    alpha=0.8, label=f"{name}, published")
+                    alpha=0.8, label=f"{name}, published (real data)")
     ax.set_xscale("log")
     counts = sorted({r["particles"] for r in summary if r["particles"] is not None})
     ax.set_xticks(counts, [str(n) for n in counts])

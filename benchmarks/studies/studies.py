@@ -1,0 +1,299 @@
+"""Regenerate the published studies of docs/studies.md on simulated data: tables in
+benchmarks/studies/results/<study>/ and figures in docs/figures/<study>-*.png.
+
+    python benchmarks/studies/studies.py --list
+    python benchmarks/studies/studies.py dryer-seq1                 # one study, 25 runs
+    python benchmarks/studies/studies.py --runs 5 level-tank4 cstr4 # quicker, noisier
+    python benchmarks/studies/studies.py                            # every study (about an hour on 2 cores)
+
+Every study draws fresh sequences per run from a fixed mode schedule (the published sequences where
+the source study printed them, else a hand-made one that visits every mode along allowed
+transitions), so a run's data and filter seeds follow from --seed alone.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+import jmlgdsl
+from jmlgdsl import bench, plots
+from jmlgdsl.prefilter import moving_average
+from jmlgdsl.simulate import parse_schedule
+
+ROOT = Path(__file__).resolve().parents[2]
+SPECS, FIGURES, RESULTS = ROOT / "specs", ROOT / "docs" / "figures", Path(__file__).resolve().parent / "results"
+PARTICLE_FILTERS = ("pf", "rbpf", "la-rbpf", "fc-rbpf")
+
+# Industrial dryer, random sequences No. 1-4 (Tables 5.4, D.1-D.3). Sequence 4's last interval is
+# printed as "low fan, closed grill" (a faulty grill) under the fan+grill label; we follow the label.
+DRYER = {
+    "seq1": "1-70:normal,71-238:fan,239-365:grill,366-513:normal,514-705:grill,706-1000:fan",
+    "seq2": "1-204:normal,205-266:fan,267-310:grill,311-334:fan_grill,335-894:grill,895-1000:fan",
+    "seq3": "1-421:normal,422-686:grill,687-721:normal,722-846:fan,847-974:normal,975-1000:grill",
+    "seq4": ("1-222:normal,223-274:fan,275-475:normal,476-534:fan,535-810:normal,811-876:fan_grill,"
+             "877-916:grill,917-936:normal,937-1000:fan_grill"),
+}
+# Published diagnosis error % (mean, SD) on the real data, by filter and N.
+TABLE_5_5 = {
+    "pf": [(1, 75.13, 10.20), (4, 77.81, 8.38), (10, 68.35, 16.11), (25, 50.50, 11.04), (50, 40.06, 9.99),
+           (100, 24.20, 7.16), (200, 17.02, 5.03), (1600, 13.07, 2.14)],
+    "rbpf": [(1, 75.61, 14.17), (4, 57.69, 9.98), (10, 39.07, 12.03), (25, 21.61, 7.18), (50, 14.78, 5.06),
+             (100, 10.20, 3.77), (200, 7.99, 0.55), (1600, 7.42, 0.15)],
+    "la-rbpf": [(1, 26.02, 7.79), (4, 18.82, 5.74), (10, 13.55, 5.62), (25, 9.08, 3.49), (50, 7.76, 2.16),
+                (100, 7.28, 1.15), (200, 6.87, 0.29), (1600, 6.75, 0.10)],
+}
+_D6_N = (1, 4, 10, 25, 50, 100, 200, 400, 800, 1600)
+TABLE_D_6 = {
+    name: list(zip(_D6_N, mean, sd)) for name, mean, sd in (
+        ("pf", (76.10, 76.62, 69.78, 64.02, 54.81, 49.87, 47.54, 40.49, 30.91, 20.92),
+         (17.69, 16.08, 13.23, 14.69, 10.34, 11.91, 8.94, 13.08, 14.75, 16.52)),
+        ("rbpf", (64.72, 57.89, 57.15, 49.39, 42.16, 34.13, 31.35, 23.60, 13.32, 8.44),
+         (21.08, 23.47, 23.71, 22.89, 23.82, 23.44, 23.73, 22.68, 15.60, 10.57)),
+        ("la-rbpf", (37.51, 15.16, 17.49, 7.89, 4.42, 3.19, 2.14, 1.84, 1.81, 1.77),
+         (15.09, 15.52, 17.72, 8.62, 2.35, 2.08, 0.95, 0.23, 0.10, 0.06)))
+}
+SCHEDULES = {
+    "level_tank4": ("1-150:low_in,151-300:medium_in,301-450:high_in,451-550:medium_in,551-700:low_in,"
+                    "701-850:low_out,851-1000:low_in"),
+    "level_tank5": ("1-150:low_in,151-300:medium_in,301-420:medium_in_low_out,421-560:low_in_low_out,"
+                    "561-680:low_in,681-820:high_in,821-1000:medium_in"),
+    "heat_exchanger": ("1-150:normal_flow,151-300:high_flow,301-430:very_high_flow,431-580:low_flow,"
+                       "581-730:very_low_flow,731-850:normal_flow,851-1000:low_flow"),
+    "robot_smooth": ("1-150:normal,151-300:low_load,301-450:medium_load,451-600:high_load,601-750:medium_load,"
+                     "751-850:normal,851-1000:low_load"),
+    "robot8": ("1-130:smooth_normal,131-250:smooth_low,251-380:smooth_medium,381-500:smooth_normal,"
+               "501-620:tiled_normal,621-740:tiled_low,741-870:tiled_medium,871-1000:tiled_high"),
+    "cstr4": "1-250:normal,251-500:fouling1,501-750:fouling2,751-1000:fouling3",
+    "cstr10": "1-200:normal,201-400:fouling2,401-600:concentration1,601-800:water2,801-1000:jacket1",
+}
+VARIATIONS = (0, 5, 10, 20, 40, 80, 160, 320)  # % change of the transition probabilities (Tables D.4, D.5, D.7)
+TABLE_D_4 = [(1, 78.3, 72.8), (4, 66.2, 24.2), (10, 31.7, 17.1), (25, 21.9, 11.0), (50, 19.8, 9.7), (100, 8.5, 8.2),
+             (200, 8.2, 8.2)]  # RBPF: N, error at 0 % and at 320 %
+TABLE_D_5 = [(1, 27.38, 25.42), (4, 19.12, 9.02), (10, 12.04, 8.58), (25, 7.80, 7.78), (50, 6.80, 7.16),
+             (100, 6.86, 7.26), (200, 6.70, 7.20)]  # la-RBPF: N, error at 0 % and at 320 %
+
+
+def check_schedule(model, schedule):
+    """Refuse a schedule that takes a transition the model forbids (no filter could follow it)."""
+    modes = parse_schedule(schedule, model)
+    for a, b in zip(modes[:-1], modes[1:]):
+        if model.P[a, b] == 0:
+            raise SystemExit(f"{model.name}: the schedule moves {model.modes[a]} -> {model.modes[b]}, "
+                             f"which the transition matrix forbids")
+
+
+def sweep(args, name, model, sources, filters, particles, **options):
+    """Run one sweep with the common options, print its progress, return its records."""
+    print(f"\n== {name}: {len(filters)} filters, N = {','.join(map(str, particles))}, {args.runs} runs",
+          file=sys.stderr)
+    return bench.sweep(model, sources, filters, particles, args.runs, args.seed, workers=args.workers,
+                       progress=sys.stderr, **options)
+
+
+def publish(name, model, records, reference=None, title=None):
+    """Write a study's tables (results/<name>/) and figures (docs/figures/<name>-*.png)."""
+    folder = RESULTS / name
+    folder.mkdir(parents=True, exist_ok=True)
+    summary = bench.summarise(records)
+    bench.write_records_csv(folder / "runs.csv", records)
+    bench.write_table_csv(folder / "table.csv", summary)
+    (folder / "table.md").write_text(bench.report(summary))
+    plots.study_figures(FIGURES, name, title or model.name, model.dt, summary, records, reference)
+    print(bench.markdown_table(summary))
+
+
+def diagnosis_example(name, model, schedule, algorithm, particles, seed, plant=None, prefilter=None):
+    """The mode-posterior figure of one run: docs/figures/<name>-diagnosis.png."""
+    source = bench.Simulated(None, schedule, name, plant)
+    job = bench.make_jobs(model, [source], (algorithm,), (particles,), runs=1, seed=seed, prefilter=prefilter)[0]
+    data = bench.sequence_of(job)
+    y = data.y if prefilter is None else moving_average(data.y, prefilter)
+    result = jmlgdsl.filter(model, y, data.u, algorithm=algorithm, particles=particles,
+                            rng=np.random.default_rng(job.filter_seed))
+    plots.result_figure(result, data.y, FIGURES / f"{name}-diagnosis.png", true_modes=data.modes)
+
+
+def linear_study(args, name, spec, schedule, reference=None, model=None, title=None, example=("la-rbpf", 10)):
+    """Every filter at every particle count on fresh simulations of a linear plant through a schedule."""
+    model = model or jmlgdsl.load(SPECS / spec)
+    check_schedule(model, schedule)
+    records = sweep(args, name, model, [bench.Simulated(None, schedule, name)], args.filters, args.particles)
+    publish(name, model, records, reference, title)
+    diagnosis_example(name, model, schedule, *example, args.seed)
+
+
+def dryer(args, seq):
+    linear_study(args, f"dryer-{seq}", "dryer.jmlg", DRYER[seq], TABLE_5_5 if seq == "seq1" else None,
+                 title=f"Dryer, sequence {seq[-1]}")
+
+
+def cstr(args, name):
+    """The CSTR filtered with its linearised modes on data from its nonlinear equations."""
+    spec = str(SPECS / f"{name}.jmlg")
+    model = bench.nonlinear_plant(spec).model
+    source = bench.Simulated(None, SCHEDULES[name], name, plant=spec)
+    records = sweep(args, name, model, [source], args.filters, args.particles)
+    publish(name, model, records, title=f"{name.upper()} ({model.K} modes, nonlinear data)")
+    diagnosis_example(name, model, SCHEDULES[name], "la-rbpf", 10, args.seed, plant=spec)
+
+
+def with_measurement_noise(model, level):
+    """The 8-mode robot with measurement noise n_m = level * n_p (n_p = its process noise)."""
+    return model.replace(D=level * model.B, name=f"robot8, n_m = {level} n_p")
+
+
+def robot8(args, level):
+    name = f"robot8-noise{level}"
+    model = with_measurement_noise(jmlgdsl.load(SPECS / "robot8.jmlg"), level)
+    linear_study(args, name, None, SCHEDULES["robot8"], model=model, title=f"Robot, 8 modes, n_m = {level} n_p")
+
+
+def perturbed(model, percent, rows=None):
+    """The transition matrix with every off-diagonal probability (of the given rows, default all) grown
+    by `percent` %, the diagonal shrunk to keep each row summing to one."""
+    P = model.P.copy()
+    for i in range(model.K) if rows is None else rows:
+        off = np.arange(model.K) != i
+        P[i, off] *= 1 + percent / 100
+        P[i, i] = 1 - P[i, off].sum()
+    return model.replace(P=P, name=f"{model.name}, P {percent:+d} %")
+
+
+def robustness(args, name, spec, schedule, filters, rows=None):
+    """Filters built on a perturbed transition matrix, data from the published one (paired runs)."""
+    true = jmlgdsl.load(SPECS / spec)
+    particles = tuple(n for n in args.particles if n <= 200)
+    records = []
+    for percent in VARIATIONS:
+        source = bench.Simulated(None, schedule, f"{percent}%", plant=true)
+        records += sweep(args, f"{name} {percent} %", perturbed(true, percent, rows), [source], filters, particles)
+    folder = RESULTS / name
+    folder.mkdir(parents=True, exist_ok=True)
+    bench.write_records_csv(folder / "runs.csv", records)
+    summary = bench.summarise(records)
+    text = "\n\n".join(variation_table(summary, f) for f in filters) + "\n"
+    (folder / "table.md").write_text(text)
+    print(text)
+    variation_figure(summary, filters, FIGURES / f"{name}.png",
+                     f"{true.name}: filters use a perturbed transition matrix, data follow the published one")
+
+
+def variation_table(summary, name):
+    """Mean diagnosis error by particle count (rows) and perturbation (columns), like Tables D.4/D.5."""
+    cells = {(r["particles"], r["data"]): r["error_mean"] for r in summary if r["filter"] == name}
+    counts = sorted({n for n, _ in cells})
+    lines = [f"{name}: diagnosis error %, mean over runs", "",
+             "| N | " + " | ".join(f"{v} %" for v in VARIATIONS) + " |", "|---|" + "---|" * len(VARIATIONS)]
+    lines += [f"| {n} | " + " | ".join(f"{cells[n, f'{v}%']:.2f}" for v in VARIATIONS) + " |" for n in counts]
+    return "\n".join(lines)
+
+
+def variation_figure(summary, filters, path, title):
+    """Error against the perturbation, one line per particle count, one panel per filter."""
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(filters), figsize=(4.2 * len(filters), 4), sharey=True, squeeze=False)
+    for ax, name in zip(axes[0], filters):
+        rows = [r for r in summary if r["filter"] == name]
+        for n in sorted({r["particles"] for r in rows}):
+            error = {r["data"]: r["error_mean"] for r in rows if r["particles"] == n}
+            ax.plot(range(len(VARIATIONS)), [error[f"{v}%"] for v in VARIATIONS], marker="o", ms=3, label=f"N = {n}")
+        ax.set_xticks(range(len(VARIATIONS)), [f"{v}" for v in VARIATIONS])
+        ax.set_xlabel("off-diagonal transition probabilities raised by (%)")
+        ax.set_title(name)
+        ax.grid(True, alpha=0.3)
+    axes[0, 0].set_ylabel("diagnosis error (% of steps, mean over runs)")
+    axes[0, -1].legend(fontsize="small", loc="upper right")
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=plots.DPI)
+    plt.close(fig)
+
+
+def prefilter(args):
+    """The noisiest 8-mode robot with and without a causal moving average before the filters."""
+    model = with_measurement_noise(jmlgdsl.load(SPECS / "robot8.jmlg"), 4)
+    schedule = SCHEDULES["robot8"]
+    filters = ("rbpf", "la-rbpf", "fc-rbpf")
+    particles = tuple(n for n in args.particles if n <= 400)
+    for window in (None, 3, 5):
+        label = "raw" if window is None else f"ma{window}"
+        records = sweep(args, f"prefilter {label}", model, [bench.Simulated(None, schedule, label)], filters,
+                        particles, prefilter=window)
+        publish(f"robot8-noise4-{label}", model, records,
+                title=f"Robot, 8 modes, n_m = 4 n_p, {'raw' if window is None else f'moving average of {window}'}")
+    diagnosis_example("robot8-noise4-ma5", model, schedule, "la-rbpf", 10, args.seed, prefilter=5)
+
+
+STUDIES = {
+    **{f"dryer-{seq}": (lambda args, seq=seq: dryer(args, seq)) for seq in DRYER},
+    "dryer-transitions": lambda args: robustness(args, "dryer-transitions", "dryer.jmlg", DRYER["seq1"],
+                                                 ("rbpf", "la-rbpf")),
+    "level-tank4": lambda args: linear_study(args, "level-tank4", "level_tank4.jmlg", SCHEDULES["level_tank4"],
+                                             TABLE_D_6, title="Level tank, 4 modes"),
+    "level-tank5": lambda args: linear_study(args, "level-tank5", "level_tank5.jmlg", SCHEDULES["level_tank5"],
+                                             title="Level tank, 5 modes"),
+    "heat-exchanger": lambda args: linear_study(args, "heat-exchanger", "heat_exchanger.jmlg",
+                                                SCHEDULES["heat_exchanger"], title="Heat exchanger"),
+    "heat-exchanger-transitions": lambda args: robustness(args, "heat-exchanger-transitions", "heat_exchanger.jmlg",
+                                                          SCHEDULES["heat_exchanger"], ("la-rbpf",), rows=[2]),
+    "robot-smooth": lambda args: linear_study(args, "robot-smooth", "robot_smooth.jmlg", SCHEDULES["robot_smooth"],
+                                              title="Robot, smooth floor"),
+    **{f"robot8-noise{level}": (lambda args, level=level: robot8(args, level)) for level in (1, 2, 4)},
+    "robot8-prefilter": prefilter,
+    "cstr4": lambda args: cstr(args, "cstr4"),
+    "cstr10": lambda args: cstr(args, "cstr10"),
+}
+
+
+def machine():
+    """The processor, core count and versions, for the record."""
+    cpu = platform.processor() or platform.machine()
+    try:
+        cpu = next(line.split(":", 1)[1].strip() for line in open("/proc/cpuinfo") if line.startswith("model name"))
+    except (OSError, StopIteration):
+        pass
+    return f"{cpu}, {os.cpu_count()} cores, Python {platform.python_version()}, numpy {np.__version__}"
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("studies", nargs="*", help="studies to run (default: all)")
+    parser.add_argument("--list", action="store_true", help="list the studies and stop")
+    parser.add_argument("--runs", type=int, default=25)
+    parser.add_argument("--seed", type=int, default=2001)
+    parser.add_argument("--workers", type=int, help="processes (default: every core)")
+    parser.add_argument("--filters", default=",".join(bench.DEFAULT_FILTERS))
+    parser.add_argument("--particles", default=",".join(map(str, bench.DEFAULT_PARTICLES)))
+    args = parser.parse_args(argv)
+    if args.list:
+        print("\n".join(STUDIES))
+        return
+    args.filters = tuple(args.filters.split(","))
+    args.particles = tuple(int(n) for n in args.particles.split(","))
+    unknown = set(args.studies) - set(STUDIES)
+    if unknown:
+        parser.error(f"unknown studies {', '.join(sorted(unknown))}; see --list")
+    FIGURES.mkdir(parents=True, exist_ok=True)
+    for name in args.studies or STUDIES:
+        start = time.perf_counter()
+        STUDIES[name](args)
+        seconds = time.perf_counter() - start
+        log = RESULTS / name / "run.json"
+        log.parent.mkdir(parents=True, exist_ok=True)
+        log.write_text(json.dumps({"study": name, "seconds": round(seconds, 1), "runs": args.runs,
+                                   "seed": args.seed, "command": " ".join(["python", *sys.argv]),
+                                   "machine": machine()}, indent=1) + "\n")
+        print(f"{name}: {seconds:.0f} s", file=sys.stderr)
+
+
+if __name__ == "__main__":
+    main()
