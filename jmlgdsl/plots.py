@@ -222,11 +222,13 @@ def _shade_true_modes(ax, edges, true_modes, colors):
         ax.axvspan(edges[a], edges[b], color=colors[modes[a]], alpha=0.12, lw=0)
 
 
-def result_figure(result, y, path, true_modes=None, title=""):
-    """The diagnosis figure of a filter Result on its data y (T, ny)."""
+def result_figure(result, path, true_modes=None, title=""):
+    """The diagnosis figure of a filter Result; the outputs drawn are those it filtered (prediction +
+    residual), so a pre-filtered run shows the pre-filtered signal."""
     model = result.model
     time = model.dt * np.arange(1, result.T + 1)
     who = result.algorithm + (f", {result.particles} particles" if result.particles else "")
-    diagnosis_figure(path, model.modes, result.mode_posterior, time, y, result.y_pred, model.outputs,
+    diagnosis_figure(path, model.modes, result.mode_posterior, time, result.y_pred + result.residuals,
+                     result.y_pred, model.outputs,
                      true_modes=true_modes, output_units=model.units,
                      title=title or f"{model.name}: mode diagnosis ({who})")

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 from infer_models import dryer
 
+import jmlgdsl
 from jmlgdsl import bench, plots
 from jmlgdsl.cli import main
 
@@ -43,6 +44,19 @@ def test_the_diagnosis_figure_grows_with_modes_and_outputs(tmp_path):
     plots.diagnosis_figure(tmp_path / "many.png", [f"mode{k}" for k in range(10)], many, time, np.zeros((T, 3)),
                            np.zeros((T, 3)), ["y1", "y2", "y3"], true_modes=np.arange(T) % 10)
     assert _pixels(tmp_path / "many.png")[0] > _pixels(tmp_path / "few.png")[0]
+
+
+def test_result_figure_draws_the_filtered_outputs_on_the_model_clock(monkeypatch, tmp_path):
+    model = dryer()
+    y = np.array([[50.5], [np.nan], [50.4], [50.6]])
+    result = jmlgdsl.filter(model, y, algorithm="imm")
+    seen = {}
+    monkeypatch.setattr(plots, "diagnosis_figure", lambda path, *args, **kw: seen.update(args=args, kw=kw))
+    plots.result_figure(result, tmp_path / "r.png", true_modes=[0, 0, 0, 0])
+    modes, posterior, time, drawn, y_pred, outputs = seen["args"]
+    np.testing.assert_allclose(drawn, y)  # NaN where nothing was measured
+    np.testing.assert_array_equal(time, [1.0, 2.0, 3.0, 4.0])
+    assert seen["kw"]["title"] == "dryer: mode diagnosis (imm)"
 
 
 @pytest.fixture(scope="module")

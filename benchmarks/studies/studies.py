@@ -118,7 +118,7 @@ def diagnosis_example(name, model, schedule, algorithm, particles, seed, plant=N
     y = data.y if prefilter is None else moving_average(data.y, prefilter)
     result = jmlgdsl.filter(model, y, data.u, algorithm=algorithm, particles=particles,
                             rng=np.random.default_rng(job.filter_seed))
-    plots.result_figure(result, data.y, FIGURES / f"{name}-diagnosis.png", true_modes=data.modes)
+    plots.result_figure(result, FIGURES / f"{name}-diagnosis.png", true_modes=data.modes)
 
 
 def linear_study(args, name, spec, schedule, reference=None, model=None, title=None, example=("la-rbpf", 10)):
