@@ -188,12 +188,14 @@ def test_cli_learn_writes_a_spec_that_loads_checks_and_runs(dryer, experiments, 
     assert main(["run", str(spec), str(paths["fan"]), "--filter", "imm"]) == 0
 
 
-def test_cli_learn_without_template(dryer, experiments, tmp_path, capsys):
+def test_cli_learn_without_template_writes_the_spec_to_standard_output(dryer, experiments, tmp_path, capsys):
     paths = write_experiments(dryer, dict(list(experiments.items())[:2]), tmp_path)
-    spec = tmp_path / "two.jmlg"
     assert main(["learn", "--output", "temp", "--input", "current", "--order", "auto", "--max-order", "2",
-                 "--stay", "0.95", "--name", "dryer2", "-o", str(spec)]
-                + [f"--mode={n}={p}" for n, p in paths.items()]) == 0
+                 "--stay", "0.95", "--name", "dryer2"] + [f"--mode={n}={p}" for n, p in paths.items()]) == 0
+    captured = capsys.readouterr()
+    assert captured.err.startswith("normal: ARX(1,1,0)")  # the summary goes beside the spec
+    spec = tmp_path / "two.jmlg"
+    spec.write_text(captured.out)
     model = jmlgdsl.load(spec)
     assert model.nx == 1  # first order, as the plant is
     assert model.name == "dryer2" and model.modes == tuple(paths)

@@ -106,14 +106,30 @@ def header(args, paths, learned) -> str:
              f"Structure: {how}; EM up to {args.max_iter} iterations, relative tolerance {args.tol:g}.",
              "State 1 is the noise-free output (observer canonical form); B, D are Cholesky factors",
              "of the learned process and measurement noise covariances. Each mode starts at its steady",
-             "state under the operating input.",
+             "state under the operating input (a mode that is not stable, where its experiment began).",
              f"Validation: residual autocorrelation (lags 1-{validate.MAX_LAG}) and input-residual "
              f"cross-correlation (lags 0-{validate.MAX_LAG}) pass when at most {validate.ALLOWED_OUTSIDE} "
              "lag of each lies outside the 99 % band.",
              ""] + [lm.summary() for lm in learned]
-    if not args.template:
-        lines.append(f"Transitions: stay {args.stay:g}, otherwise uniform; initial: uniform.")
     return "\n".join(lines)
+
+
+def write_figures(folder, learned, frame, report):
+    """Each mode's validation figure, and its step-test fit when it has one."""
+    from pathlib import Path
+
+    from ..learn import figures
+
+    out = Path(folder)
+    out.mkdir(parents=True, exist_ok=True)
+    ylabel, xname = frame["outputs"][0], (frame["inputs"] or ("input",))[0]
+    for lm in learned:
+        paths = [figures.plot_validation(lm, out / f"validation_{lm.name}.png", frame["dt"], ylabel, xname)]
+        if lm.fopdt is not None:
+            paths.append(figures.plot_step(lm.fopdt, lm.experiment.y, out / f"step_{lm.name}.png",
+                                           f"Step test, mode {lm.name}", ylabel))
+        for path in paths:
+            print(f"wrote {path}", file=report)
 
 
 def main(args) -> int:
@@ -124,7 +140,7 @@ def main(args) -> int:
     import numpy as np
 
     from ..data import read_csv
-    from ..learn import bank, figures
+    from ..learn import bank
     from ..learn.writer import write_spec
 
     paths = parse_modes(args.mode)
@@ -151,13 +167,5 @@ def main(args) -> int:
     for lm in learned:
         print(lm.summary(), file=report)
     if args.figures:
-        out = Path(args.figures)
-        out.mkdir(parents=True, exist_ok=True)
-        ylabel, xname = frame["outputs"][0], (frame["inputs"] or ("input",))[0]
-        for lm in learned:
-            print(f"wrote {figures.plot_validation(lm, out / f'validation_{lm.name}.png', frame['dt'], ylabel, xname)}",
-                  file=report)
-            if lm.fopdt is not None:
-                print(f"wrote {figures.plot_step(lm.fopdt, lm.experiment.y, out / f'step_{lm.name}.png', f'Step test, mode {lm.name}', ylabel)}",
-                      file=report)
+        write_figures(args.figures, learned, frame, report)
     return 0
