@@ -9,7 +9,7 @@ from infer_models import random_model
 import jmlgdsl
 from jmlgdsl import DataError, Model
 from jmlgdsl.infer import ALGORITHMS, Filter, FilterError, kalman
-from jmlgdsl.infer.rbpf import Exact
+from jmlgdsl.infer.rbpf import Exact, RaoBlackwellised
 
 RAO_BLACKWELLISED = ("rbpf", "la-rbpf", "fc-rbpf", "imm", "exact")
 
@@ -236,3 +236,14 @@ def test_result_shapes_and_deterministic_filters_have_no_particles(small):
     assert res.mode_posterior.shape == (5, 2) and res.state_cov.shape == (5, 2, 2) and res.T == 5
     empty = jmlgdsl.filter(model, np.zeros((0, 2)))
     assert empty.mode_posterior.shape == (0, 2) and empty.state_cov.shape == (0, 2, 2) and empty.loglik == 0.0
+
+
+@pytest.mark.parametrize("algorithm", ["la-rbpf", "fc-rbpf", "rbpf"])
+def test_compacting_the_covariance_graph_changes_nothing(monkeypatch, algorithm):
+    model = random_model(np.random.default_rng(4), K=3)
+    y = simulate_data(model, 30, seed=5)
+    kept = jmlgdsl.filter(model, y, algorithm=algorithm, particles=20, seed=1)
+    monkeypatch.setattr(RaoBlackwellised, "spare_nodes", -10**9)  # compact after every step
+    compacted = jmlgdsl.filter(model, y, algorithm=algorithm, particles=20, seed=1)
+    np.testing.assert_allclose(compacted.mode_posterior, kept.mode_posterior, atol=1e-9)
+    np.testing.assert_allclose(compacted.state_mean, kept.state_mean, atol=1e-9)

@@ -113,6 +113,8 @@ class CovarianceGraph:
         return rows
 
     def _compute(self, rows, Sig, mask):
+        """Append the Kalman pieces of covariances Sig (n, nx, nx) under every mode to `rows`
+        (the update of kalman.correct, kept in factored form for reuse across particles)."""
         model = self.model
         Sig_p = kalman.predict_cov(Sig[:, None], model.A, model.Q)
         C = model.C[:, mask, :]

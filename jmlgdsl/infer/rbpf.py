@@ -30,6 +30,7 @@ class RaoBlackwellised:
     """Shared state and step of the Rao-Blackwellised filters; subclasses choose candidates and selection."""
 
     default_particles = 10
+    spare_nodes = 4096  # the covariance graph is compacted when it outgrows 4 nodes a particle + this
 
     def __init__(self, model, particles, rng, resampler: Resampler):
         self.model, self.n, self.rng, self.resampler = model, particles, rng, resampler
@@ -105,7 +106,7 @@ class RaoBlackwellised:
         self.z = mode[chosen]
         self.mu = mu_f[chosen]
         self.node = self.graph.children(rows, self.node[parent[chosen]], self.z)
-        if self.graph.size > 4 * len(self.node) + 4096:
+        if self.graph.size > 4 * len(self.node) + self.spare_nodes:
             self.node = self.graph.compact(self.node)
         return Estimate(posterior, mean, cov, yp, loglik, size)
 
