@@ -86,7 +86,7 @@ def iter_rows(stream, model, source="<data>", outputs=True) -> Iterator[Row]:
     _, header = next(records, (0, None))
     if header is None:
         raise DataError(f"{source}: no header line (expected columns {', '.join(model.outputs)})")
-    index = {name.strip(): i for i, name in enumerate(header)}
+    index = {name.strip().lstrip("\ufeff"): i for i, name in enumerate(header)}  # spreadsheets may add a BOM
 
     def column(name, required):
         if name in index:

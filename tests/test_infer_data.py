@@ -46,6 +46,11 @@ def test_optional_input_column_takes_its_default():
     np.testing.assert_array_equal(got[0].u, [1.0])
 
 
+def test_spreadsheet_exports_read_cleanly():
+    got = rows("\ufefftemp , one\r\n50.5, 2\r\n", dryer())
+    assert got[0].y[0] == 50.5 and got[0].u[0] == 2.0
+
+
 @pytest.mark.parametrize("text, message", [
     ("flow\n1\n", "data.csv: missing column 'level'; the header has flow"),
     ("level\n1\n", "data.csv: missing column 'flow'"),
