@@ -3,6 +3,7 @@
     python benchmarks/bench_filters.py              # everything (several minutes on 2 cores)
     python benchmarks/bench_filters.py --seeds 5    # fewer runs per setting
     python benchmarks/bench_filters.py --only speed
+    python benchmarks/bench_filters.py --only example --seeds 25    # the issue's error targets
 
 Each setting is run on `--seeds` independent data sets (simulated with seed s) and filter seeds;
 errors are the mean (SD) over those runs; times are wall-clock time per step of the filtering alone
@@ -23,11 +24,13 @@ import jmlgdsl
 from jmlgdsl import Model
 from jmlgdsl.simulate import simulate
 
-SPECS = Path(__file__).resolve().parent.parent / "specs"
+ROOT = Path(__file__).resolve().parent.parent
+SPECS = ROOT / "specs"
 DRYER_SEQ1 = "1-70:normal,71-238:fan,239-365:grill,366-513:normal,514-705:grill,706-1000:fan"
 SETTINGS = [("pf", 50), ("pf", 200), ("pf", 800), ("rbpf", 25), ("rbpf", 100), ("rbpf", 400),
             ("la-rbpf", 4), ("la-rbpf", 10), ("la-rbpf", 25), ("la-rbpf", 100),
             ("fc-rbpf", 1), ("fc-rbpf", 2), ("fc-rbpf", 4), ("fc-rbpf", 10), ("imm", None)]
+TARGETS = [("la-rbpf", 10, 4.0), ("fc-rbpf", 4, 1.6), ("rbpf", 100, 5.0), ("pf", 200, 4.0), ("imm", None, None)]
 PLANTS = ["dryer", "level_tank4", "level_tank5", "heat_exchanger", "robot_smooth", "robot8"]
 
 
@@ -93,17 +96,33 @@ def speed_table(seeds):
                       flush=True)
 
 
+def example_table(seeds):
+    """Print the diagnosis error on the bundled examples/dryer_seq1.csv over filter seeds, against the targets."""
+    from jmlgdsl.data import read_csv
+
+    model = jmlgdsl.load(SPECS / "dryer.jmlg")
+    data = read_csv(ROOT / "examples" / "dryer_seq1.csv", model)
+    print(f"\n### examples/dryer_seq1.csv, {seeds} filter seeds\n\n| filter | N | error % mean (SD) | target |\n|---|---|---|---|")
+    for algorithm, n, target in TARGETS:
+        err = np.array([jmlgdsl.filter(model, data.y, data.u, algorithm=algorithm, particles=n, seed=s)
+                        .diagnosis_error(data.modes) for s in range(seeds)])
+        print(f"| {algorithm} | {n or '-'} | {err.mean():.2f} ({err.std():.2f}) | {f'<= {target}' if target else '-'} |",
+              flush=True)
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--seeds", type=int, default=10, help="runs per setting (data and filter seeds)")
-    parser.add_argument("--only", choices=["speed", "accuracy"], help="one part only")
+    parser.add_argument("--only", choices=["speed", "example", "accuracy"], help="one part only")
     parser.add_argument("--plants", nargs="*", default=PLANTS, help="published plants for the accuracy tables")
     args = parser.parse_args()
     print(f"machine: {platform.processor() or platform.machine()}, Python {platform.python_version()}, "
           f"numpy {np.__version__}; {time.strftime('%Y-%m-%d')}")
-    if args.only != "accuracy":
+    if args.only in (None, "speed"):
         speed_table(max(1, min(args.seeds, 3)))
-    if args.only != "speed":
+    if args.only in (None, "example"):
+        example_table(args.seeds)
+    if args.only in (None, "accuracy"):
         for name in args.plants:
             model, sims = plant_sims(name, args.seeds)
             accuracy_table(f"{name} ({'sequence No. 1' if name == 'dryer' else 'modes from the chain'}, "
