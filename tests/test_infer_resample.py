@@ -5,7 +5,7 @@ import pytest
 
 from jmlgdsl.infer import FilterError
 from jmlgdsl.infer.engine import Resampler
-from jmlgdsl.infer.resample import SCHEMES, ess, fearnhead_clifford, normalize, scheme
+from jmlgdsl.infer.resample import SCHEMES, ess, fearnhead_clifford, normalize
 
 W = np.array([0.005, 0.3, 0.0, 0.12, 0.375, 0.2])
 N = 7
@@ -48,11 +48,6 @@ def test_normalize_is_log_space_safe():
     np.testing.assert_allclose(w, [0.25, 0.75, 0.0])
     assert total == pytest.approx(-1e4 + np.log(4.0))
     assert ess(np.full(8, 1 / 8)) == pytest.approx(8.0)
-
-
-def test_unknown_scheme_is_named():
-    with pytest.raises(ValueError, match="choose from multinomial"):
-        scheme("bogus")
 
 
 def test_fearnhead_clifford_keeps_everything_when_few_candidates():

@@ -60,14 +60,6 @@ SCHEMES = {"multinomial": multinomial, "residual": residual, "stratified": strat
            "systematic": systematic}
 
 
-def scheme(name):
-    """The resampling function called `name`; ValueError listing the known schemes otherwise."""
-    try:
-        return SCHEMES[name]
-    except KeyError:
-        raise ValueError(f"unknown resampling scheme {name!r}; choose from {', '.join(SCHEMES)}") from None
-
-
 def fearnhead_clifford(q, n, rng):
     """Optimal selection of at most n distinct candidates from normalised weights q (Fearnhead & Clifford 2003).
 
