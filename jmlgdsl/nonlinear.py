@@ -8,14 +8,11 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.integrate import solve_ivp
 
-from .compile.ode import OdeSystem, check_ode_file, linearise, mode_parameters, ode_system
+from .compile.ode import OdeSystem, check_ode_file, flow, linearise, mode_parameters, ode_system
 from .errors import DataError
 from .model import Model
 from .simulate import Simulation, simulate
-
-RTOL, ATOL = 1e-9, 1e-12  # integration tolerances, far below the noise of any realistic plant
 
 
 @dataclass(frozen=True)
@@ -28,14 +25,11 @@ class NonlinearPlant:
 
     def step(self, x: np.ndarray, u: np.ndarray, k: int) -> np.ndarray:
         """The noise-free state one sample after x, with the input u held and mode k's parameters."""
-        p = self.params[k]
-        span = self.model.dt / self.system.seconds_per_unit
-        sol = solve_ivp(lambda _, s: self.system.derivative(s, u, p), (0.0, span), x, method="LSODA",
-                        jac=lambda _, s: self.system.jacobian("f_x", s, u, p), rtol=RTOL, atol=ATOL)
-        if not sol.success:
+        end, why = flow(self.system, x, u, self.params[k], self.model.dt / self.system.seconds_per_unit)
+        if end is None:
             raise DataError(f"the ODE integration failed in mode {self.model.modes[k]!r} from state "
-                            f"{np.array2string(x, precision=6)}: {sol.message}")
-        return sol.y[:, -1]
+                            f"{np.array2string(x, precision=6)}: {why}")
+        return end
 
 
 def load_nonlinear(path) -> NonlinearPlant:

@@ -172,3 +172,12 @@ def test_the_linearised_bank_diagnoses_the_nonlinear_reactor():
         found = jmlgdsl.filter(plant.model, sim.y, algorithm="imm").map_modes
         assert np.all(found[:150] == 0)
         assert np.all(found[170:] == plant.model.mode_index("fouling3"))
+
+
+def test_guesses_that_root_finding_overshoots_are_let_settle():
+    """From h1 = 100 the first Newton step empties the tank (h1 < 0, sqrt undefined); the compiler
+    then lets the plant settle from the guesses and finds the steady state from there."""
+    text = (DATA / "tanks.jmlg").read_text().replace("h1 [m] = 3, h2 [m] = 5", "h1 [m] = 100, h2 [m] = 100")
+    model = compile_text(text)
+    for k, mode in enumerate(model.modes):
+        np.testing.assert_allclose(model.mu0[k], [(INFLOW / K1) ** 2, (INFLOW / K2[mode]) ** 2], rtol=1e-10)

@@ -8,10 +8,12 @@ the augmented matrix [[J_x, J_u, c], [0, 0, 0]], which gives A, F and the offset
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 
 import numpy as np
 import sympy as sp
+from scipy.integrate import solve_ivp
 from scipy.linalg import expm
 from scipy.optimize import root
 
@@ -27,6 +29,9 @@ from .lower import declared_values, mode_noise, stack
 from .units import time_in_seconds
 
 STEADY_TOLERANCE = 1e-8  # largest accepted |der(x)| at a steady state, relative to 1 + |x|
+SETTLE_SPAN = 1e6  # how long (in the derivatives' unit) guesses are let settle when root finding fails
+RTOL, ATOL = 1e-9, 1e-12  # integration tolerances, far below the noise of any realistic plant
+MAX_EVALUATIONS = 10_000  # an integration that needs more has run away (settling takes a few hundred)
 
 
 @dataclass(frozen=True)
@@ -252,6 +257,7 @@ def _operating_points(plant: Plant, system: OdeSystem, pvecs, u_bar, report: Rep
         x, u = _given_point(plant, system, how, u_bar, report)
         return [x] * K, u, False
     guess = _guesses(plant, report)
+    report.raise_errors()
     if how.kind == "each":
         return [steady_state(system, guess, u_bar, p, mode.name, mode.pos, report)
                 for mode, p in zip(plant.modes, pvecs)], u_bar, True
@@ -296,20 +302,61 @@ def _given_point(plant: Plant, system: OdeSystem, how: S.Linearize, u_bar, repor
 
 
 def steady_state(system: OdeSystem, guess, u, p, mode: str, pos: S.Pos, report: Report) -> np.ndarray:
-    """The state where every derivative vanishes, by Powell's hybrid method with the exact Jacobian
-    from the guesses; a located error says the largest residual left when it does not converge."""
-    with np.errstate(all="ignore"):
-        sol = root(lambda x: system.derivative(x, u, p), guess, jac=lambda x: system.jacobian("f_x", x, u, p),
-                   method="hybr", options={"xtol": 1e-13})
-        residual = system.derivative(sol.x, u, p)
-    scaled = np.abs(residual) / (1.0 + np.abs(sol.x))
-    if not np.all(np.isfinite(scaled)) or scaled.max() > STEADY_TOLERANCE:
+    """The state where every derivative vanishes, by Powell's hybrid method with the exact Jacobian,
+    from the guesses, else from where the plant settles when started at the guesses; a located error
+    says the largest residual left when neither converges."""
+    x, residual = _root(system, guess, u, p)
+    if not _steady(x, residual):
+        settled, _ = flow(system, guess, u, p, SETTLE_SPAN)
+        if settled is not None:
+            x_settled, residual_settled = _root(system, settled, u, p)
+            if _steady(x_settled, residual_settled):
+                return x_settled
+        scaled = np.abs(residual) / (1.0 + np.abs(x))
         i = int(np.nanargmax(np.where(np.isfinite(scaled), scaled, np.inf)))
         s = system.states[i]
         report.error(f"no steady state found for mode {mode!r}: der({s}) is still {residual[i]:.3g} per "
-                     f"{system.time_unit} at {s} = {sol.x[i]:.6g}; give better guesses ('state {s} = ...') "
+                     f"{system.time_unit} at {s} = {x[i]:.6g}; give better guesses ('state {s} = ...') "
                      f"or linearise at a given point ('linearize at {s} = ...')", pos)
-    return sol.x
+    return x
+
+
+def _root(system: OdeSystem, start, u, p) -> tuple[np.ndarray, np.ndarray]:
+    """Powell's hybrid method on der(x) = 0 from `start`: the last iterate and the derivatives there."""
+    with np.errstate(all="ignore"):
+        sol = root(lambda x: system.derivative(x, u, p), start, jac=lambda x: system.jacobian("f_x", x, u, p),
+                   method="hybr", options={"xtol": 1e-13})
+        return sol.x, system.derivative(sol.x, u, p)
+
+
+def _steady(x: np.ndarray, residual: np.ndarray) -> bool:
+    return bool(np.all(np.abs(residual) <= STEADY_TOLERANCE * (1.0 + np.abs(x))))
+
+
+class _OverBudget(Exception):
+    """Raised inside an integration that needs more than MAX_EVALUATIONS evaluations."""
+
+
+def flow(system: OdeSystem, x, u, p, span: float) -> tuple[np.ndarray | None, str]:
+    """Integrate the equations from x over `span` (in the derivatives' unit) with u held, by scipy's
+    LSODA with the exact Jacobian: (end state, "") or (None, why the integration failed)."""
+    calls = itertools.count()
+
+    def rate(_, state):
+        if next(calls) > MAX_EVALUATIONS:
+            raise _OverBudget
+        return system.derivative(state, u, p)
+
+    try:
+        with np.errstate(all="ignore"):
+            sol = solve_ivp(rate, (0.0, span), x, method="LSODA", jac=lambda _, s: system.jacobian("f_x", s, u, p),
+                            rtol=RTOL, atol=ATOL)
+    except _OverBudget:
+        return None, f"the equations needed more than {MAX_EVALUATIONS} evaluations"
+    end = sol.y[:, -1]
+    if not sol.success or not np.all(np.isfinite(end)):
+        return None, sol.message if not sol.success else "the state left the equations' domain (NaN or inf)"
+    return end, ""
 
 
 # ------------------------------------------------------------------ showing the Jacobian
