@@ -313,7 +313,7 @@ def steady_state(system: OdeSystem, guess, u, p, mode: str, pos: S.Pos, report: 
             if _steady(x_settled, residual_settled):
                 return x_settled
         scaled = np.abs(residual) / (1.0 + np.abs(x))
-        i = int(np.nanargmax(np.where(np.isfinite(scaled), scaled, np.inf)))
+        i = int(np.argmax(np.where(np.isfinite(scaled), scaled, np.inf)))
         s = system.states[i]
         report.error(f"no steady state found for mode {mode!r}: der({s}) is still {residual[i]:.3g} per "
                      f"{system.time_unit} at {s} = {x[i]:.6g}; give better guesses ('state {s} = ...') "
