@@ -27,17 +27,17 @@ def dryer():
 
 @pytest.fixture(scope="module")
 def experiments(dryer):
-    """One PRBS experiment per mode: 6 cells clocked every 16 samples (longest pulse 96 s, about three
-    time constants), 15 +- 5 %, 1008 samples."""
-    u = prbs(6, clock=16, amplitude=5.0, around=15.0)[:, None]
+    """One PRBS experiment per mode: 5 cells clocked every 16 samples (longest pulse 80 s, two to
+    three time constants), 15 +- 5 %, 496 samples."""
+    u = prbs(5, clock=16, amplitude=5.0, around=15.0)[:, None]
     return {name: bank.Experiment(simulate(dryer, modes=[name] * len(u), u=u, seed=20 + k).y, u, name)
             for k, name in enumerate(dryer.modes)}
 
 
 @pytest.fixture(scope="module")
 def learned(experiments):
-    # At this tolerance EM's remaining steps move the estimates by under a hundredth of their
-    # standard errors (checked against tol 1e-8 when the test was written).
+    # At this tolerance EM's remaining steps move the estimates by under 2 % of their standard
+    # errors (checked against tol 1e-9, about 950 iterations, when the test was written).
     return bank.learn_modes(experiments, order=(1, 1, 0), max_iter=500, tol=1e-6)
 
 
@@ -89,8 +89,11 @@ def test_learned_modes_match_the_truth_within_their_standard_errors(dryer, learn
 
 
 def test_validation_of_the_true_structure(learned):
+    """Free run misses only the process-noise drift (sd about 0.2 degC) and the 0.05 degC sensor
+    noise against an output swinging several degrees: a fit near 95 %. With the true structure a
+    mode fails the residual tests about 5 % of the time, so two failures in four happen about 1 %."""
     for lm in learned:
-        assert lm.validation.fit[0] > 75
+        assert lm.validation.fit[0] > 90
         assert lm.validation.autocorr.shape == (1, 25) and lm.validation.crosscorr.shape == (1, 1, 26)
     assert sum(lm.validation.passed for lm in learned) >= 3
 
@@ -132,12 +135,14 @@ def test_fopdt_structure_from_step_tests(dryer, tmp_path):
     exps = {name: bank.Experiment(simulate(dryer, modes=[name] * 400, u=u, seed=40 + k).y, u, name)
             for k, name in enumerate(dryer.modes[:2])}
     learned = bank.learn_modes(exps, fopdt=True, max_iter=50)
+    # One 5 % step with the process noise drifting about 0.2 degC pins the gain to a standard error
+    # of about 0.05 degC/% (observed information, computed as in the test above): allow 4 of them.
     for k, lm in enumerate(learned):
         assert lm.fopdt.delay == 0 and lm.structure.startswith("FOPDT gain")
         assert np.all(np.diff(lm.em.loglik) >= -1e-9 * np.abs(lm.em.loglik[:-1]))
         true_gain = dryer.F[k, 0, 0] / (1 - dryer.A[k, 0, 0])
-        assert lm.fopdt.gain == pytest.approx(true_gain, rel=0.05)
-        assert lm.model.gain()[0, 0] == pytest.approx(true_gain, rel=0.05)
+        assert lm.fopdt.gain == pytest.approx(true_gain, abs=0.2)
+        assert lm.model.gain()[0, 0] == pytest.approx(true_gain, abs=0.2)
     png = figures.plot_step(learned[0].fopdt, learned[0].experiment.y, tmp_path / "step.png")
     assert png.read_bytes().startswith(b"\x89PNG")
 
@@ -150,7 +155,8 @@ def test_missing_outputs_are_allowed(dryer, experiments):
     (lm,) = bank.learn_modes({"fan": bank.Experiment(y, e.u, "fan.csv")}, order=(1, 1, 0))
     assert np.all(np.diff(lm.em.loglik) >= -1e-9 * np.abs(lm.em.loglik[:-1]))
     true_gain = dryer.F[1, 0, 0] / (1 - dryer.A[1, 0, 0])
-    assert lm.model.gain()[0, 0] == pytest.approx(true_gain, rel=0.05)
+    # The full experiment gives this gain a standard error of about 0.016; 4 of them, a little wider.
+    assert lm.model.gain()[0, 0] == pytest.approx(true_gain, abs=0.07)
     assert np.isnan(lm.validation.residuals[0, 0]) and lm.validation.fit[0] > 75
 
 
