@@ -36,8 +36,8 @@ MAX_EVALUATIONS = 10_000  # an integration that needs more has run away (settlin
 
 @dataclass(frozen=True)
 class OdeSystem:
-    """A plant's derivatives f(x, u, p) (per `time_unit`) and outputs h(x, u, p): the sympy
-    expressions with their Jacobians, and the same compiled to numpy functions of (x, u, p)."""
+    """A plant's derivatives f(x, u, p) (per `time_unit`) and outputs h(x, u, p) with their exact
+    Jacobians: the Jacobians as sympy matrices (to show), all of them as numpy functions of (x, u, p)."""
 
     states: list[str]
     inputs: list[str]
@@ -45,8 +45,6 @@ class OdeSystem:
     params: list[str]
     time_unit: str
     seconds_per_unit: float
-    f: sp.Matrix
-    h: sp.Matrix
     jacobians: dict  # "f_x", "f_u", "h_x", "h_u" -> sympy Matrix
     numeric: dict  # "f", "f_x", "f_u", "h", "h_x", "h_u" -> function of (x, u, p)
 
@@ -95,8 +93,7 @@ def ode_system(plant: Plant, report: Report) -> OdeSystem:
     jacobians = {"f_x": _jacobian(f, xs), "f_u": _jacobian(f, us), "h_x": _jacobian(h, xs), "h_u": _jacobian(h, us)}
     numeric = {name: sp.lambdify(args, expr, modules="numpy", dummify=True)
                for name, expr in {"f": f, "h": h, **jacobians}.items()}
-    return OdeSystem(states, inputs, [d.name.text for d in plant.outputs], params, unit, seconds,
-                     f, h, jacobians, numeric)
+    return OdeSystem(states, inputs, [d.name.text for d in plant.outputs], params, unit, seconds, jacobians, numeric)
 
 
 def _jacobian(M: sp.Matrix, symbols: list) -> sp.Matrix:
