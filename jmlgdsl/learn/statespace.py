@@ -14,6 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..infer.kalman import symmetrize
+
 
 @dataclass(frozen=True)
 class StateSpace:
@@ -65,7 +67,7 @@ class StateSpace:
         """The same input-output model in the state basis x' = T x."""
         Ti = np.linalg.inv(T)
         return self.replace(A=T @ self.A @ Ti, F=T @ self.F, f=T @ self.f, C=self.C @ Ti,
-                            Q=_sym(T @ self.Q @ T.T), mu0=T @ self.mu0, Sigma0=_sym(T @ self.Sigma0 @ T.T))
+                            Q=symmetrize(T @ self.Q @ T.T), mu0=T @ self.mu0, Sigma0=symmetrize(T @ self.Sigma0 @ T.T))
 
     def observer_form(self) -> "StateSpace":
         """For one output: the basis in which C = [1 0 ... 0] and A is in observer canonical form.
@@ -94,8 +96,3 @@ def _observability(A, C):
     for _ in range(A.shape[0] - 1):
         rows.append(rows[-1] @ A)
     return np.vstack(rows)
-
-
-def _sym(S):
-    """(S + S') / 2."""
-    return 0.5 * (S + S.T)
