@@ -53,3 +53,12 @@ def test_true_model_passes_and_a_wrong_one_fails():
     auto, cross = bad.outside
     assert not bad.passed and (auto[0] > ALLOWED_OUTSIDE or cross[0, 0] > ALLOWED_OUTSIDE)
     assert bad.fit[0] < good.fit[0]
+
+
+def test_a_model_without_inputs_has_only_the_autocorrelation_test():
+    rng = np.random.default_rng(2)
+    truth = first_order(b=0.0)
+    y = simulate(truth, np.zeros((500, 1)), rng)
+    v = validate(truth.replace(F=np.zeros((1, 0)), G=np.zeros((1, 0))), y)
+    assert v.crosscorr.shape == (1, 0, MAX_LAG + 1)
+    assert v.passed

@@ -75,7 +75,7 @@ def validate(ss: StateSpace, y, u=None) -> Validation:
     lags = np.arange(1, MAX_LAG + 1)
     xlags = np.arange(0, MAX_LAG + 1)
     auto = np.array([correlation(ei, ei, lags) for ei in e.T])
-    cross = np.array([[correlation(ui, ei, xlags) for ui in u.T] for ei in e.T]).reshape(y.shape[1], u.shape[1], -1)
+    cross = np.array([[correlation(ui, ei, xlags) for ui in u.T] for ei in e.T]).reshape(y.shape[1], u.shape[1], len(xlags))
     n = int((~np.isnan(e)).all(axis=1).sum())
     simulated = ss.free_run(u)
     return Validation(auto, cross, Z_99 / np.sqrt(n), simulated, nrmse_fit(y, simulated), e)
