@@ -160,6 +160,26 @@ def test_missing_outputs_are_allowed(dryer, experiments):
     assert np.isnan(lm.validation.residuals[0, 0]) and lm.validation.fit[0] > 75
 
 
+def test_modes_without_inputs_are_autoregressive():
+    """Two level regimes, x_t = a x_{t-1} + (1 - a) level + w_t seen through sensor noise. An AR(1)
+    pole from N samples has standard error about sqrt((1 - a^2) / N), 0.02 here; sensor noise
+    widens it a little, so 0.1 allows about four."""
+    rng = np.random.default_rng(8)
+    exps = {}
+    for name, a, level in (("low", 0.9, 10.0), ("high", 0.7, 20.0)):
+        x, y = level, np.empty((400, 1))
+        for t in range(400):
+            x = a * x + (1 - a) * level + 0.1 * rng.standard_normal()
+            y[t] = x + 0.05 * rng.standard_normal()
+        exps[name] = bank.Experiment(y, np.zeros((400, 0)), name)
+    low, high = bank.learn_modes(exps, order=(1, 1, 0))
+    assert low.structure == "AR(1)" and "gain" not in low.summary()
+    assert low.model.poles()[0] == pytest.approx(0.9, abs=0.1)
+    assert high.model.poles()[0] == pytest.approx(0.7, abs=0.1)
+    model = bank.assemble([low, high], P=np.eye(2), p0=[0.5, 0.5])
+    assert model.nu == 0 and model.mu0[:, 0] == pytest.approx([10.0, 20.0], abs=0.5)
+
+
 def test_step_fit_errors_name_the_experiment(experiments):
     with pytest.raises(jmlgdsl.DataError, match="^fan: a step test needs an input that changes exactly once"):
         bank.learn_modes({"fan": experiments["fan"]}, fopdt=True)

@@ -46,11 +46,11 @@ class LearnedMode:
         """One line: structure, EM, poles, gain, noise, fit and the residual tests."""
         m, v = self.model, self.validation
         poles = ", ".join(f"{p:.4g}" for p in m.poles())
-        gain = ", ".join(f"{g:.4g}" for g in m.gain().ravel())
+        gain = f"gain {', '.join(f'{g:.4g}' for g in m.gain().ravel())}; " if m.F.shape[1] else ""
         verdict = "white residuals" if v.passed else "residual tests FAIL"
         return (f"{self.name}: {self.structure}, EM {self.em.iterations} iterations"
                 f"{'' if self.em.converged else ' (not converged)'}, log-lik {self.em.loglik[-1]:.6g}; "
-                f"poles {poles}; gain {gain}; measurement sd {np.sqrt(np.diag(m.R)).max():.3g}; "
+                f"poles {poles}; {gain}measurement sd {np.sqrt(np.diag(m.R)).max():.3g}; "
                 f"fit {', '.join(f'{x:.1f}' for x in v.fit)} %; {verdict}")
 
     def criterion(self, kind="bic") -> float:
@@ -100,7 +100,8 @@ def _fit_arx(experiments, order, max_iter, tol):
     for k, e in experiments.items():
         fit = _located(e, arx.fit, e.y[:, 0], e.u, na, nb, nk)
         first = e.y[np.isfinite(e.y[:, 0]), 0][0]
-        starts[k] = (fit.to_statespace(e.u[0], first), f"ARX({na},{nb},{nk})", None)
+        structure = f"ARX({na},{nb},{nk})" if e.u.shape[1] else f"AR({na})"
+        starts[k] = (fit.to_statespace(e.u[0], first), structure, None)
     return _fit_all(experiments, starts, max_iter, tol)
 
 
