@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from functools import lru_cache
 from importlib.resources import files
+from pathlib import Path
 
 from lark import Lark, Token, Transformer, Tree, v_args
 from lark.exceptions import UnexpectedCharacters, UnexpectedEOF, UnexpectedInput, UnexpectedToken
@@ -47,7 +48,7 @@ def parse_text(text: str, path: str = "<spec>") -> S.Spec:
 def parse_file(path) -> S.Spec:
     """Read and parse a spec file; an unreadable file is a SpecError too."""
     try:
-        text = open(path, encoding="utf-8").read()
+        text = Path(path).read_text(encoding="utf-8")
     except OSError as exc:
         raise SpecError([Diagnostic(f"cannot read spec: {exc.strerror}", str(path))]) from None
     except UnicodeDecodeError:
