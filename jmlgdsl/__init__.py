@@ -16,7 +16,6 @@ _LAZY = {
     "filter": "jmlgdsl.infer",
     "Filter": "jmlgdsl.infer",
     "Result": "jmlgdsl.infer",
-    "simulate": "jmlgdsl.simulate",
 }
 
 
@@ -33,6 +32,11 @@ def load(path) -> Model:
     return compile_file(path)
 
 
+# Bound eagerly: a lazy attribute named like its submodule would be replaced by the module itself
+# the first time anything imports jmlgdsl.simulate.
+from .simulate import simulate  # noqa: E402
+
+
 def __getattr__(name):
     if name in _LAZY:
         return getattr(importlib.import_module(_LAZY[name]), name)
@@ -40,4 +44,4 @@ def __getattr__(name):
 
 
 __all__ = ["load", "Model", "ModelError", "SpecError", "SpecWarning", "DataError", "JmlgError",
-           "Diagnostic", *_LAZY]
+           "Diagnostic", "simulate", *_LAZY]
