@@ -16,6 +16,7 @@ _LAZY = {
     "filter": "jmlgdsl.infer",
     "Filter": "jmlgdsl.infer",
     "Result": "jmlgdsl.infer",
+    "simulate_nonlinear": "jmlgdsl.nonlinear",
 }
 
 

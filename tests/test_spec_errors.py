@@ -69,6 +69,8 @@ CASES = [
     ("prior mode", replace("modes normal, fault\n", "modes normal, fault\ninitial normal 0.9, falt 0.1\n"), 7, 21,
      "unknown mode 'falt'; did you mean 'fault'?"),
     ("bad index", replace("x[t-1] + u, 0.1) }\n", "x[k-1] + u, 0.1) }\n"), 10, 48, "a time index is t, t-1, ... or a whole number, not 'k'"),
+    ("linearize", replace("noise process", "linearize at steady state of each mode\nnoise process"), 8, 1,
+     "'linearize' applies to nonlinear plants: this spec has no 'ode' block"),
     ("unknown function", replace("0.8 * x[t-1]", "sqr(0.8) * x[t-1]"), 10, 40, "unknown function 'sqr'; did you mean 'sqrt'?"),
 ]
 

@@ -16,6 +16,9 @@ def register(subparsers):
     p.add_argument("--inputs", metavar="CSV", help="CSV with input columns (defaults fill the rest)")
     p.add_argument("--seed", type=int, help="random seed (the same seed gives the same file)")
     p.add_argument("-o", "--output", default="-", help="output CSV (default: standard output)")
+    p.add_argument("--nonlinear", action="store_true",
+                   help="integrate the plant's ODEs (a spec with an 'ode' block) instead of its linearised "
+                        "modes, with the same modes and noise as the linear simulation of the same seed")
     p.set_defaults(func=main)
 
 
@@ -26,7 +29,13 @@ def main(args) -> int:
     from ..errors import DataError
     from ..simulate import simulate
 
-    model = jmlgdsl.load(args.spec)
+    if args.nonlinear:
+        from ..nonlinear import load_nonlinear, simulate_nonlinear
+
+        plant = load_nonlinear(args.spec)
+        model = plant.model
+    else:
+        model = jmlgdsl.load(args.spec)
     u = None if args.inputs is None else read_csv(args.inputs, model, outputs=False).u
     if args.steps is not None and args.steps < 1:
         raise DataError(f"--steps must be a positive number, got {args.steps}")
@@ -34,6 +43,9 @@ def main(args) -> int:
         if len(u) < args.steps:
             raise DataError(f"{args.inputs} has {len(u)} rows, fewer than --steps {args.steps}")
         u = u[:args.steps]
-    sim = simulate(model, args.steps, seed=args.seed, modes=args.modes, u=u)
+    if args.nonlinear:
+        sim = simulate_nonlinear(plant, args.steps, seed=args.seed, modes=args.modes, u=u)
+    else:
+        sim = simulate(model, args.steps, seed=args.seed, modes=args.modes, u=u)
     write_columns(args.output, sim.columns())
     return 0

@@ -52,6 +52,8 @@ def declared_values(plant: Plant, decls, params: dict, report: Report) -> np.nda
 
 
 def lower_linear(plant: Plant, report: Report) -> Model:
+    for how in plant.spec.linearize:
+        report.error("'linearize' applies to nonlinear plants: this spec has no 'ode' block", how.pos)
     params = [plant.mode_params(m, report) for m in plant.modes]
     layout = Layout(states=[d.name.text for d in plant.states], inputs=[d.name.text for d in plant.inputs],
                     outputs=[d.name.text for d in plant.outputs],
@@ -115,12 +117,18 @@ def _fill_initial_mean(m: ModeArrays, declared: np.ndarray, u_default: np.ndarra
         return
     fill = declared.copy()
     if np.isnan(fill).any() and not np.isnan(u_default).any():
-        try:
-            steady = np.linalg.solve(np.eye(len(m.x0)) - m.A, m.F @ u_default + m.f)
+        steady = steady_mean(m, u_default)
+        if steady is not None:
             fill = np.where(np.isnan(fill), steady, fill)
-        except np.linalg.LinAlgError:
-            pass
     m.x0 = np.where(missing, np.nan_to_num(fill), m.x0)
+
+
+def steady_mean(m: ModeArrays, u: np.ndarray) -> np.ndarray | None:
+    """Where a mode's mean settles with the inputs held at u: (I - A)^-1 (F u + f); None if nowhere."""
+    try:
+        return np.linalg.solve(np.eye(len(m.A)) - m.A, m.F @ u + m.f)
+    except np.linalg.LinAlgError:
+        return None
 
 
 def stack(plant: Plant, layout: Layout, modes: list[ModeArrays], report: Report) -> Model:
@@ -133,7 +141,7 @@ def stack(plant: Plant, layout: Layout, modes: list[ModeArrays], report: Report)
         if R.size and np.linalg.eigvalsh(R).min() <= 0:
             bad = [layout.outputs[j] for j in range(len(R)) if R[j, j] <= 0] or layout.outputs
             report.error(f"output {', '.join(map(repr, bad))} has no measurement noise in mode {mode.name!r}: "
-                         "give Normal(mean, sd) with sd > 0, or 'noise measurement SD'", mode.pos)
+                         "add 'noise measurement SD' (or an output equation Normal(mean, sd) with sd > 0)", mode.pos)
         eig = np.abs(np.linalg.eigvals(m.A)) if m.A.size else np.zeros(0)
         if eig.size and eig.max() > 1 + 1e-9:
             report.warn(f"mode {mode.name!r} is unstable: eigenvalue of modulus {eig.max():.6g} > 1", mode.pos)

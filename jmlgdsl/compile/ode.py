@@ -25,7 +25,7 @@ from ..lang.report import Report, suggest
 from ..model import Model
 from .blocks import Layout, ModeArrays
 from .evaluate import EvalError, symbolic
-from .lower import declared_values, mode_noise, stack
+from .lower import declared_values, mode_noise, stack, steady_mean
 from .units import time_in_seconds
 
 STEADY_TOLERANCE = 1e-8  # largest accepted |der(x)| at a steady state, relative to 1 + |x|
@@ -214,7 +214,8 @@ def linearise(plant: Plant, system: OdeSystem, report: Report) -> Model:
         m.A, m.F, m.f = zoh(f_x, f_u, c, dt)
         m.C, m.G = system.jacobian("h_x", x_bar, u_lin, p), system.jacobian("h_u", x_bar, u_lin, p)
         m.g = system.output(x_bar, u_lin, p) - m.C @ x_bar - m.G @ u_lin
-        m.x0 = x_bar if per_mode else _fixed_point(m, u_bar, x_bar)
+        settled = None if per_mode else steady_mean(m, u_bar)
+        m.x0 = x_bar if settled is None else settled
         modes.append(m)
     return stack(plant, layout, modes, report)
 
@@ -232,14 +233,6 @@ def zoh(f_x: np.ndarray, f_u: np.ndarray, c: np.ndarray, dt: float):
     M[:nx, :nx], M[:nx, nx:nx + nu], M[:nx, -1] = f_x, f_u, c
     E = expm(M * dt)
     return E[:nx, :nx], E[:nx, nx:nx + nu], E[:nx, -1]
-
-
-def _fixed_point(m: ModeArrays, u: np.ndarray, fallback: np.ndarray) -> np.ndarray:
-    """Where a linearised mode settles under the operating inputs (the linearisation point if nowhere)."""
-    try:
-        return np.linalg.solve(np.eye(len(m.A)) - m.A, m.F @ u + m.f)
-    except np.linalg.LinAlgError:
-        return fallback
 
 
 def _operating_points(plant: Plant, system: OdeSystem, pvecs, u_bar, report: Report):
