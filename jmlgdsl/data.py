@@ -119,7 +119,10 @@ def iter_rows(stream, model, source="<data>", outputs=True) -> Iterator[Row]:
 
 
 def read_csv(path, model, outputs=True) -> Data:
-    """Read a whole data file ('-' = standard input) into arrays bound to the model's names."""
+    """Read a whole data file ('-' = standard input) into arrays bound to the model's names.
+
+    `model` only lends names and sizes (inputs, outputs, nu, ny, input_defaults, modes): a Model, or the
+    same attributes of a bank still being learned."""
     source = "<stdin>" if str(path) == "-" else str(path)
     stream = open_source(path)
     try:
