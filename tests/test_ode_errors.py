@@ -1,9 +1,11 @@
 """The mistakes a user meets in an ODE plant, each reported at file:line:col with a clear message."""
 
 import pytest
+from conftest import assert_located
+from conftest import errors_of as shared_errors_of
 
 from jmlgdsl.compile.lower import compile_text
-from jmlgdsl.errors import SpecError, SpecWarning
+from jmlgdsl.errors import SpecWarning
 
 BASE = """\
 plant tank
@@ -22,9 +24,7 @@ transitions stay 0.99, otherwise uniform
 
 
 def errors_of(text):
-    with pytest.raises(SpecError) as info:
-        compile_text(text, "tank.jmlg")
-    return info.value.diagnostics
+    return shared_errors_of(text, "tank.jmlg")
 
 
 def replace(old, new):
@@ -75,12 +75,7 @@ CASES = [
 
 @pytest.mark.parametrize("case, text, line, column, fragment", CASES, ids=[c[0] for c in CASES])
 def test_located_error(case, text, line, column, fragment):
-    diagnostics = errors_of(text)
-    found = [d for d in diagnostics if fragment in d.message]
-    assert found, [d.format() for d in diagnostics]
-    d = found[0]
-    assert (d.file, d.line, d.column) == ("tank.jmlg", line, column), d.format()
-    assert d.source_line == text.splitlines()[line - 1]
+    assert_located(text, "tank.jmlg", line, column, fragment)
 
 
 def test_no_steady_state_says_the_residual_and_what_to_try():

@@ -3,6 +3,8 @@
 import textwrap
 
 import pytest
+from conftest import assert_located
+from conftest import errors_of as shared_errors_of
 
 from jmlgdsl.compile.lower import compile_text
 from jmlgdsl.errors import SpecError, SpecWarning
@@ -22,9 +24,7 @@ mode fault like normal { x[t] ~ Normal(0.8 * x[t-1] + u, 0.1) }
 
 
 def errors_of(text):
-    with pytest.raises(SpecError) as info:
-        compile_text(text, "plant.jmlg")
-    return info.value.diagnostics
+    return shared_errors_of(text, "plant.jmlg")
 
 
 def replace(old, new):
@@ -77,15 +77,7 @@ CASES = [
 
 @pytest.mark.parametrize("name,text,line,column,message", CASES, ids=[c[0] for c in CASES])
 def test_error_is_located(name, text, line, column, message):
-    diagnostics = errors_of(text)
-    hits = [d for d in diagnostics if message in d.message]
-    assert hits, f"no diagnostic containing {message!r} in {[d.format() for d in diagnostics]}"
-    d = hits[0]
-    assert (d.file, d.line, d.column) == ("plant.jmlg", line, column), d.format()
-    shown = d.format().splitlines()
-    assert shown[0].startswith(f"plant.jmlg:{line}:{column}: ")
-    assert shown[1].strip() == text.splitlines()[line - 1].strip()
-    assert shown[2].index("^") - 4 == column - 1
+    assert_located(text, "plant.jmlg", line, column, message)
 
 
 def test_several_errors_are_reported_together():

@@ -12,7 +12,7 @@ import numpy as np
 
 from ..errors import JmlgError
 from . import kalman
-from .resample import ess, normalize
+from .resample import normalize
 
 
 class FilterError(JmlgError, ValueError):
