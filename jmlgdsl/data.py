@@ -18,6 +18,7 @@ from typing import Iterator
 import numpy as np
 
 from .errors import DataError
+from .lang.report import suggest
 
 MISSING = {"", "na", "nan", "n/a"}
 
@@ -92,7 +93,8 @@ def iter_rows(stream, model, source="<data>", outputs=True) -> Iterator[Row]:
         if name in index:
             return index[name]
         if required:
-            raise DataError(f"{source}: missing column {name!r}; the header has {', '.join(header)}")
+            raise DataError(f"{source}: missing column {name!r}; the header has {', '.join(header)}"
+                            f"{suggest(name, header)}")
         return None
 
     y_cols = [column(n, outputs) for n in model.outputs]
@@ -113,7 +115,8 @@ def iter_rows(stream, model, source="<data>", outputs=True) -> Iterator[Row]:
         if mode_col is not None:
             name = cells[mode_col].strip() if mode_col < len(cells) else ""
             if name not in model.modes:
-                raise DataError(f"{where}: column 'mode': unknown mode {name!r}; modes are {', '.join(model.modes)}")
+                raise DataError(f"{where}: column 'mode': unknown mode {name!r}; modes are "
+                                f"{', '.join(model.modes)}{suggest(name, model.modes)}")
             mode = model.modes.index(name)
         yield Row(line, time, y, np.where(np.isnan(u), defaults, u), mode)
 

@@ -59,6 +59,8 @@ def test_spreadsheet_exports_read_cleanly():
     ("level,flow\n1,\n", "data.csv:2: column 'flow': missing value and the input has no default"),
     ("level,flow,mode\n1,2,ok\n1,2,broken\n", "data.csv:3: column 'mode': unknown mode 'broken'; modes are ok"),
     ("", "data.csv: no header line"),
+    ("levle,flow\n1,2\n", "data.csv: missing column 'level'; the header has levle, flow; did you mean 'levle'?"),
+    ("level,flow,mode\n1,2,okk\n", "data.csv:2: column 'mode': unknown mode 'okk'; modes are ok; did you mean 'ok'?"),
 ])
 def test_errors_name_file_line_and_column(text, message):
     with pytest.raises(DataError) as err:
