@@ -218,19 +218,23 @@ def variation_figure(summary, filters, path, title):
     plt.close(fig)
 
 
-def prefilter(args):
-    """The noisiest 8-mode robot with and without a causal moving average before the filters."""
-    model = with_measurement_noise(jmlgdsl.load(SPECS / "robot8.jmlg"), 4)
+def prefilter(args, name, model_level, data_level=None):
+    """The 8-mode robot with and without a causal moving average before the filters. The data have
+    measurement noise `data_level` n_p (default: as the filters' model, `model_level` n_p)."""
+    robot = jmlgdsl.load(SPECS / "robot8.jmlg")
+    model = with_measurement_noise(robot, model_level)
+    plant = None if data_level is None else with_measurement_noise(robot, data_level)
+    noise = f"n_m = {model_level} n_p" + ("" if data_level is None else f", data n_m = {data_level} n_p")
     schedule = SCHEDULES["robot8"]
     filters = ("rbpf", "la-rbpf", "fc-rbpf")
     particles = tuple(n for n in args.particles if n <= 400)
     for window in (None, 3, 5):
         label = "raw" if window is None else f"ma{window}"
-        records = sweep(args, f"prefilter {label}", model, [bench.Simulated(None, schedule, label)], filters,
-                        particles, prefilter=window)
-        publish(f"robot8-noise4-{label}", model, records,
-                title=f"Robot, 8 modes, n_m = 4 n_p, {'raw' if window is None else f'moving average of {window}'}")
-    diagnosis_example("robot8-noise4-ma5", model, schedule, "la-rbpf", 10, args.seed, prefilter=5)
+        source = bench.Simulated(None, schedule, label, plant)
+        records = sweep(args, f"{name} {label}", model, [source], filters, particles, prefilter=window)
+        publish(f"{name}-{label}", model, records,
+                title=f"Robot, 8 modes, {noise}, {'raw' if window is None else f'moving average of {window}'}")
+    diagnosis_example(f"{name}-ma5", model, schedule, "la-rbpf", 10, args.seed, plant=plant, prefilter=5)
 
 
 STUDIES = {
@@ -248,7 +252,8 @@ STUDIES = {
     "robot-smooth": lambda args: linear_study(args, "robot-smooth", "robot_smooth.jmlg", SCHEDULES["robot_smooth"],
                                               title="Robot, smooth floor"),
     **{f"robot8-noise{level}": (lambda args, level=level: robot8(args, level)) for level in (1, 2, 4)},
-    "robot8-prefilter": prefilter,
+    "robot8-prefilter": lambda args: prefilter(args, "robot8-noise4", 4),
+    "robot8-prefilter-mismatch": lambda args: prefilter(args, "robot8-mismatch", 1, data_level=4),
     "cstr4": lambda args: cstr(args, "cstr4"),
     "cstr10": lambda args: cstr(args, "cstr10"),
 }
