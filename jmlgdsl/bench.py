@@ -122,6 +122,9 @@ def make_jobs(model, sources, filters=DEFAULT_FILTERS, particles=DEFAULT_PARTICL
             raise DataError(f"unknown filter {name!r}; choose from {', '.join(ALGORITHMS)}")
     if runs < 1:
         raise DataError(f"the number of runs must be at least 1, got {runs}")
+    bad = [n for n in particles if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1]
+    if bad:
+        raise DataError(f"particle counts must be positive whole numbers, got {bad[0]!r}")
     cells = [(f, None) if f in DETERMINISTIC else (f, n) for f in filters for n in particles]
     cells = list(dict.fromkeys(cells))
     jobs = []
@@ -180,7 +183,11 @@ def execute(jobs, workers=None, scheduler=None, progress=None) -> list[dict]:
             from distributed import Client, as_completed
         except ImportError:
             raise DataError("--scheduler needs Dask: pip install 'jmlgdsl[dask]'") from None
-        with Client(scheduler) as client:
+        try:
+            client = Client(scheduler)  # waits distributed.comm.timeouts.connect (30 s by default)
+        except OSError as exc:
+            raise DataError(f"cannot reach the Dask scheduler at {scheduler}: {exc}") from None
+        with client:
             collect(client.map(run_job, jobs, pure=False), as_completed)
     elif (workers or os.cpu_count() or 1) == 1:
         for i, job in enumerate(jobs):
@@ -190,8 +197,11 @@ def execute(jobs, workers=None, scheduler=None, progress=None) -> list[dict]:
     else:
         from concurrent.futures import ProcessPoolExecutor, as_completed
 
-        with ProcessPoolExecutor(max_workers=workers) as pool:
+        pool = ProcessPoolExecutor(max_workers=workers)
+        try:
             collect([pool.submit(run_job, job) for job in jobs], as_completed)
+        finally:
+            pool.shutdown(cancel_futures=True)  # a failed run stops the sweep without waiting for the rest
     return records
 
 

@@ -97,6 +97,22 @@ def test_bad_sweeps_are_user_errors(model, sequence):
         bench.make_jobs(model, [sequence], ("kalman",), (1,))
     with pytest.raises(DataError, match="at least 1"):
         bench.make_jobs(model, [sequence], ("pf",), (1,), runs=0)
+    with pytest.raises(DataError, match="positive whole numbers, got 0"):
+        bench.make_jobs(model, [sequence], ("pf",), (4, 0))
+
+
+def test_a_failing_run_stops_the_pool_with_its_error(model, sequence):
+    bad = bench.Sequence("bad", sequence.y[:, :0], sequence.u, sequence.modes)  # no output column
+    with pytest.raises(DataError, match="y must have shape"):
+        bench.sweep(model, [bad], ("imm",), (1,), runs=3, workers=2)
+
+
+def test_an_unreachable_dask_scheduler_is_a_user_error(model, sequence):
+    dask = pytest.importorskip("dask")
+    pytest.importorskip("distributed")
+    with dask.config.set({"distributed.comm.timeouts.connect": "1s"}):
+        with pytest.raises(DataError, match="cannot reach the Dask scheduler at tcp://127.0.0.1:9"):
+            bench.sweep(model, [sequence], ("imm",), (1,), runs=1, scheduler="tcp://127.0.0.1:9")
 
 
 RECORDS = [

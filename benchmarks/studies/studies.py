@@ -278,7 +278,11 @@ def main(argv=None):
     parser.add_argument("--workers", type=int, help="processes (default: every core)")
     parser.add_argument("--filters", default=",".join(bench.DEFAULT_FILTERS))
     parser.add_argument("--particles", default=",".join(map(str, bench.DEFAULT_PARTICLES)))
+    parser.add_argument("--out", type=Path, help="write to OUT/figures and OUT/results instead (to compare first)")
     args = parser.parse_args(argv)
+    if args.out:
+        global FIGURES, RESULTS
+        FIGURES, RESULTS = args.out / "figures", args.out / "results"
     if args.list:
         print("\n".join(STUDIES))
         return
