@@ -217,6 +217,15 @@ def test_bench_command_user_errors(files, extra, message, capsys):
     assert message in capsys.readouterr().err
 
 
+def test_bench_command_needs_distinct_data_file_names(files, tmp_path, capsys):
+    spec, data = files
+    (tmp_path / "other").mkdir()
+    twin = tmp_path / "other" / data.name
+    twin.write_text(data.read_text())
+    assert main(["bench", str(spec), str(data), str(twin), "--workers", "1"]) == 2
+    assert "data files need different names" in capsys.readouterr().err
+
+
 def test_bench_command_needs_the_true_modes(files, tmp_path, capsys):
     spec, data = files
     rows = data.read_text().splitlines()

@@ -67,6 +67,9 @@ def sources(args, model):
                 raise DataError("--nonlinear needs a .jmlg spec with an 'ode' block")
             nonlinear_plant(args.spec)  # a spec without equations fails here, before any run starts
         return [Simulated(args.simulate, args.modes, plant=args.spec if args.nonlinear else None)]
+    stems = [Path(p).stem for p in args.data]
+    if len(set(stems)) < len(stems):
+        raise DataError(f"data files need different names (their tables are named after them): {', '.join(args.data)}")
     found = []
     for path in args.data:
         data = read_csv(path, model)
