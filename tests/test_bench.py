@@ -10,6 +10,7 @@ from infer_models import dryer
 import jmlgdsl
 from jmlgdsl import bench
 from jmlgdsl.cli import main
+from jmlgdsl.data import write_columns
 from jmlgdsl.errors import DataError
 from jmlgdsl.simulate import simulate
 
@@ -164,12 +165,11 @@ def test_progress_bar_reports_runs_done_on_a_plain_stream():
 
 @pytest.fixture(scope="module")
 def files(tmp_path_factory, model):
-    d = tmp_path_factory.mktemp("bench")
-    spec = d / "dryer.json"
-    model.save(spec)
-    data = d / "seq.csv"
-    assert main(["simulate", str(spec), "--modes", SHORT, "--seed", "3", "-o", str(data)]) == 0
-    return spec, data
+    """The model saved as JSON and a short simulated data file with its true modes."""
+    folder = tmp_path_factory.mktemp("bench")
+    model.save(folder / "dryer.json")
+    write_columns(folder / "seq.csv", simulate(model, modes=SHORT, seed=3).columns())
+    return folder / "dryer.json", folder / "seq.csv"
 
 
 def test_bench_command_prints_the_table_and_writes_tables_and_figures(files, tmp_path, capsys):
