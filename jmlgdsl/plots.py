@@ -13,7 +13,6 @@ matplotlib.use("Agg")
 
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
-from matplotlib.colors import ListedColormap  # noqa: E402
 
 STYLE = {"pf": ("tab:red", "v"), "rbpf": ("tab:orange", "s"), "la-rbpf": ("tab:blue", "o"),
          "fc-rbpf": ("tab:green", "D"), "imm": ("tab:purple", None), "exact": ("black", None)}
