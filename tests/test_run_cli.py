@@ -127,3 +127,29 @@ def test_simulate_takes_inputs_from_a_csv(files, tmp_path, capsys):
     assert [r["one"] for r in rows] == ["1", "2", "3"]
     assert main(["simulate", str(spec), "--inputs", str(inputs), "--steps", "5"]) == 2
     assert "has 3 rows, fewer than --steps 5" in capsys.readouterr().err
+
+
+def test_run_draws_the_diagnosis_figure(files, capsys, tmp_path):
+    spec, data = files
+    png = tmp_path / "diagnosis.png"
+    assert main(["run", str(spec), str(data), "--plot", str(png)]) == 0
+    assert f"figure: {png}" in capsys.readouterr().out
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 10_000
+
+
+def test_run_prefilter_feeds_the_causal_moving_average_to_the_filter(files, tmp_path):
+    spec, data = files
+    out = tmp_path / "out.csv"
+    assert main(["run", str(spec), str(data), "--prefilter", "ma:3", "-o", str(out)]) == 0
+    raw = [float(r["temp"]) for r in csv.DictReader(data.open())]
+    table = list(csv.DictReader(out.open()))
+    seen = [float(r["temp_pred"]) + float(r["temp_resid"]) for r in table]  # what the filter was given
+    assert seen[0] == pytest.approx(raw[0], abs=1e-8)
+    assert seen[1] == pytest.approx((raw[0] + raw[1]) / 2, abs=1e-8)
+    assert seen[500] == pytest.approx(sum(raw[498:501]) / 3, abs=1e-8)
+
+
+def test_run_rejects_a_malformed_prefilter(files, capsys):
+    spec, data = files
+    assert main(["run", str(spec), str(data), "--prefilter", "mean:3"]) == 2
+    assert "write ma:K for a moving average over K readings" in capsys.readouterr().err

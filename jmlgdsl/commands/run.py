@@ -33,6 +33,12 @@ def register(subparsers):
     p.add_argument("--ess-threshold", type=float, default=1.0,
                    help="resample when ESS < this fraction of the particles (1 = every step)")
     p.add_argument("-o", "--output", help="write one CSV row per time step here (- = standard output)")
+    p.add_argument("--plot", metavar="FILE.png",
+                   help="draw the mode posterior over time, the MAP and true modes, and measured vs "
+                        "predicted outputs with residuals")
+    p.add_argument("--prefilter", metavar="ma:K",
+                   help="causal moving average over the last K readings before filtering, for very noisy "
+                        "signals (the filter then predicts the averaged signal)")
     p.set_defaults(func=main)
 
 
@@ -57,7 +63,10 @@ def diagnose(args):
     from ..data import CsvWriter, iter_rows, open_source
     from ..errors import DataError
     from ..infer import Filter, Result
+    from ..prefilter import MovingAverage, parse
 
+    window = parse(args.prefilter)
+    smooth = MovingAverage(window) if window else None
     model = jmlgdsl.load(args.spec)
     streaming = args.data == "-"
     source = "<stdin>" if streaming else args.data
@@ -68,8 +77,9 @@ def diagnose(args):
     steps, truth, writer, seconds = [], [], None, 0.0
     try:
         for row in iter_rows(stream, model, source):
+            y = row.y if smooth is None else smooth(row.y)
             start = time.perf_counter()
-            step = f.step(row.y, row.u)
+            step = f.step(y, row.u)
             seconds += time.perf_counter() - start
             steps.append(step)
             truth.append(row.mode)
@@ -120,6 +130,12 @@ def main(args) -> int:
     import numpy as np
 
     result, truth = diagnose(args)
+    truth = None if truth is None else np.array(truth)
     report = sys.stderr if args.output == "-" else sys.stdout
-    print(summary(result, None if truth is None else np.array(truth)), file=report)
+    print(summary(result, truth), file=report)
+    if args.plot:
+        from ..plots import result_figure
+
+        result_figure(result, args.plot, true_modes=truth)
+        print(f"figure: {args.plot}", file=report)
     return 0
