@@ -40,7 +40,7 @@ def error_vs_particles(summary, path, title="", reference=None):
     """Diagnosis error (mean ± SD over runs) against the number of particles on a log axis; filters
     without particles (imm, exact) are horizontal lines. `reference` adds published points:
     {filter: [(N, mean, sd), ...]} drawn hollow and dashed."""
-    fig, ax = plt.subplots(figsize=(7, 4.5))
+    fig, ax = plt.subplots(figsize=(8.5, 4.5))
     for name, rows in _by_filter(summary).items():
         color, marker = _style(name)
         if rows[0]["particles"] is None:
@@ -63,7 +63,7 @@ def error_vs_particles(summary, path, title="", reference=None):
     ax.set_ylim(bottom=0)
     ax.grid(True, which="both", alpha=0.3)
     ax.set_title(title or "Diagnosis error against particles (mean ± SD over runs)")
-    ax.legend(fontsize="small", ncol=2)
+    ax.legend(fontsize="small", loc="upper left", bbox_to_anchor=(1.01, 1))
     fig.tight_layout()
     _save(fig, path)
 
@@ -124,8 +124,9 @@ def study_figures(folder, prefix, title, sample_time, summary, records, referenc
     """The three study figures of one sweep as folder/prefix-{error-vs-particles,error-vs-time,boxplots}.png
     (no box plots when no particle filter ran); returns the paths written."""
     paths = [folder / f"{prefix}-{kind}.png" for kind in ("error-vs-particles", "error-vs-time", "boxplots")]
-    error_vs_particles(summary, paths[0], f"{title}: diagnosis error (mean ± SD over runs)", reference)
-    error_vs_time(summary, paths[1], sample_time, f"{title}: diagnosis error against computing time")
+    error_vs_particles(summary, paths[0], f"{title}\ndiagnosis error against particles (mean ± SD over runs)",
+                       reference)
+    error_vs_time(summary, paths[1], sample_time, f"{title}\ndiagnosis error against computing time")
     if not any(r["particles"] is not None for r in records):
         return paths[:2]
     error_boxplots(records, paths[2], f"{title}: diagnosis error per run")

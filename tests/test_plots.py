@@ -26,7 +26,7 @@ def test_study_figures_are_pngs_of_the_chosen_size(tmp_path):
     plots.error_vs_particles(summary, tmp_path / "p.png", reference={"la-rbpf": [(1, 26.0, 7.8), (10, 13.6, 5.6)]})
     plots.error_vs_time(summary, tmp_path / "t.png", sample_time=0.1)
     plots.error_boxplots(RECORDS, tmp_path / "b.png")
-    assert _pixels(tmp_path / "p.png") == (450, 700)
+    assert _pixels(tmp_path / "p.png") == (450, 850)
     assert _pixels(tmp_path / "t.png") == (450, 800)
     assert _pixels(tmp_path / "b.png") == (420, 720)  # two particle filters, one panel each
 

@@ -4,7 +4,7 @@ benchmarks/studies/results/<study>/ and figures in docs/figures/<study>-*.png.
     python benchmarks/studies/studies.py --list
     python benchmarks/studies/studies.py dryer-seq1                 # one study, 25 runs
     python benchmarks/studies/studies.py --runs 5 level-tank4 cstr4 # quicker, noisier
-    python benchmarks/studies/studies.py                            # every study (about an hour on 2 cores)
+    python benchmarks/studies/studies.py                            # every study, 25 runs (about 35 minutes on 2 cores)
 
 Every study draws fresh sequences per run from a fixed mode schedule (the published sequences where
 the source study printed them, else a hand-made one that visits every mode along allowed
@@ -183,7 +183,7 @@ def robustness(args, name, spec, schedule, filters, rows=None):
     (folder / "table.md").write_text(text)
     print(text)
     variation_figure(summary, filters, FIGURES / f"{name}.png",
-                     f"{true.name}: filters use a perturbed transition matrix, data follow the published one")
+                     f"{true.name}: the filters' transition matrix perturbed,\ndata from the published one")
 
 
 def variation_table(summary, name):
@@ -200,18 +200,18 @@ def variation_figure(summary, filters, path, title):
     """Error against the perturbation, one line per particle count, one panel per filter."""
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, len(filters), figsize=(4.2 * len(filters), 4), sharey=True, squeeze=False)
+    fig, axes = plt.subplots(1, len(filters), figsize=(4.2 * len(filters) + 2, 4.2), sharey=True, squeeze=False)
     for ax, name in zip(axes[0], filters):
         rows = [r for r in summary if r["filter"] == name]
         for n in sorted({r["particles"] for r in rows}):
             error = {r["data"]: r["error_mean"] for r in rows if r["particles"] == n}
             ax.plot(range(len(VARIATIONS)), [error[f"{v}%"] for v in VARIATIONS], marker="o", ms=3, label=f"N = {n}")
         ax.set_xticks(range(len(VARIATIONS)), [f"{v}" for v in VARIATIONS])
-        ax.set_xlabel("off-diagonal transition probabilities raised by (%)")
+        ax.set_xlabel("off-diagonal transition\nprobabilities raised by (%)")
         ax.set_title(name)
         ax.grid(True, alpha=0.3)
     axes[0, 0].set_ylabel("diagnosis error (% of steps, mean over runs)")
-    axes[0, -1].legend(fontsize="small", loc="upper right")
+    axes[0, -1].legend(fontsize="small", loc="upper left", bbox_to_anchor=(1.02, 1), title="particles")
     fig.suptitle(title)
     fig.tight_layout()
     fig.savefig(path, dpi=plots.DPI)
