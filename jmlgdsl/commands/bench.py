@@ -23,7 +23,7 @@ def register(subparsers):
         "bench", help="compare filters and particle counts: diagnosis error, time per step",
         description="Run every filter at every particle count on data whose true mode is known (a "
                     "'mode' column) or on freshly simulated sequences, --runs times each with seeds "
-                    "derived from --seed. Prints the diagnosis error (%% of steps whose most probable "
+                    "derived from --seed. Prints the diagnosis error (% of steps whose most probable "
                     "mode is wrong), time per step and log-likelihood as Markdown tables, and writes "
                     "the tables (Markdown, CSV), every run (CSV) and figures to the output folder.")
     p.add_argument("spec", help="plant spec (.jmlg) or compiled model (.json/.npz)")
