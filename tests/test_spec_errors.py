@@ -71,6 +71,10 @@ CASES = [
     ("bad index", replace("x[t-1] + u, 0.1) }\n", "x[k-1] + u, 0.1) }\n"), 10, 48, "a time index is t, t-1, ... or a whole number, not 'k'"),
     ("linearize", replace("noise process", "linearize at steady state of each mode\nnoise process"), 8, 1,
      "'linearize' applies to nonlinear plants: this spec has no 'ode' block"),
+    ("let cycle", replace("noise process", "let k = 2 * j, j = k\nnoise process").replace("0.8 * x[t-1] + u", "k * x[t-1] + u"),
+     8, 20, "'let k' depends on itself through k -> j -> k"),
+    ("let cycle in a matrix", replace("noise process", "let k = k\nnoise process").replace(
+        "{ x[t] ~ Normal(0.8 * x[t-1] + u, 0.1) }", "{ A = [k] }"), 8, 9, "'let k' depends on itself through k -> k"),
     ("unknown function", replace("0.8 * x[t-1]", "sqr(0.8) * x[t-1]"), 10, 40, "unknown function 'sqr'; did you mean 'sqrt'?"),
 ]
 

@@ -14,7 +14,7 @@ import sympy as sp
 
 from ..lang.report import Report, suggest
 from ..lang.syntax import Dist, Expr, Statement
-from .evaluate import EvalError, numeric, symbolic
+from .evaluate import EvalError, LetExpander, numeric, symbolic
 from .units import time_in_seconds
 
 MATRIX_NAMES = ("A", "B", "C", "D", "F", "G", "f", "g", "x0")
@@ -72,6 +72,7 @@ class Lowering:
                  process: float = 0.0):
         self.layout, self.params, self.lets, self.report = layout, params, lets, report
         self.dt, self.time_unit = dt, time_unit
+        self.expand_let = LetExpander(lets)
         self.process = process  # the mode's process noise sd, for the state a block drives
 
     # ------------------------------------------------------------- names in expressions
@@ -80,7 +81,7 @@ class Lowering:
         if node.op == "var" and name in self.params:
             return self.params[name]
         if node.op == "var" and name in self.lets:
-            return numeric(self.lets[name].expr, self._numeric_lookup)
+            return self.expand_let(node, lambda e: numeric(e, self._numeric_lookup))
         if name in self.layout.states or name in self.layout.inputs or name in self.layout.outputs:
             raise EvalError(f"{name!r} is a variable, but a number is needed here", node)
         raise EvalError(self._unknown(name), node)
@@ -133,7 +134,7 @@ class Lowering:
             if node.op == "var" and name in self.params:
                 return sp.Float(self.params[name])
             if node.op == "var" and name in self.lets:
-                return symbolic(self.lets[name].expr, lookup)
+                return self.expand_let(node, lambda e: symbolic(e, lookup))
             if name in lay.outputs:
                 raise EvalError(f"{name!r} is an output; a mean may use states and inputs only", node)
             raise EvalError(self._unknown(name), node)

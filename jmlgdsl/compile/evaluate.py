@@ -128,6 +128,27 @@ def symbolic(node: Expr, lookup) -> sp.Expr:
             "div": lambda: a / b, "pow": lambda: a ** b}[op]()
 
 
+class LetExpander:
+    """Expands `let` names in expressions, one at a time, so that a let depending on itself (directly
+    or through other lets) is a located error instead of endless recursion."""
+
+    def __init__(self, lets: dict):
+        self.lets = lets  # name -> Assign
+        self.expanding: list[str] = []
+
+    def __call__(self, node: Expr, evaluate):
+        """The value of the let named at `node`, as `evaluate(expression)` gives it."""
+        name = node.args[0]
+        if name in self.expanding:
+            chain = " -> ".join(self.expanding[self.expanding.index(name):] + [name])
+            raise EvalError(f"'let {name}' depends on itself through {chain}", node)
+        self.expanding.append(name)
+        try:
+            return evaluate(self.lets[name].expr)
+        finally:
+            self.expanding.pop()
+
+
 def unknown_function(name: str) -> str:
     from ..lang.report import suggest
 

@@ -24,7 +24,7 @@ from ..lang.parse import parse_file
 from ..lang.report import Report, suggest
 from ..model import Model
 from .blocks import Layout, ModeArrays
-from .evaluate import EvalError, symbolic
+from .evaluate import EvalError, LetExpander, symbolic
 from .lower import declared_values, mode_noise, stack, steady_mean
 from .units import time_in_seconds
 
@@ -105,7 +105,7 @@ def _resolver(plant: Plant, xs: dict, us: dict, ps: dict):
     """The name lookup for symbolic(): states, inputs and parameters are symbols, lets are expanded."""
     known = [*xs, *us, *ps, *plant.lets]
     outputs = {d.name.text for d in plant.outputs} - set(xs)
-    expanding: list[str] = []
+    expand_let = LetExpander(plant.lets)
 
     def lookup(node: S.Expr):
         name = node.args[0]
@@ -115,13 +115,7 @@ def _resolver(plant: Plant, xs: dict, us: dict, ps: dict):
             if name in table:
                 return table[name]
         if name in plant.lets:
-            if name in expanding:
-                raise EvalError(f"'let {name}' depends on itself through {' -> '.join(expanding + [name])}", node)
-            expanding.append(name)
-            try:
-                return symbolic(plant.lets[name].expr, lookup)
-            finally:
-                expanding.pop()
+            return expand_let(node, lambda e: symbolic(e, lookup))
         if name in outputs:
             raise EvalError(f"{name!r} is an output; equations use states, inputs and parameters", node)
         raise EvalError(f"unknown name {name!r}{suggest(name, known)}", node)
