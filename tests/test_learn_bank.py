@@ -233,6 +233,10 @@ def test_cli_learn_without_template_writes_the_spec_to_standard_output(dryer, ex
     (["--mode", "a=x.csv", "--mode", "a=y.csv"], "mode 'a' given twice"),
     (["--mode", "a=x.csv", "--order", "0"], "--order must be auto, N or NA,NB,NK"),
     (["--mode", "a=x.csv"], "name the output column with --output"),
+    (["--mode", "a=x.csv", "--max-order", "0"], "--max-order must be at least 1, not 0"),
+    (["--mode", "a=x.csv", "--max-delay", "-1"], "--max-delay must be at least 0, not -1"),
+    (["--mode", "a=x.csv", "--max-iter", "-1"], "--max-iter must be at least 0, not -1"),
+    (["--mode", "a=x.csv", "--dt", "0"], "--dt must be a positive number of seconds, not 0.0"),
     (["--mode", "normal=x.csv", "--template", str(DRYER)], "give one experiment for each"),
 ])
 def test_cli_learn_user_errors(argv, message, capsys):

@@ -53,6 +53,18 @@ def parse_order(text: str):
     raise JmlgError(f"--order must be auto, N or NA,NB,NK (na, nb >= 1, nk >= 0), not {text!r}")
 
 
+def check_numbers(args):
+    """Refuse option values no fit can use (an empty order grid, a sample time that is not positive)."""
+    from ..errors import JmlgError
+
+    for option, value, least in (("--max-order", args.max_order, 1), ("--max-delay", args.max_delay, 0),
+                                 ("--max-iter", args.max_iter, 0)):
+        if value < least:
+            raise JmlgError(f"{option} must be at least {least}, not {value}")
+    if not args.dt > 0:
+        raise JmlgError(f"--dt must be a positive number of seconds, not {args.dt}")
+
+
 def parse_modes(items):
     """{name: path} from NAME=CSV items, in the order given."""
     from ..errors import JmlgError
@@ -145,6 +157,7 @@ def main(args) -> int:
 
     paths = parse_modes(args.mode)
     order = parse_order(args.order)
+    check_numbers(args)
     frame, modes = plant_frame(args, list(paths))
     # read_csv binds columns through these names only.
     names = types.SimpleNamespace(inputs=frame["inputs"], outputs=frame["outputs"], nu=len(frame["inputs"]),
