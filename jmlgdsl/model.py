@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import zipfile
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
@@ -208,8 +209,17 @@ class Model:
                    units=d.get("units", {}), **kw)
 
     def save(self, path) -> Path:
-        """Write to .json (readable, exact: floats round-trip), .npz, or .mat (export for Matlab)."""
+        """Write to .json (readable, exact: floats round-trip), .npz, or .mat (export for Matlab);
+        a file that cannot be written is a ModelError."""
         path = Path(path)
+        try:
+            self._write(path)
+        except OSError as exc:
+            raise ModelError(f"cannot write model file {path}: {exc.strerror or exc}") from None
+        return path
+
+    def _write(self, path: Path):
+        """Write the file `save` promises, in the format its suffix names."""
         suffix = path.suffix.lower()
         if suffix == ".json":
             path.write_text(json.dumps(self.to_dict(), indent=1))
@@ -228,23 +238,40 @@ class Model:
             savemat(path, mdict)
         else:
             raise ModelError(f"unknown model file type {suffix!r}: use .json, .npz or .mat")
-        return path
 
     @classmethod
     def read(cls, path) -> "Model":
-        """Read a model written by `save` (.json or .npz)."""
+        """Read a model written by `save` (.json or .npz); a missing, foreign or damaged file is a
+        ModelError naming the file."""
         path = Path(path)
         suffix = path.suffix.lower()
-        if suffix == ".json":
-            return cls.from_dict(json.loads(path.read_text()))
-        if suffix == ".npz":
-            with np.load(path, allow_pickle=False) as z:
-                meta = json.loads(str(z["meta"]))
-                if meta.get("format") != "jmlgdsl-model":
-                    raise ModelError(f"{path}: not a jmlgdsl model file")
-                meta.pop("format"), meta.pop("version")
-                return cls(**{k: z[k] for k in ARRAYS}, **{k: tuple(v) if k in NAMES else v for k, v in meta.items()})
-        raise ModelError(f"cannot read model files of type {suffix!r}: use .json or .npz")
+        if suffix not in (".json", ".npz"):
+            raise ModelError(f"cannot read model files of type {suffix!r}: use .json or .npz")
+        try:
+            return cls._read_json(path) if suffix == ".json" else cls._read_npz(path)
+        except ModelError as exc:
+            raise ModelError(f"{path}: {exc}") from None
+        except OSError as exc:
+            raise ModelError(f"cannot read model file {path}: {exc.strerror or exc}") from None
+        except KeyError as exc:
+            raise ModelError(f"{path}: not a complete jmlgdsl model file: {exc} is missing") from None
+        except (ValueError, TypeError, EOFError, zipfile.BadZipFile) as exc:
+            raise ModelError(f"{path}: not a readable jmlgdsl model file ({type(exc).__name__}: {exc})") from None
+
+    @classmethod
+    def _read_json(cls, path: Path) -> "Model":
+        """The model in a .json file written by `save`."""
+        return cls.from_dict(json.loads(path.read_text()))
+
+    @classmethod
+    def _read_npz(cls, path: Path) -> "Model":
+        """The model in a .npz file written by `save`: arrays as they are, names and sizes in `meta`."""
+        with np.load(path, allow_pickle=False) as z:
+            meta = json.loads(str(z["meta"]))
+            if meta.get("format") != "jmlgdsl-model":
+                raise ModelError("not a jmlgdsl model file")
+            meta.pop("format"), meta.pop("version")
+            return cls(**{k: z[k] for k in ARRAYS}, **{k: tuple(v) if k in NAMES else v for k, v in meta.items()})
 
     def __repr__(self):
         return (f"Model({self.name!r}, K={self.K} modes {list(self.modes)}, nx={self.nx}, ny={self.ny}, "

@@ -90,3 +90,30 @@ def test_compiled_spec_round_trips_through_the_cli(tmp_path, capsys):
     assert main(["compile", str(spec), "-o", str(tmp_path / "dryer.json")]) == 0
     assert "wrote" in capsys.readouterr().out
     same(jmlgdsl.load(spec), jmlgdsl.load(tmp_path / "dryer.json"))
+
+
+@pytest.mark.parametrize("name,content,message", [
+    ("missing.json", None, "cannot read model file .*missing.json: No such file"),
+    ("broken.json", "{bad", "broken.json: not a readable jmlgdsl model file"),
+    ("partial.json", '{"format": "jmlgdsl-model"}', "partial.json: not a complete jmlgdsl model file: 'A' is missing"),
+    ("broken.npz", "not a zip", "broken.npz: not a readable jmlgdsl model file"),
+])
+def test_unreadable_model_files_are_model_errors_naming_the_file(tmp_path, name, content, message):
+    if content is not None:
+        (tmp_path / name).write_text(content)
+    with pytest.raises(ModelError, match=message):
+        jmlgdsl.load(tmp_path / name)
+
+
+def test_unwritable_model_file_is_a_model_error(tmp_path):
+    with pytest.raises(ModelError, match="cannot write model file .*m.json"):
+        random_model().save(tmp_path / "no" / "such" / "folder" / "m.json")
+
+
+def test_cli_reports_a_damaged_model_file_without_traceback(tmp_path, capsys):
+    from jmlgdsl.cli import main
+
+    (tmp_path / "m.json").write_text("{bad")
+    assert main(["check", str(tmp_path / "m.json")]) == 2
+    err = capsys.readouterr().err
+    assert "m.json: not a readable jmlgdsl model file" in err and "Traceback" not in err
