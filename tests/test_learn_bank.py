@@ -185,6 +185,13 @@ def test_step_fit_errors_name_the_experiment(experiments):
         bank.learn_modes({"fan": experiments["fan"]}, fopdt=True)
 
 
+def test_an_input_that_never_changes_is_refused(experiments):
+    fan = experiments["fan"]
+    still = bank.Experiment(fan.y, np.full_like(fan.u, 15.0), "still.csv")
+    with pytest.raises(jmlgdsl.DataError, match="^still.csv: input 1 never changes"):
+        bank.learn_modes({"fan": fan, "still": still}, order=(1, 1, 0))
+
+
 def write_experiments(dryer, experiments, folder):
     paths = {}
     for name, e in experiments.items():

@@ -76,6 +76,10 @@ def learn_modes(experiments: dict, order="auto", fopdt=False, dt=1.0, max_order=
             raise DataError(f"{e.source}: learning fits one output per plant; got {e.y.shape[1]}")
         if np.isnan(e.y).all():
             raise DataError(f"{e.source}: no measured output")
+        for j, column in enumerate(e.u.T):
+            if np.nanmin(column) == np.nanmax(column):
+                raise DataError(f"{e.source}: input {j + 1} never changes, so its effect cannot be told "
+                                "from the offset; excite it, e.g. with a PRBS")
     if fopdt:
         for e in experiments.values():
             if e.u.shape[1] != 1:
