@@ -168,6 +168,8 @@ def _clock(seconds):
 def execute(jobs, workers=None, scheduler=None, progress=None) -> list[dict]:
     """Run every job (in order of the list): serially for workers=1, in a process pool over
     `workers` processes (default: every core), or on the Dask scheduler at address `scheduler`."""
+    if workers is not None and workers < 1:
+        raise DataError(f"the number of worker processes must be at least 1, got {workers}")
     bar = Progress(len(jobs), progress) if progress is not None else None
     records = [None] * len(jobs)
 

@@ -210,6 +210,7 @@ def test_bench_command_simulates_the_nonlinear_equations(capsys, tmp_path):
     (["--simulate", "10", "--prefilter", "box:3"], "write ma:K"),
     (["--simulate", "10", "--filters", "pf,nope"], "unknown filter 'nope'"),
     (["--simulate", "10", "--nonlinear"], "--nonlinear needs a .jmlg spec with an 'ode' block"),
+    (["--simulate", "10", "--filters", "imm", "--workers", "0"], "worker processes must be at least 1, got 0"),
 ])
 def test_bench_command_user_errors(files, extra, message, capsys):
     spec, _ = files
