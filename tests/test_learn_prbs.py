@@ -69,3 +69,8 @@ def test_cli_writes_time_and_input_columns(tmp_path, capsys):
 def test_cli_reports_bad_register_length(capsys):
     assert main(["prbs", "--cells", "30"]) == 2
     assert "between 2 and 20" in capsys.readouterr().err
+
+
+def test_cli_reports_a_sample_time_that_is_not_positive(capsys):
+    assert main(["prbs", "--dt", "0"]) == 2
+    assert "--dt must be a positive number of seconds, not 0.0" in capsys.readouterr().err

@@ -28,8 +28,11 @@ def main(args) -> int:
     import numpy as np
 
     from ..data import write_columns
+    from ..errors import JmlgError
     from ..learn.prbs import prbs, warn_if_short
 
+    if not args.dt > 0:
+        raise JmlgError(f"--dt must be a positive number of seconds, not {args.dt}")
     u = prbs(args.cells, args.clock, args.amplitude, args.around, args.periods, args.samples)
     if args.settling is not None:
         warn_if_short(args.cells, args.clock, args.dt, args.settling)
