@@ -99,12 +99,18 @@ def nonlinear_plant(path):
     return load_nonlinear(path)
 
 
-def run_job(job: Job) -> dict:
-    """Filter one sequence and measure it: diagnosis error %, milliseconds per step, log-likelihood."""
+def filter_job(job: Job):
+    """(the job's data, the filter's Result on it): the outputs through the job's pre-filter, the
+    filter drawing from the job's own seed, so one run of a sweep can be replayed and drawn."""
     data = sequence_of(job)
     y = data.y if job.prefilter is None else moving_average(data.y, job.prefilter)
-    result = run_filter(job.model, y, data.u, algorithm=job.algorithm, particles=job.particles,
-                        rng=np.random.default_rng(job.filter_seed))
+    return data, run_filter(job.model, y, data.u, algorithm=job.algorithm, particles=job.particles,
+                            rng=np.random.default_rng(job.filter_seed))
+
+
+def run_job(job: Job) -> dict:
+    """Filter one sequence and measure it: diagnosis error %, milliseconds per step, log-likelihood."""
+    data, result = filter_job(job)
     return {"data": data.name, "filter": job.algorithm, "particles": job.particles, "run": job.run,
             "error": result.diagnosis_error(data.modes), "ms_per_step": 1e3 * result.seconds / result.T,
             "loglik": result.loglik}

@@ -25,7 +25,6 @@ import numpy as np
 
 import jmlgdsl
 from jmlgdsl import bench, plots
-from jmlgdsl.prefilter import moving_average
 from jmlgdsl.simulate import parse_schedule
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -114,10 +113,7 @@ def diagnosis_example(name, model, schedule, algorithm, particles, seed, plant=N
     """The mode-posterior figure of one run: docs/figures/<name>-diagnosis.png."""
     source = bench.Simulated(None, schedule, name, plant)
     job = bench.make_jobs(model, [source], (algorithm,), (particles,), runs=1, seed=seed, prefilter=prefilter)[0]
-    data = bench.sequence_of(job)
-    y = data.y if prefilter is None else moving_average(data.y, prefilter)
-    result = jmlgdsl.filter(model, y, data.u, algorithm=algorithm, particles=particles,
-                            rng=np.random.default_rng(job.filter_seed))
+    data, result = bench.filter_job(job)
     plots.result_figure(result, FIGURES / f"{name}-diagnosis.png", true_modes=data.modes)
 
 
