@@ -79,8 +79,9 @@ def sources(args, model):
     return found
 
 
-def write_outputs(folder, model, records, figures=True) -> list:
-    """Tables, run records and figures for each data source; returns the paths written."""
+def write_outputs(folder, model, records, by_source, figures=True) -> list:
+    """Every run, and each data source's tables and figures from its (records, summary) in
+    `by_source`; returns the paths written."""
     from pathlib import Path
 
     from .. import bench, plots
@@ -89,9 +90,7 @@ def write_outputs(folder, model, records, figures=True) -> list:
     folder.mkdir(parents=True, exist_ok=True)
     written = [folder / "runs.csv"]
     bench.write_records_csv(written[0], records)
-    for name in dict.fromkeys(r["data"] for r in records):
-        mine = [r for r in records if r["data"] == name]
-        summary = bench.summarise(mine)
+    for name, (mine, summary) in by_source.items():
         table = folder / f"{name}-table.md"
         table.write_text(bench.report(summary))
         bench.write_table_csv(folder / f"{name}-table.csv", summary)
@@ -110,9 +109,12 @@ def main(args) -> int:
     window = prefilter.parse(args.prefilter)
     records = bench.sweep(model, sources(args, model), args.filters, args.particles, args.runs, args.seed,
                           window, args.workers, args.scheduler, progress=sys.stderr)
+    by_source = {}
     for name in dict.fromkeys(r["data"] for r in records):
+        mine = [r for r in records if r["data"] == name]
+        by_source[name] = mine, bench.summarise(mine)
         print(f"## {model.name}, {name}: {args.runs} runs per setting\n")
-        print(bench.report(bench.summarise([r for r in records if r["data"] == name])))
-    written = write_outputs(args.output, model, records, figures=not args.no_figures)
+        print(bench.report(by_source[name][1]))
+    written = write_outputs(args.output, model, records, by_source, figures=not args.no_figures)
     print("wrote " + ", ".join(str(p) for p in written))
     return 0
