@@ -91,6 +91,20 @@ def test_one_mode_equals_kalman_filter(algorithm):
     assert res.loglik == pytest.approx(loglik, abs=1e-8)
 
 
+def test_states_in_different_units_keep_their_own_precision():
+    # A temperature (variance ~1) beside a concentration (variance ~1e-8) in one mode: every shared
+    # covariance entry must match the Kalman filter relative to its own state's variance.
+    model = Model.from_arrays(A=np.diag([0.9, 0.999]), B=np.diag([1.0, 1e-5]), C=np.eye(2), D=np.diag([1.0, 1e-4]),
+                              P=[[1.0]], p0=[1.0], mu0=[0.0, 0.0], Sigma0=np.diag([1.0, 1e-6]))
+    y = np.random.default_rng(0).normal(size=(200, 2)) * [1.0, 1e-4]
+    mu, Sig, variances = model.mu0[0], model.Sigma0, []
+    for t in range(len(y)):
+        mu, Sig, _, _, _ = kalman.step(mu, Sig, model.A[0], 0.0, model.Q[0], model.C[0], 0.0, model.R[0], y[t])
+        variances.append(np.diag(Sig))
+    res = jmlgdsl.filter(model, y, algorithm="la-rbpf", particles=2, seed=0)
+    np.testing.assert_allclose(np.diagonal(res.state_cov, axis1=1, axis2=2), variances, rtol=1e-8)
+
+
 def test_exact_equals_enumeration(small):
     model, y, (post, loglik) = small
     res = jmlgdsl.filter(model, y, algorithm="exact")

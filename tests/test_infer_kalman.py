@@ -79,3 +79,12 @@ def test_graph_merges_equal_covariances_and_compacts():
     renumbered = graph.compact(np.array([child[2], child[0]]))
     assert graph.size == 2
     np.testing.assert_array_equal(graph.Sig[renumbered], np.stack([rows.Sig_f.data[1, 0], rows.Sig_f.data[0, 1]]))
+
+
+def test_graph_keeps_a_small_variance_apart_from_a_large_one():
+    model = random_model(np.random.default_rng(3), K=2, nx=2, ny=1)
+    graph = CovarianceGraph(model, rtol=1e-10)
+    # A temperature (variance 1) beside a concentration (variance 1e-8): 1 % apart in the
+    # concentration is a different covariance, though far below 1e-10 of the largest variance.
+    ids = graph.add(np.stack([np.diag([1.0, 1e-8]), np.diag([1.0, 1.01e-8]), np.diag([1.0, 1e-8 * (1 + 1e-14)])]))
+    assert ids[0] != ids[1] and ids[0] == ids[2]

@@ -3,9 +3,10 @@
 A Kalman covariance depends only on the mode history and on which outputs were measured, never on
 the data values. Particles therefore hold an index into a table of distinct covariances (nodes),
 and for each node, mode and observation mask the covariance work is done once and cached: the
-Cholesky factor of the innovation covariance, the gain and the child node. Covariances that agree
-to a relative tolerance are one node, so once the Riccati recursion has converged the table stops
-growing and a step costs no covariance arithmetic at all.
+Cholesky factor of the innovation covariance, the gain and the child node. Covariances whose
+entries agree to a relative tolerance (each entry relative to its own variances) are one node, so
+once the Riccati recursion has converged the table stops growing and a step costs no covariance
+arithmetic at all.
 """
 
 from __future__ import annotations
@@ -79,10 +80,14 @@ class CovarianceGraph:
         return self._Sig.data
 
     def _keys(self, Sigs):
-        """Hashable keys equal for covariances that agree to rtol relative to their largest variance."""
-        scale = np.frexp(np.abs(np.diagonal(Sigs, axis1=1, axis2=2)).max(axis=1))[1]
-        grid = np.ldexp(self.rtol, scale)
-        ticks = np.round(Sigs.reshape(len(Sigs), -1) / grid[:, None]).astype(np.int64)
+        """Hashable keys equal for covariances whose entries agree to rtol relative to sqrt(Sig_ii Sig_jj).
+
+        Each entry is rounded on its own grid, so a state with a small variance (another unit) keeps
+        its relative precision instead of being rounded on the grid of the largest variance.
+        """
+        scale = np.frexp(np.abs(np.diagonal(Sigs, axis1=1, axis2=2)))[1]  # (n, nx) binary exponents
+        grid = np.ldexp(self.rtol, (scale[:, :, None] + scale[:, None, :]) // 2)
+        ticks = np.round(Sigs / grid).astype(np.int64).reshape(len(Sigs), -1)
         return [row.tobytes() for row in np.column_stack([scale.astype(np.int64), ticks])]
 
     def add(self, Sigs) -> np.ndarray:
