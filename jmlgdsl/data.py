@@ -55,6 +55,16 @@ def open_source(path):
         raise DataError(f"cannot read {path}: {exc.strerror}") from None
 
 
+def open_target(path):
+    """A text stream to write a table to: the file (created or replaced), or standard output for '-'."""
+    if str(path) == "-":
+        return sys.stdout
+    try:
+        return open(path, "w", newline="")
+    except OSError as exc:
+        raise DataError(f"cannot write {path}: {exc.strerror}") from None
+
+
 def _records(stream):
     """(line number, cells) for each line that is neither blank nor a # comment, read one at a time."""
     for number, line in enumerate(iter(stream.readline, ""), start=1):
@@ -168,7 +178,7 @@ class CsvWriter:
 def write_columns(path, columns: dict):
     """Write equal-length columns (name -> array of numbers or strings) to a CSV file ('-' = stdout)."""
     names = list(columns)
-    stream = sys.stdout if str(path) == "-" else open(path, "w", newline="")
+    stream = open_target(path)
     try:
         writer = CsvWriter(stream, names)
         for row in zip(*columns.values()):

@@ -71,6 +71,15 @@ def test_bad_data_is_a_clear_error(files, tmp_path, capsys, content, message):
     assert err.startswith(message.format(data=data)) and "Traceback" not in err
 
 
+def test_unwritable_output_is_a_clear_error(files, tmp_path, capsys):
+    spec, data = files
+    target = tmp_path / "no_such_folder" / "out.csv"
+    for command in (["run", str(spec), str(data)], ["simulate", str(spec), "--steps", "3"]):
+        assert main(command + ["-o", str(target)]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith(f"error: cannot write {target}: No such file or directory") and "Traceback" not in err
+
+
 def test_bad_schedule_is_a_clear_error(files, capsys):
     spec, _ = files
     assert main(["simulate", str(spec), "--modes", "1-5:normal,6-9:boom"]) == 2

@@ -60,7 +60,7 @@ def diagnose(args):
     """Filter the data named in args, writing the output table if asked; returns (Result, true modes or None)."""
     import jmlgdsl
 
-    from ..data import CsvWriter, iter_rows, open_source
+    from ..data import CsvWriter, iter_rows, open_source, open_target
     from ..errors import DataError
     from ..infer import Filter, Result
     from ..prefilter import MovingAverage, parse
@@ -73,9 +73,11 @@ def diagnose(args):
     f = Filter(model, algorithm=args.filter, particles=args.particles, seed=args.seed,
                resampling=args.resampling, ess_threshold=args.ess_threshold)
     stream = open_source(args.data)
-    out = None if args.output is None else (sys.stdout if args.output == "-" else open(args.output, "w", newline=""))
+    out = None
     steps, truth, writer, seconds = [], [], None, 0.0
     try:
+        if args.output is not None:
+            out = open_target(args.output)
         for row in iter_rows(stream, model, source):
             y = row.y if smooth is None else smooth(row.y)
             start = time.perf_counter()
@@ -90,7 +92,7 @@ def diagnose(args):
     finally:
         if stream is not sys.stdin:
             stream.close()
-        if out is not None and out is not sys.stdout:
+        if out not in (None, sys.stdout):
             out.close()
     if not steps:
         raise DataError(f"{source}: no data rows")
