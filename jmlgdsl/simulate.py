@@ -62,7 +62,7 @@ def parse_schedule(text: str, model: Model, T: int | None = None) -> np.ndarray:
 
 
 def _mode_sequence(model, T, modes, rng):
-    """(z0, modes (T,)): drawn from the chain, or the given schedule/array with z0 = its first mode."""
+    """(z0, modes (T,)): drawn from the chain, or the given mode names/indices with z0 = the first."""
     if modes is None:
         z0 = int(rng.choice(model.K, p=model.p0))
         seq = np.empty(T, dtype=np.int64)
@@ -70,8 +70,7 @@ def _mode_sequence(model, T, modes, rng):
         for t in range(T):
             z = seq[t] = rng.choice(model.K, p=model.P[z])
         return z0, seq
-    seq = parse_schedule(modes, model, T) if isinstance(modes, str) else np.asarray(
-        [model.mode_index(k) if isinstance(k, str) else int(k) for k in modes], dtype=np.int64)
+    seq = np.asarray([model.mode_index(k) if isinstance(k, str) else int(k) for k in modes], dtype=np.int64)
     if len(seq) != T:
         raise DataError(f"{len(seq)} modes given for {T} steps")
     if ((seq < 0) | (seq >= model.K)).any():
@@ -83,10 +82,10 @@ def simulate(model: Model, T: int | None = None, seed=None, rng=None, modes=None
     """Simulate T steps. `modes`: None (draw from the chain), a schedule string or a sequence of mode
     names/indices; `u`: (T, nu) inputs or None for the defaults. `seed` or `rng` fixes the draws."""
     rng = rng if rng is not None else np.random.default_rng(seed)
+    if isinstance(modes, str):
+        modes = parse_schedule(modes, model, T)
     if T is None:
-        if isinstance(modes, str):
-            T = len(parse_schedule(modes, model))
-        elif modes is not None:
+        if modes is not None:
             T = len(modes)
         elif u is not None:
             T = len(u)
