@@ -175,3 +175,16 @@ def test_observer_form_changes_basis_not_likelihood():
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         assert np.allclose(canonical.free_run(u), one_output.free_run(u))
+
+
+def test_a_state_the_output_cannot_see_keeps_its_basis():
+    """With A diagonal and C = [1 0] the second state never reaches the output: no observer form
+    exists, and the bank keeps the model as it is."""
+    from jmlgdsl.learn.bank import readable
+
+    hidden = two_state_model()
+    hidden = hidden.replace(A=np.diag([0.5, 0.8]), C=np.array([[1.0, 0.0]]), G=hidden.G[:1], g=hidden.g[:1],
+                            R=hidden.R[:1, :1])
+    with pytest.raises(np.linalg.LinAlgError, match="does not observe every state"):
+        hidden.observer_form()
+    assert readable(hidden) is hidden

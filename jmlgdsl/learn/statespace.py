@@ -63,22 +63,23 @@ class StateSpace:
             out[t] = self.C @ x + self.G @ ut + self.g
         return out
 
-    def transformed(self, T) -> "StateSpace":
-        """The same input-output model in the state basis x' = T x."""
-        Ti = np.linalg.inv(T)
-        return self.replace(A=T @ self.A @ Ti, F=T @ self.F, f=T @ self.f, C=self.C @ Ti,
-                            Q=symmetrize(T @ self.Q @ T.T), mu0=T @ self.mu0, Sigma0=symmetrize(T @ self.Sigma0 @ T.T))
-
     def observer_form(self) -> "StateSpace":
         """For one output: the basis in which C = [1 0 ... 0] and A is in observer canonical form.
 
         The first state is then the noise-free output itself, so the spec reads like the plant.
+        The new state is x' = T x with T mapping the observability matrix of (A, C) onto that of the
+        canonical pair; T A T^-1 and C T^-1 are then the canonical A and C, written exactly (zeros
+        and ones, not rounded ones) rather than computed through an inverse. Raises LinAlgError when
+        T is singular to working precision (a state the output does not see).
         """
         if self.C.shape[0] != 1:
             return self
         A_can, C_can = companion(np.poly(self.A)[1:]), np.eye(1, self.nx)
         T = np.linalg.solve(_observability(A_can, C_can), _observability(self.A, self.C))
-        return self.transformed(T).replace(A=A_can, C=C_can)  # exact zeros and ones, not rounded ones
+        if not np.linalg.cond(T) < 1 / np.finfo(float).eps:
+            raise np.linalg.LinAlgError("the output does not observe every state")
+        return self.replace(A=A_can, F=T @ self.F, f=T @ self.f, C=C_can, Q=symmetrize(T @ self.Q @ T.T),
+                            mu0=T @ self.mu0, Sigma0=symmetrize(T @ self.Sigma0 @ T.T))
 
 
 def companion(a) -> np.ndarray:
