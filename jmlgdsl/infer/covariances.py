@@ -124,8 +124,7 @@ class CovarianceGraph:
         Sig_p = kalman.predict_cov(Sig[:, None], model.A, model.Q)
         C = model.C[:, mask, :]
         S, CS = kalman.innovation_cov(Sig_p, C, model.R[:, mask][:, :, mask])
-        Linv = np.linalg.inv(np.linalg.cholesky(S))
-        logdet = -2.0 * np.log(np.diagonal(Linv, axis1=-2, axis2=-1)).sum(-1)
+        Linv, logdet = kalman.inverse_cholesky(S)
         gain_t = np.swapaxes(Linv, -1, -2) @ (Linv @ CS)  # S^-1 C Sig_p
         Sig_f = kalman.symmetrize(Sig_p - np.swapaxes(CS, -1, -2) @ gain_t)
         rows.Linv.extend(Linv)

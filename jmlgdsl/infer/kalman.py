@@ -2,8 +2,8 @@
 
 Every function broadcasts over leading axes (particles, modes, ...): means are (..., n), covariances
 (..., n, n), matrices (..., rows, cols). Gaussian log-densities go through a Cholesky factor of the
-innovation covariance, never an explicit inverse or determinant, and covariances are symmetrised
-after every update.
+innovation covariance (inverted only as a triangular factor shared by many residuals), never an
+explicit inverse or determinant of the covariance, and covariances are symmetrised after every update.
 """
 
 from __future__ import annotations
@@ -57,13 +57,24 @@ def innovation(mu_p, Sig_p, C, c, R):
 
 def log_normal(r, S):
     """log N(r; 0, S) for residuals r (..., n) and covariances S (..., n, n), via Cholesky."""
-    n = r.shape[-1]
-    if n == 0:
+    if r.shape[-1] == 0:
         return np.zeros(np.broadcast_shapes(r.shape[:-1], S.shape[:-2]))
     L = np.linalg.cholesky(S)
     z = np.linalg.solve(L, r[..., None])[..., 0]
-    logdet = 2.0 * np.log(np.diagonal(L, axis1=-2, axis2=-1)).sum(-1)
-    return -0.5 * (np.minimum(np.einsum("...i,...i->...", z, z), MAX_QUAD) + logdet + n * LOG_2PI)
+    return whitened_log_normal(z, 2.0 * np.log(np.diagonal(L, axis1=-2, axis2=-1)).sum(-1))
+
+
+def inverse_cholesky(S):
+    """(Linv, log det S) with Linv = L^-1 for the Cholesky factor L of S: kept where one S whitens
+    the residuals of many particles, z = Linv r, with one matrix product."""
+    Linv = np.linalg.inv(np.linalg.cholesky(S))
+    return Linv, -2.0 * np.log(np.diagonal(Linv, axis1=-2, axis2=-1)).sum(-1)
+
+
+def whitened_log_normal(z, logdet):
+    """log N(r; 0, S) from the whitened residuals z = L^-1 r (..., n) and log det S."""
+    quad = np.minimum(np.einsum("...i,...i->...", z, z), MAX_QUAD)
+    return -0.5 * (quad + logdet + z.shape[-1] * LOG_2PI)
 
 
 def correct(mu_p, Sig_p, y_pred, S, CS, y):

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from .engine import Estimate, Resampler, mixture_moments, offsets, predictive_mean, sample_rows, weighted_posterior
-from .kalman import LOG_2PI, MAX_QUAD, psd_sqrt
+from .kalman import inverse_cholesky, psd_sqrt, whitened_log_normal
 from .resample import normalize
 
 
@@ -25,8 +25,7 @@ class BootstrapPF:
     def _measurement_noise(self, mask):
         key = mask.tobytes()
         if key not in self._noise:
-            L = np.linalg.cholesky(self.model.R[:, mask][:, :, mask])
-            self._noise[key] = (np.linalg.inv(L), 2.0 * np.log(np.diagonal(L, axis1=-2, axis2=-1)).sum(-1))
+            self._noise[key] = inverse_cholesky(self.model.R[:, mask][:, :, mask])
         return self._noise[key]
 
     def step(self, y, mask, u) -> Estimate:
@@ -38,9 +37,8 @@ class BootstrapPF:
         x = np.einsum("nij,nj->ni", model.A[z], self.x) + b[z] + np.einsum("nij,nj->ni", model.B[z], w)
         y_pred = np.einsum("nij,nj->ni", model.C[z], x) + c[z]
         Linv, logdet = self._measurement_noise(mask)
-        r = np.einsum("nab,nb->na", Linv[z], y[mask] - y_pred[:, mask])
-        quad = np.minimum(np.einsum("na,na->n", r, r), MAX_QUAD)
-        q, loglik = normalize(log_prior - 0.5 * (quad + logdet[z] + mask.sum() * LOG_2PI))
+        white = np.einsum("nab,nb->na", Linv[z], y[mask] - y_pred[:, mask])
+        q, loglik = normalize(log_prior + whitened_log_normal(white, logdet[z]))
         mean, cov = mixture_moments(q, x, np.zeros((model.nx, model.nx)))
         posterior = weighted_posterior(q, z, model.K)
         ancestors, self.logw, size = self.resampler(q)

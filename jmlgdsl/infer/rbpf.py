@@ -22,7 +22,7 @@ import numpy as np
 from .covariances import CovarianceGraph
 from .engine import (Estimate, FilterError, Resampler, mixture_moments, offsets, predictive_mean,
                      sample_rows, weighted_posterior)
-from .kalman import LOG_2PI, MAX_QUAD
+from .kalman import whitened_log_normal
 from .resample import fearnhead_clifford, normalize
 
 
@@ -89,8 +89,7 @@ class RaoBlackwellised:
         m = int(mask.sum())
         r = y - y_pred if m == ny else y[mask] - y_pred[:, mask]
         z = np.einsum("jab,jb->ja", rows.take("Linv", node, node_mode), r)
-        quad = np.minimum(np.einsum("ja,ja->j", z, z), MAX_QUAD)
-        ll = -0.5 * (quad + rows.take("logdet", node, node_mode) + m * LOG_2PI)
+        ll = whitened_log_normal(z, rows.take("logdet", node, node_mode))
         mu_f = mu_p + np.einsum("jai,ja->ji", rows.take("gain_t", node, node_mode), r)
 
         log_prior = self.logw[parent] + model.logP[self.z[parent], mode]
