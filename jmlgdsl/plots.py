@@ -31,8 +31,9 @@ def _by_filter(summary):
     return {f: sorted(rows, key=lambda r: r["particles"] or 0) for f, rows in groups.items()}
 
 
-def _save(fig, path):
-    fig.savefig(path, dpi=DPI)
+def save(fig, path, dpi=DPI):
+    """Write the figure as a PNG and release it (pyplot keeps every open figure alive)."""
+    fig.savefig(path, dpi=dpi)
     plt.close(fig)
 
 
@@ -65,7 +66,7 @@ def error_vs_particles(summary, path, title="", reference=None):
     ax.set_title(title or "Diagnosis error against particles (mean ± SD over runs)")
     ax.legend(fontsize="small", loc="upper left", bbox_to_anchor=(1.01, 1))
     fig.tight_layout()
-    _save(fig, path)
+    save(fig, path)
 
 
 def error_vs_time(summary, path, sample_time, title=""):
@@ -90,7 +91,7 @@ def error_vs_time(summary, path, sample_time, title=""):
     ax.legend(fontsize="small", loc="upper left", bbox_to_anchor=(1.01, 1), title="filter\n(N increases\nto the right)",
               title_fontsize="small")
     fig.tight_layout()
-    _save(fig, path)
+    save(fig, path)
 
 
 def _duration(seconds):
@@ -117,7 +118,7 @@ def error_boxplots(records, path, title=""):
     axes[0, 0].set_ylabel("diagnosis error (% of steps)")
     fig.suptitle(title or "Diagnosis error per run")
     fig.tight_layout()
-    _save(fig, path)
+    save(fig, path)
 
 
 def study_figures(folder, prefix, title, sample_time, summary, records, reference=None) -> list:
@@ -200,7 +201,7 @@ def diagnosis_figure(path, mode_names, posterior, time, y, y_pred, output_names,
     ax.set_xlim(edges[0], edges[-1])
     fig.suptitle(title or "Mode diagnosis")
     fig.align_ylabels(axes)
-    _save(fig, path)
+    save(fig, path)
 
 
 def _edges(time):

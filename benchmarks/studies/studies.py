@@ -194,9 +194,7 @@ def variation_table(summary, name):
 
 def variation_figure(summary, filters, path, title):
     """Error against the perturbation, one line per particle count, one panel per filter."""
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(1, len(filters), figsize=(4.2 * len(filters) + 2, 4.2), sharey=True, squeeze=False)
+    fig, axes = plots.plt.subplots(1, len(filters), figsize=(4.2 * len(filters) + 2, 4.2), sharey=True, squeeze=False)
     for ax, name in zip(axes[0], filters):
         rows = [r for r in summary if r["filter"] == name]
         for n in sorted({r["particles"] for r in rows}):
@@ -210,8 +208,7 @@ def variation_figure(summary, filters, path, title):
     axes[0, -1].legend(fontsize="small", loc="upper left", bbox_to_anchor=(1.02, 1), title="particles")
     fig.suptitle(title)
     fig.tight_layout()
-    fig.savefig(path, dpi=plots.DPI)
-    plt.close(fig)
+    plots.save(fig, path)
 
 
 def prefilter(args, name, model_level, data_level=None):

@@ -5,20 +5,14 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..plots import plt, save
 
-def _pyplot():
-    """matplotlib.pyplot on the headless Agg backend (imported only when a figure is drawn)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
+#: Resolution of the learning figures (dots per inch).
+DPI = 110
 
 
 def plot_step(fit, y, path, title="Step test", ylabel="output"):
     """Measured step response and the fitted FOPDT curve; writes `path`."""
-    plt = _pyplot()
     y = np.asarray(y, float).ravel()
     t = np.arange(len(y)) * fit.dt
     fig, ax = plt.subplots(figsize=(7, 3.5))
@@ -29,8 +23,7 @@ def plot_step(fit, y, path, title="Step test", ylabel="output"):
     ax.set(xlabel="time [s]", ylabel=ylabel, title=title)
     ax.legend(loc="best", fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save(fig, path, DPI)
     return path
 
 
@@ -46,7 +39,6 @@ def _stems(ax, lags, values, band, title):
 def plot_validation(learned, path, dt=1.0, ylabel="output", input_name="input"):
     """Residual autocorrelation, cross-correlation with the first input and the free-run fit of one
     learned mode (first output); writes `path`."""
-    plt = _pyplot()
     v = learned.validation
     y = learned.experiment.y[:, 0]
     t = np.arange(1, len(y) + 1) * dt
@@ -67,6 +59,5 @@ def plot_validation(learned, path, dt=1.0, ylabel="output", input_name="input"):
     verdict = "pass" if v.passed else "FAIL"
     fig.suptitle(f"Mode {learned.name}: {learned.structure}; residual tests {verdict}")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save(fig, path, DPI)
     return path
