@@ -230,8 +230,13 @@ def test_user_errors_are_clear(small):
         Filter(model, algorithm="pf", particles=0)
     with pytest.raises(FilterError, match="unknown resampling scheme"):
         Filter(model, resampling="best")
-    with pytest.raises(DataError, match="t=1: no value and no default for input u1"):
-        Filter(model.replace(input_defaults=[np.nan])).step(y[0], [np.nan])
+    for u in ([np.nan], None):
+        with pytest.raises(DataError, match="t=1: no value and no default for input u1"):
+            Filter(model.replace(input_defaults=[np.nan])).step(y[0], u)
+    with pytest.raises(DataError, match=r"t=1: 3 outputs given, expected 2 \(y1, y2\)"):
+        Filter(model).step([1.0, 2.0, 3.0])
+    with pytest.raises(DataError, match=r"t=1: 2 inputs given, expected 1 \(u1\)"):
+        Filter(model).step(y[0], [1.0, 2.0])
     with pytest.raises(DataError, match=r"y must have shape \(T, 2\)"):
         jmlgdsl.filter(model, np.zeros((4, 3)))
 

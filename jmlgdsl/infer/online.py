@@ -10,6 +10,7 @@ import time
 import numpy as np
 
 from ..errors import DataError
+from . import kalman
 from .engine import FilterError, Resampler
 from .imm import IMM
 from .pf import BootstrapPF
@@ -55,25 +56,30 @@ class Filter:
         """Advance one time step with outputs y (ny,) and inputs u (nu,).
 
         NaN outputs are not measured (as are infinite ones or any beyond MAX_READING in size);
-        NaN inputs take the spec's defaults.
+        NaN inputs (all of them with u=None) take the spec's defaults.
         """
-        model = self.model
-        y = np.asarray(y, dtype=float).reshape(model.ny)
+        model, t = self.model, self.t + 1
+        y = _vector(y, model.outputs, "outputs", t)
         y = np.where(np.abs(y) < MAX_READING, y, np.nan)  # NaN compares False: stays NaN
-        if u is None:
-            u = model.resolve_inputs(None, 1)[0]
-        else:
-            u = np.asarray(u, dtype=float).reshape(model.nu)
-            u = np.where(np.isnan(u), model.input_defaults, u)
-            if not np.isfinite(u).all():
-                bad = [n for n, v in zip(model.inputs, u) if not np.isfinite(v)]
-                raise DataError(f"t={self.t + 1}: no value and no default for input {', '.join(bad)}")
-        mask = ~np.isnan(y)
+        u = np.full(model.nu, np.nan) if u is None else _vector(u, model.inputs, "inputs", t)
+        u = np.where(np.isnan(u), model.input_defaults, u)
+        if not np.isfinite(u).all():
+            bad = [n for n, v in zip(model.inputs, u) if not np.isfinite(v)]
+            raise DataError(f"t={t}: no value and no default for input {', '.join(bad)}")
+        mask = kalman.observed(y)
         est = self.engine.step(y, mask, u)
-        self.t += 1
+        self.t = t
         self.loglik += est.loglik
         return Step(self.t, est.mode_posterior, est.state_mean, est.state_cov, est.y_pred,
                     y - est.y_pred, est.loglik, est.ess)
+
+
+def _vector(values, names, what, t):
+    """One step's values as a float vector (len(names),); a DataError naming the columns otherwise."""
+    v = np.asarray(values, dtype=float)
+    if v.size != len(names):
+        raise DataError(f"t={t}: {v.size} {what} given, expected {len(names)} ({', '.join(names)})")
+    return v.reshape(len(names))
 
 
 def filter(model, y, u=None, *, algorithm=DEFAULT_ALGORITHM, particles=None, seed=None,
