@@ -150,6 +150,7 @@ class Progress:
         self.live = hasattr(stream, "isatty") and stream.isatty()
 
     def update(self, n=1):
+        """Count n more finished runs; redraw on a terminal, else print at every further 10 %."""
         self.done += n
         percent = 100 * self.done // self.total
         if not self.live and percent < self.shown + 10 and self.done < self.total:
@@ -167,6 +168,7 @@ class Progress:
 
 
 def _clock(seconds):
+    """Seconds as minutes and seconds, e.g. 2m05s."""
     minutes, seconds = divmod(int(round(seconds)), 60)
     return f"{minutes}m{seconds:02d}s"
 
@@ -180,6 +182,7 @@ def execute(jobs, workers=None, scheduler=None, progress=None) -> list[dict]:
     records = [None] * len(jobs)
 
     def collect(futures, as_completed):
+        """Store each result at its job's place as it arrives (a failed run raises here)."""
         index = {f: i for i, f in enumerate(futures)}
         for future in as_completed(futures):
             records[index[future]] = future.result()
@@ -283,6 +286,7 @@ def write_table_csv(path, summary):
 
 
 def _cell(value):
+    """A CSV cell: six significant digits, empty for a missing value (None, NaN)."""
     return "" if value is None or (isinstance(value, float) and math.isnan(value)) else f"{value:.6g}"
 
 

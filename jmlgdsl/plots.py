@@ -20,6 +20,7 @@ DPI = 100
 
 
 def _style(name):
+    """(colour, marker) of a filter; marker None for the filters without particles."""
     return STYLE.get(name, ("tab:gray", "x"))
 
 
@@ -95,6 +96,7 @@ def error_vs_time(summary, path, sample_time, title=""):
 
 
 def _duration(seconds):
+    """A sample time as text in s, or in ms below one second."""
     return f"{seconds:g} s" if seconds >= 1 else f"{1e3 * seconds:g} ms"
 
 
@@ -135,6 +137,7 @@ def study_figures(folder, prefix, title, sample_time, summary, records, referenc
 
 
 def _mode_colors(K):
+    """One RGBA colour per mode (tab10, or tab20 beyond ten modes)."""
     return plt.get_cmap("tab10" if K <= 10 else "tab20")(np.arange(K) % 20)
 
 

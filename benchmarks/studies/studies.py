@@ -127,6 +127,7 @@ def linear_study(args, name, spec, schedule, reference=None, model=None, title=N
 
 
 def dryer(args, seq):
+    """One of the published dryer sequences; sequence 1 is drawn beside the published Table 5.5."""
     linear_study(args, f"dryer-{seq}", "dryer.jmlg", DRYER[seq], TABLE_5_5 if seq == "seq1" else None,
                  title=f"Dryer, sequence {seq[-1]}")
 
@@ -147,6 +148,7 @@ def with_measurement_noise(model, level):
 
 
 def robot8(args, level):
+    """The 8-mode robot with measurement noise `level` times its process noise."""
     name = f"robot8-noise{level}"
     model = with_measurement_noise(jmlgdsl.load(SPECS / "robot8.jmlg"), level)
     linear_study(args, name, None, SCHEDULES["robot8"], model=model, title=f"Robot, 8 modes, n_m = {level} n_p")
@@ -263,6 +265,7 @@ def machine():
 
 
 def main(argv=None):
+    """Run the named studies (default: all) and log each one's time, seed and machine."""
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("studies", nargs="*", help="studies to run (default: all)")
     parser.add_argument("--list", action="store_true", help="list the studies and stop")

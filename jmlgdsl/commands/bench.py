@@ -101,6 +101,7 @@ def write_outputs(folder, model, records, by_source, figures=True) -> list:
 
 
 def main(args) -> int:
+    """Run the command on parsed arguments; returns the exit status."""
     import jmlgdsl
 
     from .. import bench, prefilter

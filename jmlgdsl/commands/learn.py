@@ -145,6 +145,7 @@ def write_figures(folder, learned, frame, report):
 
 
 def main(args) -> int:
+    """Run the command on parsed arguments; returns the exit status."""
     import sys
     import types
     from pathlib import Path

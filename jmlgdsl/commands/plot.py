@@ -69,6 +69,7 @@ def true_modes(path, modes, steps):
 
 
 def main(args) -> int:
+    """Run the command on parsed arguments; returns the exit status."""
     import numpy as np
 
     from ..errors import DataError

@@ -25,6 +25,7 @@ def register(subparsers):
 
 
 def main(args) -> int:
+    """Run the command on parsed arguments; returns the exit status."""
     import numpy as np
 
     from ..data import write_columns

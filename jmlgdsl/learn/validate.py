@@ -42,6 +42,7 @@ class Validation:
 
     @property
     def passed(self) -> bool:
+        """The pass rule of the module docstring: at most ALLOWED_OUTSIDE lags outside the band per test."""
         auto, cross = self.outside
         return bool((auto <= ALLOWED_OUTSIDE).all() and (cross <= ALLOWED_OUTSIDE).all())
 
