@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from jmlgdsl.infer import FilterError
-from jmlgdsl.infer.engine import Resampler
+from jmlgdsl.infer.engine import Resampler, sample_rows
 from jmlgdsl.infer.resample import SCHEMES, ess, fearnhead_clifford, normalize
 
 W = np.array([0.005, 0.3, 0.0, 0.12, 0.375, 0.2])
@@ -90,3 +90,23 @@ def test_resampler_counts_copies_in_the_ess_and_honours_the_threshold():
     assert len(ancestors) == 4 and np.allclose(logw, -np.log(4))
     with pytest.raises(FilterError, match="ESS threshold must be in"):
         Resampler(SCHEMES["systematic"], 4, rng, threshold=0.0)
+
+
+def test_sample_rows_never_draws_a_zero_probability_category():
+    class Edges:
+        """A generator whose uniforms are the ends of [0, 1)."""
+
+        def __init__(self, value):
+            self.value = value
+
+        def random(self, n):
+            return np.full(n, self.value)
+
+    probs = np.array([[0.0, 0.25, 0.0, 0.75, 0.0], [0.0, 0.0, 2.0, 0.0, 0.0]])
+    assert list(sample_rows(probs, Edges(0.0))) == [1, 2]
+    assert list(sample_rows(probs, Edges(np.nextafter(1.0, 0.0)))) == [3, 2]
+    rng = np.random.default_rng(8)
+    draws = sample_rows(np.repeat(probs[:1], REPEATS, axis=0), rng)
+    # Binomial standard error of the frequency of category 1 (probability 1/4).
+    assert abs(np.mean(draws == 1) - 0.25) <= 4.5 * np.sqrt(0.25 * 0.75 / REPEATS)
+    assert set(draws) == {1, 3}

@@ -44,10 +44,11 @@ def mixture_moments(w, means, weighted_cov):
 
 
 def sample_rows(probs, rng):
-    """One categorical draw per row of non-negative (unnormalised) probabilities (M, K)."""
+    """One categorical draw per row of non-negative (unnormalised) probabilities (M, K): the first k
+    with cdf_k > u for u uniform on [0, total), so a zero-probability category is never drawn."""
     cdf = np.cumsum(probs, axis=1)
     u = rng.random(len(probs)) * cdf[:, -1]
-    return np.minimum((cdf < u[:, None]).sum(axis=1), probs.shape[1] - 1)
+    return np.minimum((cdf <= u[:, None]).sum(axis=1), probs.shape[1] - 1)
 
 
 class Resampler:
