@@ -60,6 +60,12 @@ class Filtered:
     loglik: float
 
 
+def columns(y, u=None) -> tuple[np.ndarray, np.ndarray]:
+    """Outputs as (T, ny) and inputs as (T, nu) float arrays; no inputs gives u of shape (T, 0)."""
+    y = np.asarray(y, float).reshape(len(y), -1)
+    return y, np.zeros((len(y), 0)) if u is None else np.asarray(u, float).reshape(len(y), -1)
+
+
 def forward(ss: StateSpace, y, u) -> Filtered:
     """Kalman filter with NaN-masked outputs over y (T, ny) with inputs u (T, nu)."""
     y = np.asarray(y, float)
@@ -153,8 +159,7 @@ def em(ss: StateSpace, y, u=None, max_iter=100, tol=1e-5, offset=True, feedthrou
     The log-likelihood cannot decrease in exact arithmetic; if it falls by more than rounding, the
     last good parameters are kept and a warning says so.
     """
-    y = np.asarray(y, float).reshape(len(y), -1)
-    u = np.zeros((len(y), 0)) if u is None else np.asarray(u, float).reshape(len(y), -1)
+    y, u = columns(y, u)
     e = smooth(ss, y, u)
     history = [e.loglik]
     converged = False

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .em import forward
+from .em import columns, forward
 from .statespace import StateSpace
 
 MAX_LAG = 25
@@ -70,8 +70,7 @@ def nrmse_fit(y, y_hat) -> np.ndarray:
 
 def validate(ss: StateSpace, y, u=None) -> Validation:
     """Residual whiteness, input-residual independence and free-run fit of `ss` on data y, u."""
-    y = np.asarray(y, float).reshape(len(y), -1)
-    u = np.zeros((len(y), 0)) if u is None else np.asarray(u, float).reshape(len(y), -1)
+    y, u = columns(y, u)
     e = forward(ss, y, u).innovation
     lags = np.arange(1, MAX_LAG + 1)
     xlags = np.arange(0, MAX_LAG + 1)
