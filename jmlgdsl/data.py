@@ -97,9 +97,13 @@ def iter_rows(stream, model, source="<data>", outputs=True) -> Iterator[Row]:
     _, header = next(records, (0, None))
     if header is None:
         raise DataError(f"{source}: no header line (expected columns {', '.join(model.outputs)})")
-    index = {name.strip().lstrip("\ufeff"): i for i, name in enumerate(header)}  # spreadsheets may add a BOM
+    names = [name.strip().lstrip("\ufeff") for name in header]  # spreadsheets may add a BOM
+    index = {name: i for i, name in enumerate(names)}
 
     def column(name, required):
+        """The cell index of a column the model uses; None when it is absent and not required."""
+        if names.count(name) > 1:
+            raise DataError(f"{source}: column {name!r} appears {names.count(name)} times in the header")
         if name in index:
             return index[name]
         if required:

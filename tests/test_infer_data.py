@@ -49,6 +49,8 @@ def test_optional_input_column_takes_its_default():
 def test_spreadsheet_exports_read_cleanly():
     got = rows("\ufefftemp , one\r\n50.5, 2\r\n", dryer())
     assert got[0].y[0] == 50.5 and got[0].u[0] == 2.0
+    # Repeated columns the model does not use are ignored like any other.
+    assert rows("note,temp,note\na,51,b\n", dryer())[0].y[0] == 51.0
 
 
 @pytest.mark.parametrize("text, message", [
@@ -59,6 +61,7 @@ def test_spreadsheet_exports_read_cleanly():
     ("level,flow\n1,\n", "data.csv:2: column 'flow': missing value and the input has no default"),
     ("level,flow,mode\n1,2,ok\n1,2,broken\n", "data.csv:3: column 'mode': unknown mode 'broken'; modes are ok"),
     ("", "data.csv: no header line"),
+    ("level,flow,level\n1,2,3\n", "data.csv: column 'level' appears 2 times in the header"),
     ("levle,flow\n1,2\n", "data.csv: missing column 'level'; the header has levle, flow; did you mean 'levle'?"),
     ("level,flow,mode\n1,2,okk\n", "data.csv:2: column 'mode': unknown mode 'okk'; modes are ok; did you mean 'ok'?"),
 ])
