@@ -42,6 +42,8 @@ CASES = [
      10, 7, "der(k): 'k' is a parameter, not a state; declare it with 'state k = GUESS'"),
     ("duplicate der", replace("  der(h) = (q - out) / area\n", "  der(h) = (q - out) / area\n  der(h) = 0\n"),
      10, 7, "der(h) is given twice (first at line 9)"),
+    ("division by zero", replace("(q - out) / area", "(q - out) / 0"), 9, 12, "this is not a finite real number"),
+    ("output at a pole", replace("output h", "output h, z = 1 / (h - h)"), 7, 15, "this is not a finite real number"),
     ("unknown function", replace("k * sqrt(h)", "k * sqrtt(h)"), 4, 17, "unknown function 'sqrtt'; did you mean 'sqrt'?"),
     ("unknown name", replace("(q - out) / area", "(q - out) / aera"), 9, 24, "unknown name 'aera'; did you mean 'area'?"),
     ("time index", replace("(q - out) / area", "(q[t] - out) / area"), 9, 13,

@@ -75,6 +75,10 @@ CASES = [
      8, 20, "'let k' depends on itself through k -> j -> k"),
     ("let cycle in a matrix", replace("noise process", "let k = k\nnoise process").replace(
         "{ x[t] ~ Normal(0.8 * x[t-1] + u, 0.1) }", "{ A = [k] }"), 8, 9, "'let k' depends on itself through k -> k"),
+    ("division by zero", replace("0.8 * x[t-1] + u", "x[t-1] / 0 + u"), 10, 40, "this is not a finite real number"),
+    ("log of zero", replace("0.8 * x[t-1] + u", "log(0) * x[t-1] + u"), 10, 40, "this is not a finite real number"),
+    ("zeros size", replace("u, 0.1) }\n", "u, 0.1); B = zeros(-1) }\n"), 10, 68,
+     "zeros() takes sizes: whole numbers, 0 or more"),
     ("unknown function", replace("0.8 * x[t-1]", "sqr(0.8) * x[t-1]"), 10, 40, "unknown function 'sqr'; did you mean 'sqrt'?"),
 ]
 

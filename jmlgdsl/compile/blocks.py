@@ -14,7 +14,7 @@ import sympy as sp
 
 from ..lang.report import Report, suggest
 from ..lang.syntax import Dist, Expr, Statement
-from .evaluate import EvalError, LetExpander, numeric, symbolic
+from .evaluate import NOT_FINITE, EvalError, LetExpander, finite_real, numeric, symbolic
 from .units import time_in_seconds
 
 MATRIX_NAMES = ("A", "B", "C", "D", "F", "G", "f", "g", "x0")
@@ -143,6 +143,9 @@ class Lowering:
             e = sp.expand(symbolic(expr, lookup))
         except EvalError as exc:
             self.report.error(str(exc), exc.node.pos)
+            return None
+        if not finite_real(e):
+            self.report.error(NOT_FINITE, expr.pos)
             return None
         symbols = xs + us
         for term in sp.Add.make_args(e):

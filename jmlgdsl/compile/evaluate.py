@@ -40,6 +40,7 @@ def _diag(v):
 
 MATRIX_FUNCTIONS = {"eye": (lambda n: np.eye(int(n)), (1, 1)), "zeros": (_zeros, (1, 2)),
                     "ones": (_ones, (1, 2)), "diag": (_diag, (1, 1))}
+SIZED = ("eye", "zeros", "ones")  # the matrix functions whose arguments are sizes
 FUNCTION_NAMES = sorted([*SCALAR_FUNCTIONS, *MATRIX_FUNCTIONS])
 
 
@@ -69,6 +70,8 @@ def numeric(node: Expr, lookup):
         if name in MATRIX_FUNCTIONS:
             fn, (lo, hi) = MATRIX_FUNCTIONS[name]
             _check_arity(node, name, lo, hi)
+            if name in SIZED and not all(np.ndim(v) == 0 and float(v).is_integer() and v >= 0 for v in values):
+                raise EvalError(f"{name}() takes sizes: whole numbers, 0 or more", node)
             return fn(*values)
         if name in SCALAR_FUNCTIONS:
             lo, hi = ARITY.get(name, (1, 1))
@@ -147,6 +150,15 @@ class LetExpander:
             return evaluate(self.lets[name].expr)
         finally:
             self.expanding.pop()
+
+
+NOT_FINITE = "this is not a finite real number (a division by zero, or a log or square root out of its domain?)"
+
+
+def finite_real(e: sp.Expr) -> bool:
+    """False when a symbolic expression holds an infinity, a NaN or the imaginary unit, which no
+    numeric coefficient or compiled function can carry."""
+    return not e.has(sp.zoo, sp.oo, -sp.oo, sp.nan, sp.I)
 
 
 def unknown_function(name: str) -> str:

@@ -24,7 +24,7 @@ from ..lang.parse import parse_file
 from ..lang.report import Report, suggest
 from ..model import Model
 from .blocks import Layout, ModeArrays
-from .evaluate import EvalError, LetExpander, symbolic
+from .evaluate import NOT_FINITE, EvalError, LetExpander, finite_real, symbolic
 from .lower import declared_values, mode_noise, stack, steady_mean
 from .units import time_in_seconds
 
@@ -124,11 +124,16 @@ def _resolver(plant: Plant, xs: dict, us: dict, ps: dict):
 
 
 def _symbolic(expr: S.Expr, lookup, report: Report):
+    """The sympy form of an equation or output, or NaN with the problem reported at its place."""
     try:
-        return symbolic(expr, lookup)
+        value = symbolic(expr, lookup)
     except EvalError as exc:
         report.error(str(exc), exc.node.pos)
         return sp.nan
+    if not finite_real(value):
+        report.error(NOT_FINITE, expr.pos)
+        return sp.nan
+    return value
 
 
 def _derivatives(spec: S.Spec, states: list[str], report: Report) -> dict[str, S.Derivative]:
