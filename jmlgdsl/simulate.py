@@ -9,6 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import DataError
+from .infer.engine import generator
 from .infer.kalman import psd_sqrt
 from .model import Model
 
@@ -81,7 +82,7 @@ def _mode_sequence(model, T, modes, rng):
 def simulate(model: Model, T: int | None = None, seed=None, rng=None, modes=None, u=None) -> Simulation:
     """Simulate T steps. `modes`: None (draw from the chain), a schedule string or a sequence of mode
     names/indices; `u`: (T, nu) inputs or None for the defaults. `seed` or `rng` fixes the draws."""
-    rng = rng if rng is not None else np.random.default_rng(seed)
+    rng = generator(seed, rng)
     if isinstance(modes, str):
         modes = parse_schedule(modes, model, T)
     if T is None:

@@ -80,6 +80,14 @@ def test_unwritable_output_is_a_clear_error(files, tmp_path, capsys):
         assert err.startswith(f"error: cannot write {target}: No such file or directory") and "Traceback" not in err
 
 
+def test_negative_seed_is_a_clear_error(files, capsys):
+    spec, data = files
+    for command in (["run", str(spec), str(data), "--filter", "la-rbpf"], ["simulate", str(spec), "--steps", "3"]):
+        assert main(command + ["--seed", "-1"]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith("error: the seed must be a non-negative whole number, got -1") and "Traceback" not in err
+
+
 def test_bad_schedule_is_a_clear_error(files, capsys):
     spec, _ = files
     assert main(["simulate", str(spec), "--modes", "1-5:normal,6-9:boom"]) == 2

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import JmlgError
+from ..errors import DataError, JmlgError
 from . import kalman
 from .resample import normalize
 
@@ -29,6 +29,16 @@ class Estimate:
     y_pred: np.ndarray  # (ny,) one-step predictive mean E[y_t | y_1:t-1]
     loglik: float  # log p(y_t | y_1:t-1) (an estimate for particle filters)
     ess: float  # effective sample size of the particle weights (NaN for deterministic filters)
+
+
+def generator(seed=None, rng=None) -> np.random.Generator:
+    """The run's random numbers: `rng` itself, else a Generator seeded with `seed` (None = fresh entropy)."""
+    if rng is not None:
+        return rng
+    try:
+        return np.random.default_rng(seed)
+    except (TypeError, ValueError):
+        raise DataError(f"the seed must be a non-negative whole number, got {seed!r}") from None
 
 
 def offsets(model, u):

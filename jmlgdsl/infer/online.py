@@ -11,7 +11,7 @@ import numpy as np
 
 from ..errors import DataError
 from . import kalman
-from .engine import FilterError, Resampler
+from .engine import FilterError, Resampler, generator
 from .imm import IMM
 from .pf import BootstrapPF
 from .rbpf import RBPF, Exact, FearnheadCliffordRBPF, LookAheadRBPF
@@ -46,7 +46,7 @@ class Filter:
         elif isinstance(particles, bool) or not isinstance(particles, (int, np.integer)) or particles < 1:
             raise FilterError(f"the number of particles must be a positive whole number, got {particles!r}")
         self.model, self.algorithm, self.particles = model, algorithm, particles
-        self.rng = rng if rng is not None else np.random.default_rng(seed)
+        self.rng = generator(seed, rng)
         resampler = Resampler(SCHEMES[resampling], particles, self.rng, ess_threshold) if particles else None
         self.engine = engine(model, particles, self.rng, resampler)
         self.t = 0
