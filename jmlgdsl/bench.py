@@ -123,16 +123,20 @@ def make_jobs(model, sources, filters=DEFAULT_FILTERS, particles=DEFAULT_PARTICL
     Run r draws its data from the same seed for every filter (paired comparisons); each filter and
     particle count gets its own stream. Deterministic filters (imm, exact) run once per run.
     """
+    if not filters:
+        raise DataError(f"no filter to run; choose from {', '.join(ALGORITHMS)}")
     for name in filters:
         if name not in ALGORITHMS:
             raise DataError(f"unknown filter {name!r}; choose from {', '.join(ALGORITHMS)}")
+    if not particles and set(filters) - set(DETERMINISTIC):
+        raise DataError("the particle filters need at least one particle count")
     if runs < 1:
         raise DataError(f"the number of runs must be at least 1, got {runs}")
     bad = [n for n in particles if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1]
     if bad:
         raise DataError(f"particle counts must be positive whole numbers, got {bad[0]!r}")
-    cells = [(f, None) if f in DETERMINISTIC else (f, n) for f in filters for n in particles]
-    cells = list(dict.fromkeys(cells))
+    cells = [(f, n) for f in filters for n in ((None,) if f in DETERMINISTIC else particles)]
+    cells = list(dict.fromkeys(cells))  # a filter named twice runs once
     jobs = []
     for run, run_seed in enumerate(np.random.SeedSequence(seed).spawn(runs)):
         data_seed, filter_root = run_seed.spawn(2)

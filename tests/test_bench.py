@@ -100,6 +100,11 @@ def test_bad_sweeps_are_user_errors(model, sequence):
         bench.make_jobs(model, [sequence], ("pf",), (1,), runs=0)
     with pytest.raises(DataError, match="positive whole numbers, got 0"):
         bench.make_jobs(model, [sequence], ("pf",), (4, 0))
+    with pytest.raises(DataError, match="no filter to run"):
+        bench.make_jobs(model, [sequence], (), (1,))
+    with pytest.raises(DataError, match="need at least one particle count"):
+        bench.make_jobs(model, [sequence], ("imm", "pf"), ())
+    assert len(bench.make_jobs(model, [sequence], ("imm",), (), runs=2)) == 2  # imm needs no particles
 
 
 def test_a_failing_run_stops_the_pool_with_its_error(model, sequence):
