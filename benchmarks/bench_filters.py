@@ -75,6 +75,7 @@ def accuracy_table(name, model, sims, settings):
 
 
 def plant_sims(name, seeds):
+    """A published plant's spec and `seeds` simulated 1,000-step runs (the dryer through sequence No. 1)."""
     model = jmlgdsl.load(SPECS / f"{name}.jmlg")
     if name == "dryer":
         return model, [simulate(model, 1000, seed=s, modes=DRYER_SEQ1) for s in range(seeds)]

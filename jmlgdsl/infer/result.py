@@ -67,6 +67,7 @@ class Result:
 
     @property
     def T(self) -> int:
+        """Number of time steps filtered."""
         return len(self.mode_posterior)
 
     def diagnosis_error(self, true_modes) -> float:
