@@ -14,7 +14,7 @@ import sympy as sp
 
 from ..lang.report import Report, suggest
 from ..lang.syntax import Dist, Expr, Statement
-from .evaluate import NOT_FINITE, EvalError, LetExpander, finite_real, numeric, symbolic
+from .evaluate import NOT_FINITE, EvalError, LetExpander, finite_numeric, finite_real, symbolic
 from .units import time_in_seconds
 
 MATRIX_NAMES = ("A", "B", "C", "D", "F", "G", "f", "g", "x0")
@@ -81,7 +81,7 @@ class Lowering:
         if node.op == "var" and name in self.params:
             return self.params[name]
         if node.op == "var" and name in self.lets:
-            return self.expand_let(node, lambda e: numeric(e, self._numeric_lookup))
+            return self.expand_let(node, lambda e: finite_numeric(e, self._numeric_lookup))
         if name in self.layout.states or name in self.layout.inputs or name in self.layout.outputs:
             raise EvalError(f"{name!r} is a variable, but a number is needed here", node)
         raise EvalError(self._unknown(name), node)
@@ -92,7 +92,7 @@ class Lowering:
 
     def number(self, expr: Expr, what: str) -> float:
         try:
-            v = numeric(expr, self._numeric_lookup)
+            v = finite_numeric(expr, self._numeric_lookup)
         except EvalError as exc:
             self.report.error(str(exc), exc.node.pos)
             return math.nan
@@ -103,7 +103,7 @@ class Lowering:
 
     def matrix(self, expr: Expr) -> np.ndarray | None:
         try:
-            return np.atleast_2d(np.asarray(numeric(expr, self._numeric_lookup), float))
+            return np.atleast_2d(np.asarray(finite_numeric(expr, self._numeric_lookup), float))
         except EvalError as exc:
             self.report.error(str(exc), exc.node.pos)
             return None

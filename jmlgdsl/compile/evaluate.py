@@ -102,7 +102,7 @@ def numeric(node: Expr, lookup):
     if op == "pow":
         if np.ndim(a) or np.ndim(b):
             raise EvalError("powers of matrices are not supported", node)
-        return a ** b
+        return np.power(float(a), float(b))  # real: NaN for a negative base and a fractional power
     raise EvalError(f"unsupported expression {op}", node)  # pragma: no cover - grammar has no others
 
 
@@ -152,7 +152,27 @@ class LetExpander:
             self.expanding.pop()
 
 
-NOT_FINITE = "this is not a finite real number (a division by zero, or a log or square root out of its domain?)"
+def finite_numeric(node: Expr, lookup):
+    """numeric() for a value the user wrote: no floating-point warnings, and an EvalError at `node`
+    when the value is not finite although every name it uses is (such a name is reported where it is
+    defined, not again at each use)."""
+    inherited = False
+
+    def watched(name_node: Expr):
+        nonlocal inherited
+        value = lookup(name_node)
+        inherited = inherited or not np.all(np.isfinite(value))
+        return value
+
+    with np.errstate(all="ignore"):
+        value = numeric(node, watched)
+    if not inherited and not np.all(np.isfinite(value)):
+        raise EvalError(NOT_FINITE, node)
+    return value
+
+
+NOT_FINITE = ("this is not a finite real number (an overflow, a division by zero, or a log, root or power "
+              "out of its domain?)")
 
 
 def finite_real(e: sp.Expr) -> bool:

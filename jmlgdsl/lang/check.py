@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..compile.evaluate import EvalError, numeric
+from ..compile.evaluate import EvalError, finite_numeric
 from ..compile.units import time_in_seconds
 from . import syntax as S
 from .report import Report, suggest
@@ -70,7 +70,7 @@ def evaluate_number(expr: S.Expr, env: dict, report: Report, what: str) -> float
         return env[name]
 
     try:
-        value = numeric(expr, lookup)
+        value = finite_numeric(expr, lookup)
     except EvalError as exc:
         report.error(str(exc), exc.node.pos)
         return float("nan")
@@ -363,7 +363,7 @@ def _matrix_value(expr: S.Expr, shape, what: str, env, report: Report) -> np.nda
         return env[node.args[0]]
 
     try:
-        value = np.atleast_2d(np.asarray(numeric(expr, lookup), float))
+        value = np.atleast_2d(np.asarray(finite_numeric(expr, lookup), float))
     except EvalError as exc:
         report.error(str(exc), exc.node.pos)
         return np.zeros(shape)
