@@ -5,6 +5,7 @@ Every problem is reported with its position; lowering to matrices happens in jml
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -81,6 +82,7 @@ def evaluate_number(expr: S.Expr, env: dict, report: Report, what: str) -> float
 
 
 def evaluate_params(params: list[S.Assign], report: Report) -> dict[str, float]:
+    """Nominal parameter values in declaration order: each may use the ones declared before it."""
     env: dict[str, float] = {}
     for a in params:
         env[a.name.text] = evaluate_number(a.expr, env, report, what=f"parameter {a.name.text}")
@@ -105,16 +107,10 @@ def check(spec: S.Spec) -> tuple[Plant, Report]:
     for d in spec.decls:
         decls[d.kind].append(d)
     plant = Plant(
-        name=spec.plant.text if spec.plant else _stem(spec.path), dt=dt, time_unit=unit,
+        name=spec.plant.text if spec.plant else Path(spec.path).stem, dt=dt, time_unit=unit,
         inputs=decls["input"], outputs=decls["output"], states=decls["state"], params=params,
         lets={a.name.text: a for a in spec.lets}, modes=modes, P=P, p0=p0, noise=noise, spec=spec)
     return plant, report
-
-
-def _stem(path: str) -> str:
-    from pathlib import Path
-
-    return Path(path).stem
 
 
 def _check_declarations(spec: S.Spec, report: Report):
@@ -144,10 +140,12 @@ def _check_declarations(spec: S.Spec, report: Report):
 
 
 def _a(kind: str) -> str:
+    """The kind with its indefinite article, for messages."""
     return f"an {kind}" if kind[0] in "aeiou" else f"a {kind}"
 
 
 def _sample_time(spec: S.Spec, report: Report) -> tuple[float, str]:
+    """The sample time in seconds and the unit it was written in (time constants without a unit use it)."""
     if spec.sample is None:
         report.error("missing sample time: add a line such as 'sample 1 s'", S.Pos(1, 1))
         return 1.0, "s"
@@ -201,6 +199,7 @@ def _modes(spec: S.Spec, report: Report, params: set[str]) -> list[ModeInfo]:
 
 
 def _check_overrides(overrides, params: set[str], report: Report):
+    """A mode may only override declared parameters."""
     for a in overrides:
         if a.name.text not in params:
             report.error(f"{a.name.text!r} is not a parameter{suggest(a.name.text, params)}", a.name.pos)
@@ -231,6 +230,7 @@ def _resolve_like(info: ModeInfo, infos: dict[str, ModeInfo], report: Report, ch
 # ------------------------------------------------------------------ probabilities
 
 def _probability_value(expr: S.Expr, env, report: Report) -> float:
+    """One probability, reported when outside [0, 1]."""
     value = evaluate_number(expr, env, report, what="a probability")
     if value < 0:
         report.error(f"a probability cannot be negative (got {value:g})", expr.pos)
@@ -281,13 +281,14 @@ def _normalise(vec, what: str, pos: S.Pos, report: Report):
         hint = "" if total > 1 else "; add 'otherwise uniform' or the missing entries"
         report.error(f"{what} sums to {total:.6g}, not 1{hint}", pos)
         return vec
-    if total != 1.0 and abs(total - 1.0) > 1e-12:
+    if abs(total - 1.0) > 1e-12:
         report.warn(f"{what} sums to {total:.6g}; renormalised to 1", pos)
         vec = vec / total
     return vec
 
 
 def _transitions(spec: S.Spec, modes: list[str], env, report: Report) -> np.ndarray:
+    """The transition matrix (row = from-mode) from a matrix literal, rules or arrow rows; one mode may omit it."""
     K = len(modes)
     if not spec.transitions:
         if K > 1:
@@ -338,6 +339,7 @@ def _transitions(spec: S.Spec, modes: list[str], env, report: Report) -> np.ndar
 
 
 def _initial(spec: S.Spec, modes: list[str], env, report: Report) -> np.ndarray:
+    """The prior p0 over modes from a vector literal or rules; uniform when not given."""
     K = len(modes)
     if not spec.initial:
         return np.full(K, 1.0 / max(K, 1))

@@ -24,19 +24,6 @@ class Expr:
     pos: Pos = Pos()
     index: int | None = None  # absolute time index for indexed nodes such as h[0]
 
-    def names(self):
-        """Every variable name used in the expression (var and indexed nodes), with its node."""
-        if self.op in ("var", "indexed"):
-            yield self.args[0], self
-        elif self.op == "matrix":
-            for row in self.args:
-                for entry in row:
-                    yield from entry.names()
-        else:
-            for a in self.args[1:] if self.op == "call" else self.args:
-                if isinstance(a, Expr):
-                    yield from a.names()
-
 
 @dataclass(frozen=True)
 class Name:
@@ -76,6 +63,8 @@ class Assign:
 
 @dataclass(frozen=True)
 class ModeDecl:
+    """A mode in a `modes` list: its name, quoted description and parameter overrides."""
+
     name: Name
     description: str | None = None
     overrides: tuple[Assign, ...] = ()
@@ -104,6 +93,8 @@ class Probabilities:
 
 @dataclass(frozen=True)
 class Noise:
+    """`noise process s, measurement s`: standard deviations by kind, plant-wide or in a mode."""
+
     items: tuple[tuple[Name, Expr], ...]
     pos: Pos
 
@@ -132,6 +123,8 @@ class Statement:
 
 @dataclass(frozen=True)
 class ModeBlock:
+    """`mode NAME like BASE { ... }`: the statements that define (or change) one mode."""
+
     name: Name
     like: Name | None
     statements: tuple[Statement, ...]
@@ -140,12 +133,16 @@ class ModeBlock:
 
 @dataclass(frozen=True)
 class Derivative:
+    """`der(state) = expr` in an `ode` block."""
+
     state: Name
     expr: Expr
 
 
 @dataclass(frozen=True)
 class Linearize:
+    """Where an ODE plant is linearised: each mode's steady state, one mode's, or a given point."""
+
     kind: str  # "each" | "mode" | "point"
     pos: Pos
     mode: Name | None = None
