@@ -14,7 +14,7 @@ import sympy as sp
 
 from ..lang.report import Report, suggest
 from ..lang.syntax import Dist, Expr, Statement
-from .evaluate import NOT_FINITE, EvalError, LetExpander, finite_numeric, finite_real, symbolic
+from .evaluate import NOT_FINITE, EvalError, LetExpander, finite_numeric, finite_real, show, symbolic
 from .units import time_in_seconds
 
 MATRIX_NAMES = ("A", "B", "C", "D", "F", "G", "f", "g", "x0")
@@ -151,7 +151,7 @@ class Lowering:
         for term in sp.Add.make_args(e):
             present = term.free_symbols & set(symbols)
             if present and not (sp.Poly(term, *present).total_degree() == 1 if term.is_polynomial(*present) else False):
-                self.report.error(f"{_show(term)} is not linear in the states and inputs", expr.pos)
+                self.report.error(f"{show(term)} is not linear in the states and inputs", expr.pos)
                 return None
         if e.free_symbols - set(symbols):
             self.report.error(f"cannot use {', '.join(map(str, e.free_symbols - set(symbols)))} here", expr.pos)
@@ -457,6 +457,3 @@ def arx_states(out: str, na: int, nb: int) -> list[str]:
     """Internal states of an arx block: y_t (named after the output), y_{t-1}, ..., then u_t, u_{t-1}, ..."""
     return [out] + [f"{out}_y{i}" for i in range(1, na)] + [f"{out}_u{i}" for i in range(nb)]
 
-
-def _show(term) -> str:
-    return str(term).replace("**", "^")

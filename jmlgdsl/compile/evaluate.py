@@ -181,6 +181,11 @@ def finite_real(e: sp.Expr) -> bool:
     return not e.has(sp.zoo, sp.oo, -sp.oo, sp.nan, sp.I)
 
 
+def show(expr: sp.Expr) -> str:
+    """A sympy expression as the language writes it (powers with ^)."""
+    return str(expr).replace("**", "^")
+
+
 def unknown_function(name: str) -> str:
     from ..lang.report import suggest
 

@@ -24,7 +24,7 @@ from ..lang.parse import parse_file
 from ..lang.report import Report, suggest
 from ..model import Model
 from .blocks import Layout, ModeArrays
-from .evaluate import NOT_FINITE, EvalError, LetExpander, finite_real, symbolic
+from .evaluate import NOT_FINITE, EvalError, LetExpander, finite_real, show, symbolic
 from .lower import declared_values, mode_noise, stack, steady_mean
 from .units import time_in_seconds
 
@@ -364,7 +364,7 @@ def jacobian_text(system: OdeSystem) -> str:
     lines = []
     for title, key, rows, cols in filter(lambda section: section[3], sections):
         J = system.jacobians[key]
-        entries = [(f"d {rows[i]} / d {cols[j]}", _show(J[i, j])) for i in range(J.rows) for j in range(J.cols)
+        entries = [(f"d {rows[i]} / d {cols[j]}", show(J[i, j])) for i in range(J.rows) for j in range(J.cols)
                    if J[i, j] != 0]
         lines.append(f"{title}:")
         width = max((len(left) for left, _ in entries), default=0)
@@ -387,6 +387,3 @@ def check_ode_file(path, purpose: str) -> tuple[Plant, Report]:
                                     str(path))])
     return plant, report
 
-
-def _show(expr) -> str:
-    return str(expr).replace("**", "^")
