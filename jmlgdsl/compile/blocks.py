@@ -456,4 +456,3 @@ def fopdt_states(out: str, dt: float, tau: float, delay: float) -> list[str]:
 def arx_states(out: str, na: int, nb: int) -> list[str]:
     """Internal states of an arx block: y_t (named after the output), y_{t-1}, ..., then u_t, u_{t-1}, ..."""
     return [out] + [f"{out}_y{i}" for i in range(1, na)] + [f"{out}_u{i}" for i in range(nb)]
-

@@ -386,4 +386,3 @@ def check_ode_file(path, purpose: str) -> tuple[Plant, Report]:
         raise SpecError([Diagnostic(f"{purpose} needs a nonlinear plant, and this spec has no 'ode' block",
                                     str(path))])
     return plant, report
-
