@@ -19,7 +19,7 @@ from scipy.optimize import root
 
 from ..errors import Diagnostic, SpecError
 from ..lang import syntax as S
-from ..lang.check import Plant, check, evaluate_number, evaluate_params
+from ..lang.check import Plant, check, evaluate_number
 from ..lang.parse import parse_file
 from ..lang.report import Report, suggest
 from ..model import Model
@@ -261,7 +261,7 @@ def _operating_points(plant: Plant, system: OdeSystem, pvecs, u_bar, report: Rep
 
 def _guesses(plant: Plant, report: Report) -> np.ndarray:
     """The declared state values, which an ODE plant uses as starting guesses for its steady states."""
-    guess = declared_values(plant, plant.states, evaluate_params(plant.params, report), report)
+    guess = declared_values(plant, plant.states, plant.nominal, report)
     for d, value in zip(plant.states, guess):
         if np.isnan(value):
             report.error(f"state {d.name.text!r} needs a guess of its steady state: state {d.name.text} = VALUE",
@@ -271,7 +271,7 @@ def _guesses(plant: Plant, report: Report) -> np.ndarray:
 
 def _given_point(plant: Plant, system: OdeSystem, how: S.Linearize, u_bar, report: Report):
     """`linearize at x = v, ...`: every state given; inputs default to their operating values."""
-    env = evaluate_params(plant.params, report)
+    env = plant.nominal
     x, u = np.full(len(system.states), np.nan), np.array(u_bar, dtype=float)
     for a in how.point:
         name = a.name.text

@@ -41,6 +41,7 @@ class Plant:
     outputs: list[S.Decl]
     states: list[S.Decl]
     params: list[S.Assign]
+    nominal: dict[str, float]  # the parameters' values without any mode's overrides
     lets: dict[str, S.Assign]
     modes: list[ModeInfo]
     P: np.ndarray
@@ -50,12 +51,11 @@ class Plant:
 
     def mode_params(self, mode: ModeInfo, report: Report) -> dict[str, float]:
         """Parameter values in a mode: the nominal list re-evaluated with the mode's overrides."""
-        nominal = evaluate_params(self.params, report)
         overrides = {a.name.text: a for a in mode.overrides}
         values: dict[str, float] = {}
         for a in self.params:
             src = overrides.get(a.name.text, a)
-            env = nominal if src is not a else values
+            env = self.nominal if src is not a else values
             values[a.name.text] = evaluate_number(src.expr, env, report, what=f"parameter {a.name.text}")
         return values
 
@@ -108,7 +108,7 @@ def check(spec: S.Spec) -> tuple[Plant, Report]:
         decls[d.kind].append(d)
     plant = Plant(
         name=spec.plant.text if spec.plant else Path(spec.path).stem, dt=dt, time_unit=unit,
-        inputs=decls["input"], outputs=decls["output"], states=decls["state"], params=params,
+        inputs=decls["input"], outputs=decls["output"], states=decls["state"], params=params, nominal=nominal,
         lets={a.name.text: a for a in spec.lets}, modes=modes, P=P, p0=p0, noise=noise, spec=spec)
     return plant, report
 
