@@ -123,7 +123,8 @@ def test_fc_rbpf_is_exact_while_particles_cover_every_history(small):
 
 
 @pytest.mark.parametrize("algorithm, particles, threshold", [
-    ("pf", 4000, 1.0), ("rbpf", 1000, 1.0), ("la-rbpf", 300, 1.0), ("la-rbpf", 300, 0.5), ("fc-rbpf", 12, 1.0)])
+    ("pf", 4000, 1.0), ("rbpf", 1000, 1.0), ("rbpf", 1000, 0.5), ("la-rbpf", 300, 1.0), ("la-rbpf", 300, 0.5),
+    ("fc-rbpf", 12, 1.0)])
 def test_posteriors_converge_to_exact(small, algorithm, particles, threshold):
     model, y, (post, _) = small
     runs = np.array([jmlgdsl.filter(model, y, algorithm=algorithm, particles=particles, seed=s,
