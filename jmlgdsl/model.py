@@ -181,7 +181,7 @@ class Model:
             raise ModelError("every row of P must be a probability vector")
         if (self.p0 < 0).any() or not np.isclose(self.p0.sum(), 1.0, atol=1e-9):
             raise ModelError("p0 must be a probability vector")
-        if not np.allclose(self.Sigma0, self.Sigma0.T) or np.linalg.eigvalsh(self.Sigma0).min() < 0:
+        if nx and (not np.allclose(self.Sigma0, self.Sigma0.T) or np.linalg.eigvalsh(self.Sigma0).min() < 0):
             raise ModelError("Sigma0 must be symmetric positive semi-definite")
         R = self.D @ np.swapaxes(self.D, 1, 2)
         if ny and np.linalg.eigvalsh(R).min() <= 0:

@@ -117,3 +117,11 @@ def test_cli_reports_a_damaged_model_file_without_traceback(tmp_path, capsys):
     assert main(["check", str(tmp_path / "m.json")]) == 2
     err = capsys.readouterr().err
     assert "m.json: not a readable jmlgdsl model file" in err and "Traceback" not in err
+
+
+def test_a_model_without_states_is_validated_like_any_other():
+    A, B, C = np.zeros((0, 0)), np.zeros((0, 0)), np.zeros((1, 0))
+    m = Model.from_arrays(A=A, B=B, C=C, D=0.5, P=1, p0=1, mu0=np.zeros(0), Sigma0=np.zeros((0, 0)))
+    assert (m.nx, m.ny) == (0, 1) and m.R.tolist() == [[[0.25]]]
+    with pytest.raises(ModelError, match="measurement noise D D' must be positive definite"):
+        m.replace(D=np.zeros((1, 1, 1)))

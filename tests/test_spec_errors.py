@@ -82,6 +82,10 @@ CASES = [
      "this is not a finite real number"),
     ("zeros size", replace("u, 0.1) }\n", "u, 0.1); B = zeros(-1) }\n"), 10, 68,
      "zeros() takes sizes: whole numbers, 0 or more"),
+    ("no output", replace("output y\n", "").replace("; y ~ Normal(x[t], 0.2)", ""), 1, 1,
+     "a plant needs at least one output: declare it with 'output NAME'"),
+    ("no state", "plant p\nsample 1 s\ninput u = 1\noutput y\nmode n { y ~ Normal(u, 0.2) }\n", 1, 1,
+     "a plant needs at least one state"),
     ("unknown function", replace("0.8 * x[t-1]", "sqr(0.8) * x[t-1]"), 10, 40, "unknown function 'sqr'; did you mean 'sqrt'?"),
 ]
 

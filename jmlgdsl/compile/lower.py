@@ -8,7 +8,7 @@ import numpy as np
 from ..lang.check import ModeInfo, Plant, check, evaluate_number, noise_values
 from ..lang.parse import parse_file, parse_text
 from ..lang.report import Report
-from ..lang.syntax import Spec
+from ..lang.syntax import Pos, Spec
 from ..model import Model
 from .blocks import Layout, Lowering, ModeArrays, arx_states, fopdt_states
 
@@ -59,6 +59,11 @@ def lower_linear(plant: Plant, report: Report) -> Model:
                     outputs=[d.name.text for d in plant.outputs],
                     input_defaults=declared_values(plant, plant.inputs, params[0], report))
     _add_block_states(plant, layout, params, report)
+    if not layout.outputs:
+        report.error("a plant needs at least one output: declare it with 'output NAME'", Pos(1, 1))
+    if not layout.states:
+        report.error("a plant needs at least one state: declare it with 'state NAME' (or give an output a "
+                     "fopdt or arx block)", Pos(1, 1))
     report.raise_errors()
     modes = []
     for mode, env in zip(plant.modes, params):
