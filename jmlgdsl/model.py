@@ -113,8 +113,11 @@ class Model:
                 missing = [n for n, d in zip(self.inputs, self.input_defaults) if np.isnan(d)]
                 raise ModelError(f"inputs without a default must be given: {', '.join(missing)}")
             return np.broadcast_to(self.input_defaults, (T, self.nu)).copy()
-        u = np.asarray(u, dtype=float).reshape(T, self.nu)
-        return u
+        u = np.asarray(u, dtype=float)
+        if u.size != T * self.nu:
+            raise ModelError(f"inputs must be {T} steps x {self.nu} ({', '.join(self.inputs) or 'no inputs'}), "
+                             f"got shape {u.shape}")
+        return u.reshape(T, self.nu)
 
     def replace(self, **changes) -> "Model":
         """A copy with some fields changed (the model itself is immutable)."""

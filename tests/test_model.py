@@ -125,3 +125,10 @@ def test_a_model_without_states_is_validated_like_any_other():
     assert (m.nx, m.ny) == (0, 1) and m.R.tolist() == [[[0.25]]]
     with pytest.raises(ModelError, match="measurement noise D D' must be positive definite"):
         m.replace(D=np.zeros((1, 1, 1)))
+
+
+def test_inputs_of_the_wrong_size_are_a_model_error():
+    m = random_model()
+    assert m.resolve_inputs(np.arange(4.0), 4).tolist() == [[0.0], [1.0], [2.0], [3.0]]
+    with pytest.raises(ModelError, match=r"inputs must be 4 steps x 1 \(u1\), got shape \(3,\)"):
+        m.resolve_inputs(np.arange(3.0), 4)
