@@ -88,6 +88,9 @@ def test_resampler_counts_copies_in_the_ess_and_honours_the_threshold():
     np.testing.assert_allclose(np.exp(logw), [1 / 6, 1 / 6, 1 / 6, 1 / 2])
     ancestors, logw, size = lazy(np.array([0.9, 0.1]))
     assert len(ancestors) == 4 and np.allclose(logw, -np.log(4))
+    # Two atoms (the initial modes) are not the 4 particles asked for: resampled whatever the ESS.
+    ancestors, logw, size = lazy(np.array([0.5, 0.5]))
+    assert size == pytest.approx(2.0) and len(ancestors) == 4 and np.allclose(logw, -np.log(4))
     with pytest.raises(FilterError, match="ESS threshold must be in"):
         Resampler(SCHEMES["systematic"], 4, rng, threshold=0.0)
 

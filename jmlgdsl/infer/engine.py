@@ -64,8 +64,9 @@ def sample_rows(probs, rng):
 class Resampler:
     """The resampling policy of a particle filter: a scheme, a target count and an ESS threshold.
 
-    Resampling happens when ESS < threshold * n; a threshold of 1 resamples at every step. A
-    particle may stand for several identical copies (`copies`): they count in the ESS, and when no
+    Resampling happens when ESS < threshold * n, or when the copies do not number n (la-rbpf's first
+    step starts from one weighted atom per initial mode); a threshold of 1 resamples at every step.
+    A particle may stand for several identical copies (`copies`): they count in the ESS, and when no
     resampling happens each copy comes back as an entry of its own, holding its share of the weight.
     """
 
@@ -79,7 +80,7 @@ class Resampler:
         if copies is None:
             copies = np.ones(len(w), dtype=np.int64)
         size = 1.0 / np.sum(w * w / copies)  # each of the c_i copies holds w_i / c_i
-        if self.threshold >= 1.0 or size < self.threshold * self.n:
+        if self.threshold >= 1.0 or size < self.threshold * self.n or copies.sum() != self.n:
             return self.scheme(w, self.n, self.rng), np.full(self.n, -np.log(self.n)), size
         ancestors = np.repeat(np.arange(len(w)), copies)
         with np.errstate(divide="ignore"):
