@@ -361,6 +361,8 @@ class Lowering:
             return
         gain = self.number(kw["gain"][0], "a gain")
         tau, delay = self.fopdt_times(kw)
+        if math.isnan(tau) or math.isnan(delay):
+            return  # a value that could not be evaluated is already reported
         if not tau > 0:
             self.report.error(f"the time constant must be positive (got {tau:g} s)", kw["tau"][0].pos)
             return

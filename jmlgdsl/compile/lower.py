@@ -99,6 +99,8 @@ def _add_block_states(plant: Plant, layout: Layout, params: list[dict], report: 
             form, kw = st.dist.name.text, {k.text: (v, u) for k, v, u in st.dist.keywords}
             if form == "fopdt" and "tau" in kw:
                 tau, delay = low.fopdt_times(kw)
+                if np.isnan(delay):
+                    continue  # a value that could not be evaluated is already reported
                 names = fopdt_states(out, plant.dt, tau, max(delay, 0.0))
             elif form == "arx" and "a" in kw and "b" in kw and (coeffs := low.arx_coefficients(kw)):
                 names = arx_states(out, len(coeffs[0]), max(len(coeffs[1]) - 1, 0))
