@@ -68,6 +68,8 @@ CASES = [
         "y ~ Normal(x[t], 0.2)", "y[t] = x[t]"), 6, 7, "output 'y' has no measurement noise in mode 'normal'"),
     ("like cycle", replace("mode normal {", "mode normal like fault {"), 10, 17, "mode 'fault' is 'like' itself through normal -> fault -> normal"),
     ("probability", replace("stay 0.99", "stay 1.5"), 7, 18, "a probability cannot exceed 1 (got 1.5)"),
+    ("stay and a name", replace("stay 0.99,", "stay 0.98, fault 0.01,"), 7, 24,
+     "probability for 'fault' given twice ('stay' gives it in its own row)"),
     ("prior mode", replace("modes normal, fault\n", "modes normal, fault\ninitial normal 0.9, falt 0.1\n"), 7, 21,
      "unknown mode 'falt'; did you mean 'fault'?"),
     ("bad index", replace("x[t-1] + u, 0.1) }\n", "x[k-1] + u, 0.1) }\n"), 10, 48, "a time index is t, t-1, ... or a whole number, not 'k'"),

@@ -261,7 +261,8 @@ def _rule_vector(items, modes: list[str], env, report: Report, stay: int | None)
                 continue
             k = modes.index(it.name.text)
         if not np.isnan(p[k]):
-            report.error(f"probability for {modes[k]!r} given twice", it.pos)
+            by_stay = " ('stay' gives it in its own row)" if stay == k else ""
+            report.error(f"probability for {modes[k]!r} given twice{by_stay}", it.pos)
         p[k] = _probability_value(it.value, env, report)
     rest = np.isnan(p)
     given = np.nansum(p)
