@@ -10,7 +10,7 @@ from ..lang.parse import parse_file, parse_text
 from ..lang.report import Report
 from ..lang.syntax import Pos, Spec
 from ..model import Model
-from .blocks import Layout, Lowering, ModeArrays, arx_states, fopdt_states
+from .blocks import MATRIX_NAMES, Layout, Lowering, ModeArrays, arx_states, fopdt_states
 
 
 def compile_file(path) -> Model:
@@ -144,6 +144,12 @@ def stack(plant: Plant, layout: Layout, modes: list[ModeArrays], report: Report)
     nv = max(m.D.shape[1] for m in modes)
     pad = lambda M, n: np.pad(M, ((0, 0), (0, n - M.shape[1])))  # noqa: E731
     for mode, m in zip(plant.modes, modes):
+        overflowed = [k for k in MATRIX_NAMES if not np.isfinite(getattr(m, k)).all()]
+        if overflowed:
+            report.error(f"mode {mode.name!r} has entries that are not finite numbers in {', '.join(overflowed)}: "
+                         "a value overflowed (values too large, or equations too stiff for the sample time?)",
+                         mode.pos)
+            continue
         R = m.D @ m.D.T
         if R.size and np.linalg.eigvalsh(R).min() <= 0:
             bad = [layout.outputs[j] for j in range(len(R)) if R[j, j] <= 0] or layout.outputs
