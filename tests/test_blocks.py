@@ -133,3 +133,22 @@ def test_matrices_with_eye_and_scalar_products():
     np.testing.assert_allclose(m.F[1, :, 0], [0.1299, -0.1635, 2.056])  # inherited through `like`
     np.testing.assert_allclose(m.B, 0.01 * np.eye(3)[None].repeat(2, 0))
     np.testing.assert_allclose(m.P, [[0.99, 0.01], [0.01, 0.99]])
+
+
+def test_declared_values_use_the_nominal_parameters_even_when_the_first_mode_overrides_them():
+    m = compile_text("""
+plant nominal
+sample 1 s
+param m0 = 1
+input u = 3 * m0
+state x = 2 * m0 sd m0
+output y
+noise process 0.1, measurement 0.1
+modes raised: m0 = 5, plain
+transitions stay 0.9, otherwise uniform
+mode raised { x[t] ~ Normal(0.5 * x[t-1], 0.1); y ~ Normal(x[t], 0.1) }
+mode plain like raised
+""")
+    assert m.input_defaults.tolist() == [3.0]
+    assert m.mu0.tolist() == [[2.0], [2.0]]
+    assert m.Sigma0.tolist() == [[1.0]]

@@ -44,10 +44,11 @@ def mode_noise(plant: Plant, mode: ModeInfo, params: dict, report: Report) -> tu
     return values.get("process", 0.0), values.get("measurement", np.nan)
 
 
-def declared_values(plant: Plant, decls, params: dict, report: Report) -> np.ndarray:
-    """Values written in declarations (input defaults, state initial means); NaN where none."""
+def declared_values(plant: Plant, decls, report: Report) -> np.ndarray:
+    """Values written in declarations (input defaults, state initial means or guesses), evaluated with
+    the nominal parameters: they belong to the plant, not to one mode. NaN where none is written."""
     return np.array([np.nan if d.value is None else
-                     evaluate_number(d.value, params, report, what=f"the value of {d.name.text}")
+                     evaluate_number(d.value, plant.nominal, report, what=f"the value of {d.name.text}")
                      for d in decls], dtype=float)
 
 
@@ -57,7 +58,7 @@ def lower_linear(plant: Plant, report: Report) -> Model:
     params = [plant.mode_params(m, report) for m in plant.modes]
     layout = Layout(states=[d.name.text for d in plant.states], inputs=[d.name.text for d in plant.inputs],
                     outputs=[d.name.text for d in plant.outputs],
-                    input_defaults=declared_values(plant, plant.inputs, params[0], report))
+                    input_defaults=declared_values(plant, plant.inputs, report))
     _add_block_states(plant, layout, params, report)
     if not layout.outputs:
         report.error("a plant needs at least one output: declare it with 'output NAME'", Pos(1, 1))
@@ -80,7 +81,7 @@ def lower_linear(plant: Plant, report: Report) -> Model:
                              f"(write {y} ~ Normal(...), a block such as fopdt, or a matrix C)", mode.pos)
         modes.append(arrays)
     report.raise_errors()
-    declared = dict(zip((d.name.text for d in plant.states), declared_values(plant, plant.states, params[0], report)))
+    declared = dict(zip((d.name.text for d in plant.states), declared_values(plant, plant.states, report)))
     state_means = np.array([declared.get(s, np.nan) for s in layout.states])
     for m in modes:
         _fill_initial_mean(m, state_means, layout.input_defaults)
@@ -161,11 +162,10 @@ def stack(plant: Plant, layout: Layout, modes: list[ModeArrays], report: Report)
     report.raise_errors()
     sd0 = np.zeros(layout.nx)
     lookup = {d.name.text: d for d in plant.states}
-    env = plant.mode_params(plant.modes[0], report)
     for i, s in enumerate(layout.states):
         d = lookup.get(s)
         if d is not None and d.sd is not None:
-            sd0[i] = evaluate_number(d.sd, env, report, what=f"the initial sd of {s}")
+            sd0[i] = evaluate_number(d.sd, plant.nominal, report, what=f"the initial sd of {s}")
             if sd0[i] < 0:
                 report.error("a standard deviation cannot be negative", d.sd.pos)
     units = {d.name.text: d.unit for d in [*plant.inputs, *plant.outputs, *plant.states] if d.unit}

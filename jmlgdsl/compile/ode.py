@@ -193,7 +193,7 @@ def _check_mode_statements(plant: Plant, report: Report):
 def linearise(plant: Plant, system: OdeSystem, report: Report) -> Model:
     """Linearise every mode of the plant at its operating point and discretise with a zero-order hold."""
     params, pvecs = mode_parameters(plant, system, report)
-    u_bar = declared_values(plant, plant.inputs, params[0], report)
+    u_bar = declared_values(plant, plant.inputs, report)
     for d, value in zip(plant.inputs, u_bar):
         if np.isnan(value):
             report.error(f"input {d.name.text!r} needs an operating value to linearise around: "
@@ -261,7 +261,7 @@ def _operating_points(plant: Plant, system: OdeSystem, pvecs, u_bar, report: Rep
 
 def _guesses(plant: Plant, report: Report) -> np.ndarray:
     """The declared state values, which an ODE plant uses as starting guesses for its steady states."""
-    guess = declared_values(plant, plant.states, plant.nominal, report)
+    guess = declared_values(plant, plant.states, report)
     for d, value in zip(plant.states, guess):
         if np.isnan(value):
             report.error(f"state {d.name.text!r} needs a guess of its steady state: state {d.name.text} = VALUE",
@@ -271,11 +271,10 @@ def _guesses(plant: Plant, report: Report) -> np.ndarray:
 
 def _given_point(plant: Plant, system: OdeSystem, how: S.Linearize, u_bar, report: Report):
     """`linearize at x = v, ...`: every state given; inputs default to their operating values."""
-    env = plant.nominal
     x, u = np.full(len(system.states), np.nan), np.array(u_bar, dtype=float)
     for a in how.point:
         name = a.name.text
-        value = evaluate_number(a.expr, env, report, what=f"the value of {name}")
+        value = evaluate_number(a.expr, plant.nominal, report, what=f"the value of {name}")
         if name in system.states:
             x[system.states.index(name)] = value
         elif name in system.inputs:
