@@ -139,11 +139,11 @@ class Model:
         ny = C.shape[1]
         B = _stack(B, K, "B")
         D = _stack(D, K, "D")
-        nu = 0 if F is None else _stack(F, K, "F").shape[2]
-        if G is not None and F is None:
-            nu = _stack(G, K, "G").shape[2]
-        F = np.zeros((K, nx, nu)) if F is None else _stack(F, K, "F")
-        G = np.zeros((K, ny, nu)) if G is None else _stack(G, K, "G")
+        F = None if F is None else _stack(F, K, "F")
+        G = None if G is None else _stack(G, K, "G")
+        nu = F.shape[2] if F is not None else G.shape[2] if G is not None else 0
+        F = np.zeros((K, nx, nu)) if F is None else F
+        G = np.zeros((K, ny, nu)) if G is None else G
         f = np.zeros((K, nx)) if f is None else np.broadcast_to(np.asarray(f, float), (K, nx))
         g = np.zeros((K, ny)) if g is None else np.broadcast_to(np.asarray(g, float), (K, ny))
         mu0 = np.broadcast_to(np.asarray(mu0, float), (K, nx))

@@ -12,9 +12,9 @@ DRYER = str(pathlib.Path(__file__).resolve().parents[1] / "specs" / "dryer.jmlg"
 
 
 def read(path):
+    """The rows of a CSV file as dictionaries keyed by column."""
     with open(path) as fh:
-        rows = list(csv.DictReader(fh))
-    return rows
+        return list(csv.DictReader(fh))
 
 
 def test_nonlinear_and_linear_runs_share_columns_and_modes_but_not_values(tmp_path):
