@@ -273,8 +273,8 @@ class Model:
             meta = json.loads(str(z["meta"]))
             if meta.get("format") != "jmlgdsl-model":
                 raise ModelError("not a jmlgdsl model file")
-            meta.pop("format"), meta.pop("version")
-            return cls(**{k: z[k] for k in ARRAYS}, **{k: tuple(v) if k in NAMES else v for k, v in meta.items()})
+            fields = {k: tuple(v) if k in NAMES else v for k, v in meta.items() if k not in ("format", "version")}
+            return cls(**{k: z[k] for k in ARRAYS}, **fields)
 
     def __repr__(self):
         return (f"Model({self.name!r}, K={self.K} modes {list(self.modes)}, nx={self.nx}, ny={self.ny}, "
