@@ -63,6 +63,8 @@ CASES = [
      "fopdt has no argument 'gian'; it takes gain, tau, delay; did you mean 'gain'?"),
     ("fopdt delay without a value", replace("y ~ Normal(x[t], 0.2)", "y ~ fopdt(u, gain 2, tau 5 s, delay s)"), 9, 89,
      "unknown name 's'"),
+    ("operating point arrow", replace("y ~ Normal(x[t], 0.2)", "y ~ fopdt(u, gain 2, tau 5 s, at u 1 2)"), 9, 90,
+     "unexpected '2'; expected '->'"),
     ("fopdt tau", replace("y ~ Normal(x[t], 0.2)", "y ~ fopdt(u, gain 2)"), 9, 57, "fopdt needs 'tau VALUE'"),
     ("measurement", replace("noise process 0.1, measurement 0.2", "noise process 0.1").replace(
         "y ~ Normal(x[t], 0.2)", "y[t] = x[t]"), 6, 7, "output 'y' has no measurement noise in mode 'normal'"),

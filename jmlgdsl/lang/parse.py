@@ -13,13 +13,12 @@ from lark.exceptions import UnexpectedCharacters, UnexpectedEOF, UnexpectedInput
 from ..errors import Diagnostic, SpecError
 from . import syntax as S
 
-# How expected terminals read in an error message.
+# How the terminals that are not fixed text read in an error message; fixed text (keywords,
+# punctuation, '->') is shown as written.
 _READABLE = {
     "NAME": "a name", "NUMBER": "a number", "SIGNED_NUMBER": "a number", "INT": "a whole number",
     "STRING": "a quoted description", "UNIT": "a unit in brackets", "INDEXED": "a reference like h[t]",
-    "LSQB": "'['", "RSQB": "']'", "LPAR": "'('", "RPAR": "')'", "LBRACE": "'{'", "RBRACE": "'}'",
-    "COMMA": "','", "SEMICOLON": "';'", "COLON": "':'", "EQUAL": "'='", "TILDE": "'~'",
-    "PLUS": "'+'", "MINUS": "'-'", "STAR": "'*'", "SLASH": "'/'", "CIRCUMFLEX": "'^'", "$END": "end of file",
+    "$END": "end of file",
 }
 
 
@@ -57,12 +56,21 @@ def parse_file(path) -> S.Spec:
 
 
 def _expected(names) -> str:
-    keywords = sorted(n for n in names if n not in _READABLE and not n.startswith("__"))
-    shown = sorted({_READABLE[n] for n in names if n in _READABLE})
-    shown += [f"'{k.lower()}'" for k in keywords]
+    """'; expected a name, ')' or ','' for the terminals the parser would have accepted."""
+    shown = sorted({text for text in map(_terminal_text, names) if text})
     if not shown:
         return ""
     return "; expected " + (shown[0] if len(shown) == 1 else ", ".join(shown[:-1]) + " or " + shown[-1])
+
+
+def _terminal_text(name: str) -> str | None:
+    """A terminal as an error message shows it: described, or its fixed text quoted."""
+    if name in _READABLE:
+        return _READABLE[name]
+    try:
+        return f"'{grammar().get_terminal(name).pattern.value}'"
+    except KeyError:  # not a terminal of the grammar: leave it out
+        return None
 
 
 def _syntax_diagnostic(exc: UnexpectedInput, path: str, lines: list[str]) -> Diagnostic:
