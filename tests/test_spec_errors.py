@@ -72,6 +72,8 @@ CASES = [
     ("probability", replace("stay 0.99", "stay 1.5"), 7, 18, "a probability cannot exceed 1 (got 1.5)"),
     ("stay and a name", replace("stay 0.99,", "stay 0.98, fault 0.01,"), 7, 24,
      "probability for 'fault' given twice ('stay' gives it in its own row)"),
+    ("arrows in initial", replace("modes normal, fault\n", "modes normal, fault\ninitial normal -> fault 0.1\n"), 7, 1,
+     "arrows ('a -> b p') belong in 'transitions'; write 'initial a p, otherwise uniform'"),
     ("prior mode", replace("modes normal, fault\n", "modes normal, fault\ninitial normal 0.9, falt 0.1\n"), 7, 21,
      "unknown mode 'falt'; did you mean 'fault'?"),
     ("bad index", replace("x[t-1] + u, 0.1) }\n", "x[k-1] + u, 0.1) }\n"), 10, 48, "a time index is t, t-1, ... or a whole number, not 'k'"),

@@ -341,17 +341,17 @@ def _transitions(spec: S.Spec, modes: list[str], env, report: Report) -> np.ndar
 
 def _initial(spec: S.Spec, modes: list[str], env, report: Report) -> np.ndarray:
     """The prior p0 over modes from a vector literal or rules; uniform when not given."""
-    K = len(modes)
+    uniform = np.full(len(modes), 1.0 / max(len(modes), 1))
     if not spec.initial:
-        return np.full(K, 1.0 / max(K, 1))
+        return uniform
     for extra in spec.initial[1:]:
         report.error(f"'initial' is given more than once (first at line {spec.initial[0].pos.line})", extra.pos)
     t = spec.initial[0]
     if t.matrix is not None:
-        p0 = _matrix_value(t.matrix, (K,), "the initial distribution", env, report)
+        p0 = _matrix_value(t.matrix, uniform.shape, "the initial distribution", env, report)
     elif t.arrows:
         report.error("arrows ('a -> b p') belong in 'transitions'; write 'initial a p, otherwise uniform'", t.pos)
-        return np.full(K, 1.0 / K)
+        return uniform
     else:
         p0, _ = _rule_vector(t.rules, modes, env, report, stay=None)
         p0 = np.nan_to_num(p0)
