@@ -88,6 +88,7 @@ CASES = [
     ("overflow", replace("process 0.1,", "process 10^400,"), 8, 15, "this is not a finite real number (an overflow"),
     ("root of a negative parameter", replace("transitions", "param a = (-8)^(1/3)\ntransitions"), 7, 11,
      "this is not a finite real number"),
+    ("infinite literal", replace("0.8 * x[t-1]", "1e999 * x[t-1]"), 10, 40, "this is not a finite real number"),
     ("overflowing coefficient", replace("0.8 * x[t-1]", "1e300 * 1e300 * x[t-1]"), 6, 15,
      "mode 'fault' has entries that are not finite numbers in A"),
     ("zeros size", replace("u, 0.1) }\n", "u, 0.1); B = zeros(-1) }\n"), 10, 68,

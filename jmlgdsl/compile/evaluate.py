@@ -110,7 +110,7 @@ def symbolic(node: Expr, lookup) -> sp.Expr:
     """A sympy expression; `lookup(node)` gives the sympy value of a name (a Symbol or a number)."""
     op, args = node.op, node.args
     if op == "number":
-        return sp.Float(args[0]) if args[0] != int(args[0]) else sp.Integer(int(args[0]))
+        return sp.Integer(int(args[0])) if float(args[0]).is_integer() else sp.Float(args[0])
     if op in ("var", "indexed"):
         return lookup(node)
     if op == "matrix":
