@@ -65,6 +65,8 @@ CASES = [
      "unknown name 's'"),
     ("operating point arrow", replace("y ~ Normal(x[t], 0.2)", "y ~ fopdt(u, gain 2, tau 5 s, at u 1 2)"), 9, 90,
      "unexpected '2'; expected '->'"),
+    ("huge dead time", replace("y ~ Normal(x[t], 0.2)", "y ~ fopdt(u, gain 2, tau 5 s, delay 100 min)"), 9, 89,
+     "a dead time of 6000 samples needs as many input registers; at most 1000 are allowed"),
     ("fopdt tau", replace("y ~ Normal(x[t], 0.2)", "y ~ fopdt(u, gain 2)"), 9, 57, "fopdt needs 'tau VALUE'"),
     ("measurement", replace("noise process 0.1, measurement 0.2", "noise process 0.1").replace(
         "y ~ Normal(x[t], 0.2)", "y[t] = x[t]"), 6, 7, "output 'y' has no measurement noise in mode 'normal'"),

@@ -13,6 +13,9 @@ from ..model import Model
 from .blocks import MATRIX_NAMES, Layout, Lowering, ModeArrays, arx_states, fopdt_states
 
 
+MAX_DELAY_SAMPLES = 1000  # a fopdt dead time becomes one state per sample: more is almost surely a unit slip
+
+
 def compile_file(path) -> Model:
     """Parse, check and compile a .jmlg file (SpecError on any problem, SpecWarning for warnings)."""
     return compile_spec(parse_file(path))
@@ -102,6 +105,11 @@ def _add_block_states(plant: Plant, layout: Layout, params: list[dict], report: 
                 tau, delay = low.fopdt_times(kw)
                 if np.isnan(delay):
                     continue  # a value that could not be evaluated is already reported
+                if delay > MAX_DELAY_SAMPLES * plant.dt:
+                    report.error(f"a dead time of {delay / plant.dt:.6g} samples needs as many input registers; "
+                                 f"at most {MAX_DELAY_SAMPLES} are allowed: check the unit, or lengthen the "
+                                 f"sample time", kw["delay"][0].pos)
+                    continue
                 names = fopdt_states(out, plant.dt, tau, max(delay, 0.0))
             elif form == "arx" and "a" in kw and "b" in kw and (coeffs := low.arx_coefficients(kw)):
                 names = arx_states(out, len(coeffs[0]), max(len(coeffs[1]) - 1, 0))
