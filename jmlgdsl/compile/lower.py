@@ -27,6 +27,7 @@ def compile_text(text: str, path: str = "<spec>") -> Model:
 
 
 def compile_spec(spec: Spec) -> Model:
+    """Check a parsed spec and lower it: ODE plants are linearised, the others lowered block by block."""
     plant, report = check(spec)
     report.raise_errors()
     if spec.ode:
@@ -56,6 +57,7 @@ def declared_values(plant: Plant, decls, report: Report) -> np.ndarray:
 
 
 def lower_linear(plant: Plant, report: Report) -> Model:
+    """Lower a plant written with statements, matrices and blocks, mode by mode."""
     for how in plant.spec.linearize:
         report.error("'linearize' applies to nonlinear plants: this spec has no 'ode' block", how.pos)
     params = [plant.mode_params(m, report) for m in plant.modes]
