@@ -13,7 +13,7 @@ import numpy as np
 import sympy as sp
 
 from ..lang.report import Report, suggest
-from ..lang.syntax import Dist, Expr, Statement
+from ..lang.syntax import Dist, Expr, Name, Statement
 from .evaluate import NOT_FINITE, EvalError, LetExpander, finite_numeric, finite_real, show, symbolic
 from .units import time_in_seconds
 
@@ -321,8 +321,6 @@ class Lowering:
 
     def _duration(self, value: Expr, unit, what: str) -> float:
         """A time in seconds; without a unit, the unit of the sample time."""
-        from ..lang.syntax import Name
-
         v = self.number(value, what)
         return time_in_seconds(v, unit if isinstance(unit, Name) else Name(unit or self.time_unit, value.pos),
                                self.report)
