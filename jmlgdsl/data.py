@@ -18,7 +18,7 @@ from typing import Iterator
 import numpy as np
 
 from .errors import DataError
-from .lang.report import suggest
+from .names import suggest
 
 MISSING = {"", "na", "nan", "n/a"}
 

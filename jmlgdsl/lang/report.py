@@ -3,17 +3,11 @@ is reported at once; warnings are issued as SpecWarning."""
 
 from __future__ import annotations
 
-import difflib
 import warnings
 
 from ..errors import Diagnostic, SpecError, SpecWarning
+from ..names import suggest  # noqa: F401  (re-exported: the language's modules take it from here)
 from .syntax import Pos
-
-
-def suggest(name: str, candidates) -> str:
-    """'; did you mean 'x'?' for the closest candidate, or '' when none is close."""
-    close = difflib.get_close_matches(name, list(candidates), n=1, cutoff=0.6)
-    return f"; did you mean {close[0]!r}?" if close else ""
 
 
 class Report:
