@@ -12,10 +12,11 @@ from dataclasses import dataclass, field
 import numpy as np
 import sympy as sp
 
-from ..lang.report import Report, suggest
+from ..lang.evaluate import NOT_FINITE, EvalError, LetExpander, finite_numeric, finite_real, show, symbolic
+from ..lang.report import Report
 from ..lang.syntax import Dist, Expr, Name, Statement
-from .evaluate import NOT_FINITE, EvalError, LetExpander, finite_numeric, finite_real, show, symbolic
-from .units import time_in_seconds
+from ..lang.units import time_in_seconds
+from ..names import suggest
 
 MATRIX_NAMES = ("A", "B", "C", "D", "F", "G", "f", "g", "x0")
 BLOCK_FORMS = ("Normal", "fopdt", "arx")

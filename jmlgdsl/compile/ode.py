@@ -19,14 +19,15 @@ from scipy.optimize import root
 
 from ..errors import Diagnostic, SpecError
 from ..lang import syntax as S
-from ..lang.check import Plant, check, evaluate_number
+from ..lang.check import Plant, check
 from ..lang.parse import parse_file
-from ..lang.report import Report, suggest
+from ..lang.evaluate import NOT_FINITE, EvalError, LetExpander, evaluate_number, finite_real, show, symbolic
+from ..lang.report import Report
+from ..lang.units import time_in_seconds
 from ..model import Model
+from ..names import suggest
+from .assemble import declared_values, mode_noise, stack, steady_mean
 from .blocks import Layout, ModeArrays
-from .evaluate import NOT_FINITE, EvalError, LetExpander, finite_real, show, symbolic
-from .lower import declared_values, mode_noise, stack, steady_mean
-from .units import time_in_seconds
 
 STEADY_TOLERANCE = 1e-8  # largest accepted |der(x)| at a steady state, relative to 1 + |x|
 SETTLE_SPAN = 1e6  # how long (in the derivatives' unit) guesses are let settle when root finding fails

@@ -6,7 +6,6 @@ from __future__ import annotations
 import warnings
 
 from ..errors import Diagnostic, SpecError, SpecWarning
-from ..names import suggest  # noqa: F401  (re-exported: the language's modules take it from here)
 from .syntax import Pos
 
 

@@ -6,7 +6,9 @@ from __future__ import annotations
 import numpy as np
 import sympy as sp
 
-from ..lang.syntax import Expr
+from ..names import suggest
+from .report import Report
+from .syntax import Expr
 
 
 class EvalError(Exception):
@@ -187,6 +189,26 @@ def show(expr: sp.Expr) -> str:
 
 
 def unknown_function(name: str) -> str:
-    from ..lang.report import suggest
-
+    """The message for a call of a function the language does not have, with a did-you-mean."""
     return f"unknown function {name!r}{suggest(name, FUNCTION_NAMES)}"
+
+
+def evaluate_number(expr: S.Expr, env: dict, report: Report, what: str) -> float:
+    """A scalar value from known names in env; reports unknown names and non-scalars."""
+    def lookup(node):
+        name = node.args[0]
+        if node.op == "indexed":
+            raise EvalError(f"{what} cannot refer to a time-indexed value", node)
+        if name not in env:
+            raise EvalError(f"unknown name {name!r} in {what}{suggest(name, env)}", node)
+        return env[name]
+
+    try:
+        value = finite_numeric(expr, lookup)
+    except EvalError as exc:
+        report.error(str(exc), exc.node.pos)
+        return float("nan")
+    if np.ndim(value):
+        report.error(f"{what} must be a number, not a matrix", expr.pos)
+        return float("nan")
+    return float(value)

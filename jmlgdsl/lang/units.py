@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
-from ..lang.report import Report, suggest
-from ..lang.syntax import Name
+from ..names import suggest
+from .report import Report
+from .syntax import Name
 
 SECONDS = {"s": 1.0, "sec": 1.0, "min": 60.0, "h": 3600.0, "hr": 3600.0}
 
