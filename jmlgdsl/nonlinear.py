@@ -41,7 +41,7 @@ def load_nonlinear(path) -> NonlinearPlant:
     return NonlinearPlant(system, model, mode_parameters(plant, system, report)[1])
 
 
-def simulate_nonlinear(plant, T: int | None = None, seed=None, rng=None, modes=None, u=None) -> Simulation:
+def simulate_nonlinear(plant, T: int | None = None, seed=None, modes=None, u=None) -> Simulation:
     """Simulate T steps of the ODEs (`plant`: a spec path or a NonlinearPlant), with the arguments of
     jmlgdsl.simulate.simulate: x_t = Phi_k(x_{t-1}, u_t) + B_k w_t, y_t = h_k(x_t, u_t) + D_k v_t.
 
@@ -49,7 +49,7 @@ def simulate_nonlinear(plant, T: int | None = None, seed=None, rng=None, modes=N
     model's simulation with the same seed, so the two runs differ only by the linearisation."""
     plant = plant if isinstance(plant, NonlinearPlant) else load_nonlinear(plant)
     m, system = plant.model, plant.system
-    lin = simulate(m, T, seed=seed, rng=rng, modes=modes, u=u)
+    lin = simulate(m, T, seed=seed, modes=modes, u=u)
     k, prev = lin.modes, np.vstack([lin.x0, lin.x[:-1]])
     process = lin.x - _apply(m.A[k], prev) - _apply(m.F[k], lin.u) - m.f[k]
     measurement = lin.y - _apply(m.C[k], lin.x) - _apply(m.G[k], lin.u) - m.g[k]

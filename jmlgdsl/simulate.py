@@ -9,9 +9,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import DataError
-from .infer.engine import generator
-from .infer.kalman import psd_sqrt
+from .gaussian import psd_sqrt
 from .model import Model
+from .random import generator
 
 _PIECE = re.compile(r"^\s*(\d+)\s*(?:-\s*(\d+))?\s*:\s*([A-Za-z_][\w]*)\s*$")
 
@@ -79,10 +79,11 @@ def _mode_sequence(model, T, modes, rng):
     return int(seq[0]), seq
 
 
-def simulate(model: Model, T: int | None = None, seed=None, rng=None, modes=None, u=None) -> Simulation:
+def simulate(model: Model, T: int | None = None, seed=None, modes=None, u=None) -> Simulation:
     """Simulate T steps. `modes`: None (draw from the chain), a schedule string or a sequence of mode
-    names/indices; `u`: (T, nu) inputs or None for the defaults. `seed` or `rng` fixes the draws."""
-    rng = generator(seed, rng)
+    names/indices; `u`: (T, nu) inputs or None for the defaults. `seed` (a number or a numpy
+    Generator) fixes the draws."""
+    rng = generator(seed)
     if isinstance(modes, str):
         modes = parse_schedule(modes, model, T)
     if T is None:

@@ -152,7 +152,7 @@ def test_nonlinear_simulation_follows_the_mode_parameters():
 def test_nonlinear_simulation_is_reproducible():
     plant = load_nonlinear(DATA / "tanks.jmlg")
     a = simulate_nonlinear(plant, 50, seed=3)
-    b = simulate_nonlinear(plant, 50, rng=np.random.default_rng(3))
+    b = simulate_nonlinear(plant, 50, seed=np.random.default_rng(3))
     np.testing.assert_array_equal(a.y, b.y)
     np.testing.assert_array_equal(a.modes, b.modes)
 

@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..gaussian import symmetrize
+
 LOG_2PI = np.log(2.0 * np.pi)
 # Squared Mahalanobis distances are capped here, so an absurd outlier gets a tiny but finite
 # log-density (the same for every hypothesis) instead of -inf, which would turn weights into NaN.
@@ -18,17 +20,6 @@ MAX_QUAD = 1e300
 
 def _t(M):
     return np.swapaxes(M, -1, -2)
-
-
-def symmetrize(S):
-    """(S + S') / 2 over the last two axes."""
-    return 0.5 * (S + _t(S))
-
-
-def psd_sqrt(S):
-    """A factor L with L L' = S for a symmetric positive semi-definite S (singular S allowed)."""
-    vals, vecs = np.linalg.eigh(S)
-    return vecs * np.sqrt(np.clip(vals, 0.0, None))
 
 
 def predict_cov(Sig, A, Q):

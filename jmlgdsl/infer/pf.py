@@ -5,14 +5,13 @@ from __future__ import annotations
 import numpy as np
 
 from .engine import Estimate, Resampler, mixture_moments, offsets, predictive_mean, sample_rows, weighted_posterior
-from .kalman import inverse_cholesky, psd_sqrt, whitened_log_normal
+from ..gaussian import psd_sqrt
+from .kalman import inverse_cholesky, whitened_log_normal
 from .resample import normalize
 
 
 class BootstrapPF:
     """Particles (z, x): z_t from the transition matrix, x_t from the state equation, weight N(y; C x, R)."""
-
-    default_particles = 200
 
     def __init__(self, model, particles, rng, resampler: Resampler):
         self.model, self.rng, self.resampler = model, rng, resampler
