@@ -2,7 +2,8 @@
 deterministic baselines (imm, exact) over one batched Kalman kernel."""
 
 from .engine import FilterError
-from .online import ALGORITHMS, DEFAULT_ALGORITHM, Filter, filter
+from .algorithms import ALGORITHMS, DEFAULT_ALGORITHM
+from .online import Filter, filter
 from .result import Result, Step
 
 __all__ = ["filter", "Filter", "Result", "Step", "FilterError", "ALGORITHMS", "DEFAULT_ALGORITHM"]

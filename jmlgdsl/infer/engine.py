@@ -1,18 +1,20 @@
-"""What every filtering algorithm shares: the per-step estimate it returns and small weighted helpers.
+"""The engine contract every filtering algorithm follows, and the small weighted helpers they share.
 
-An engine is one algorithm's state plus `step(y, mask, u) -> Estimate`; the `Filter` front end
-(online.py) validates data, keeps the clock and the log-likelihood, and turns estimates into records.
+An engine is one algorithm's state after t steps plus `step(y, mask, u) -> Estimate`; the `Filter`
+front end (online.py) validates data, keeps the clock and the log-likelihood, and turns estimates
+into records. Algorithms are registered by name in algorithms.py.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 
-from ..errors import DataError, JmlgError
+from ..errors import JmlgError
 from . import kalman
-from .resample import normalize
+from .resample import ess, normalize
 
 
 class FilterError(JmlgError, ValueError):
@@ -31,14 +33,11 @@ class Estimate:
     ess: float  # effective sample size of the particle weights (NaN for deterministic filters)
 
 
-def generator(seed=None, rng=None) -> np.random.Generator:
-    """The run's random numbers: `rng` itself, else a Generator seeded with `seed` (None = fresh entropy)."""
-    if rng is not None:
-        return rng
-    try:
-        return np.random.default_rng(seed)
-    except (TypeError, ValueError):
-        raise DataError(f"the seed must be a non-negative whole number, got {seed!r}") from None
+class Engine(Protocol):
+    """One algorithm's filtering state, advanced one observation at a time."""
+
+    def step(self, y: np.ndarray, mask: np.ndarray, u: np.ndarray) -> Estimate:
+        """Condition on y (ny,), of which the entries where mask (ny,) is True were measured, under input u (nu,)."""
 
 
 def offsets(model, u):
@@ -79,7 +78,7 @@ class Resampler:
         """(ancestor indices, their new log-weights, ESS) for normalised weights w."""
         if copies is None:
             copies = np.ones(len(w), dtype=np.int64)
-        size = 1.0 / np.sum(w * w / copies)  # each of the c_i copies holds w_i / c_i
+        size = ess(w, copies)
         if self.threshold >= 1.0 or size < self.threshold * self.n or copies.sum() != self.n:
             return self.scheme(w, self.n, self.rng), np.full(self.n, -np.log(self.n)), size
         ancestors = np.repeat(np.arange(len(w)), copies)

@@ -16,9 +16,7 @@ from .resample import normalize
 class IMM:
     """Mode probabilities and one moment-matched Gaussian per mode."""
 
-    default_particles = None
-
-    def __init__(self, model, particles, rng, resampler):
+    def __init__(self, model):
         self.model = model
         with np.errstate(divide="ignore"):
             self.log_mu = np.log(model.p0)

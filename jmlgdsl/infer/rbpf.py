@@ -23,16 +23,18 @@ from .covariances import CovarianceGraph
 from .engine import (Estimate, FilterError, Resampler, mixture_moments, offsets, predictive_mean,
                      sample_rows, weighted_posterior)
 from .kalman import whitened_log_normal
-from .resample import fearnhead_clifford, normalize
+from .resample import ess, fearnhead_clifford, normalize
 
 
 class RaoBlackwellised:
-    """Shared state and step of the Rao-Blackwellised filters; subclasses choose candidates and selection."""
+    """Shared state and step of the Rao-Blackwellised filters; subclasses choose candidates and selection.
 
-    default_particles = 10
+    `exact` needs only the model; the particle filters also take their count, random numbers and
+    resampling policy."""
+
     spare_nodes = 4096  # the covariance graph is compacted when it outgrows 4 nodes a particle + this
 
-    def __init__(self, model, particles, rng, resampler: Resampler):
+    def __init__(self, model, particles=None, rng=None, resampler: Resampler | None = None):
         self.model, self.n, self.rng, self.resampler = model, particles, rng, resampler
         K, nx, ny = model.K, model.nx, model.ny
         self.graph = CovarianceGraph(model)
@@ -124,8 +126,6 @@ def merge_copies(key, chosen, logw):
 class RBPF(RaoBlackwellised):
     """Rao-Blackwellised particle filter with the transition prior as proposal."""
 
-    default_particles = 100
-
     def __init__(self, model, particles, rng, resampler):
         super().__init__(model, particles, rng, resampler)
         # From the weighted prior atoms to N equally weighted particles.
@@ -157,18 +157,15 @@ class LookAheadRBPF(RaoBlackwellised):
 class FearnheadCliffordRBPF(RaoBlackwellised):
     """Look-ahead RBPF keeping N distinct successors chosen by Fearnhead-Clifford optimal selection."""
 
-    default_particles = 4
-
     def select(self, q, parent, mode):
         chosen, w = fearnhead_clifford(q, self.n, self.rng)
         w = w / w.sum()
-        return chosen, np.log(w), 1.0 / np.dot(w, w)
+        return chosen, np.log(w), ess(w)
 
 
 class Exact(RaoBlackwellised):
     """Every mode history with positive probability: the exact posterior, for short sequences."""
 
-    default_particles = None
     max_gaussians = 100_000
 
     def select(self, q, parent, mode):
@@ -179,4 +176,4 @@ class Exact(RaoBlackwellised):
                 f"more than the limit of {self.max_gaussians}; use fc-rbpf, which is exact while "
                 f"the particles outnumber the mode histories")
         w = q[chosen]
-        return chosen, np.log(w), 1.0 / np.dot(w, w)
+        return chosen, np.log(w), ess(w)

@@ -19,9 +19,10 @@ def normalize(logw):
     return w / total, top + np.log(total)
 
 
-def ess(w):
-    """Effective sample size 1 / sum(w^2) of normalised weights."""
-    return 1.0 / np.dot(w, w)
+def ess(w, copies=None):
+    """Effective sample size 1 / sum(w^2) of normalised weights; a particle standing for `copies`
+    identical ones counts as that many, each holding w_i / c_i."""
+    return 1.0 / (np.dot(w, w) if copies is None else np.dot(w, w / copies))
 
 
 def _inverse_cdf(w, points):
