@@ -12,7 +12,7 @@ from __future__ import annotations
 import csv
 import math
 import sys
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Iterator
 
 import numpy as np
@@ -21,6 +21,35 @@ from .errors import DataError
 from .names import suggest
 
 MISSING = {"", "na", "nan", "n/a"}
+
+
+@dataclass(frozen=True)
+class Columns:
+    """The names a data file is read by: outputs, inputs with their defaults (NaN: none) and modes.
+
+    A Model lends its own (`Columns.of(model)`); a bank still being learned, or a figure that only
+    needs the `mode` column, states them directly."""
+
+    outputs: tuple[str, ...] = ()
+    inputs: tuple[str, ...] = ()
+    input_defaults: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    modes: tuple[str, ...] = ()
+
+    @classmethod
+    def of(cls, model) -> "Columns":
+        """The columns of a Model (or Columns themselves)."""
+        if isinstance(model, Columns):
+            return model
+        return cls(tuple(model.outputs), tuple(model.inputs), np.asarray(model.input_defaults, float),
+                   tuple(model.modes))
+
+    @property
+    def ny(self) -> int:
+        return len(self.outputs)
+
+    @property
+    def nu(self) -> int:
+        return len(self.inputs)
 
 
 @dataclass(frozen=True)
@@ -91,8 +120,10 @@ def _number(cells, col, name, where):
 def iter_rows(stream, model, source="<data>", outputs=True) -> Iterator[Row]:
     """Rows of a CSV stream as they arrive (lines are read one at a time, so a pipe works on-line).
 
-    With outputs=False the output columns may be absent (input-only files, for simulation).
+    `model` is a Model or the Columns to read by. With outputs=False the output columns may be
+    absent (input-only files, for simulation).
     """
+    model = Columns.of(model)
     records = _records(stream)
     _, header = next(records, (0, None))
     if header is None:
@@ -136,10 +167,9 @@ def iter_rows(stream, model, source="<data>", outputs=True) -> Iterator[Row]:
 
 
 def read_csv(path, model, outputs=True) -> Data:
-    """Read a whole data file ('-' = standard input) into arrays bound to the model's names.
-
-    `model` only lends names and sizes (inputs, outputs, nu, ny, input_defaults, modes): a Model, or the
-    same attributes of a bank still being learned."""
+    """Read a whole data file ('-' = standard input) into arrays bound to the names of `model`, a
+    Model or the Columns to read by."""
+    model = Columns.of(model)
     source = "<stdin>" if str(path) == "-" else str(path)
     stream = open_source(path)
     try:

@@ -7,13 +7,12 @@ the same path; with a stream every output row is flushed as soon as it is comput
 from __future__ import annotations
 
 import sys
-import time
 
 MAX_SEGMENTS = 30
 
 
 def register(subparsers):
-    from ..infer.online import ALGORITHMS, DEFAULT_ALGORITHM
+    from ..infer import ALGORITHMS, DEFAULT_ALGORITHM
     from ..infer.resample import SCHEMES
 
     p = subparsers.add_parser(
@@ -42,27 +41,18 @@ def register(subparsers):
     p.set_defaults(func=main)
 
 
-def columns(model, with_time):
-    """Header of the per-step output table."""
-    return (["t"] + (["time"] if with_time else []) + ["map_mode"] + [f"p_{m}" for m in model.modes]
-            + [f"{s}_mean" for s in model.states] + [f"{o}_pred" for o in model.outputs]
-            + [f"{o}_resid" for o in model.outputs] + ["ess"])
+def diagnose(args, on_step=None):
+    """Filter the data named in args row by row, writing the result table if asked.
 
-
-def table_row(model, step, row):
-    """One output row for a filter step and the data row it came from."""
-    return ([step.t] + ([row.time] if row.time is not None else []) + [model.modes[step.map_mode]]
-            + list(step.mode_posterior) + list(step.state_mean) + list(step.y_pred) + list(step.residual)
-            + [step.ess])
-
-
-def diagnose(args):
-    """Filter the data named in args, writing the output table if asked; returns (Result, true modes or None)."""
+    Returns the Summary and the Filter; `on_step(step, row)` sees every step (to keep them for a figure).
+    """
     import jmlgdsl
 
-    from ..data import CsvWriter, iter_rows, open_source, open_target
+    from ..data import iter_rows, open_source, open_target
     from ..errors import DataError
-    from ..infer import Filter, Result
+    from ..infer import Filter
+    from ..infer.result import Summary
+    from ..infer.table import TableWriter
     from ..prefilter import MovingAverage, parse
 
     window = parse(args.prefilter)
@@ -72,72 +62,60 @@ def diagnose(args):
     source = "<stdin>" if streaming else args.data
     f = Filter(model, algorithm=args.filter, particles=args.particles, seed=args.seed,
                resampling=args.resampling, ess_threshold=args.ess_threshold)
+    summary = Summary(max_segments=MAX_SEGMENTS)
     stream = open_source(args.data)
-    out = None
-    steps, truth, writer, seconds = [], [], None, 0.0
+    out = writer = None
     try:
         if args.output is not None:
             out = open_target(args.output)
         for row in iter_rows(stream, model, source):
-            y = row.y if smooth is None else smooth(row.y)
-            start = time.perf_counter()
-            step = f.step(y, row.u)
-            seconds += time.perf_counter() - start
-            steps.append(step)
-            truth.append(row.mode)
+            step = f.step(row.y if smooth is None else smooth(row.y), row.u)
+            summary.add(step, row.mode)
+            if on_step is not None:
+                on_step(step, row)
             if out is not None:
-                if writer is None:
-                    writer = CsvWriter(out, columns(model, row.time is not None), flush=streaming)
-                writer.write(table_row(model, step, row))
+                writer = writer or TableWriter(out, model, row.time is not None, flush=streaming)
+                writer.write(step, row.time)
     finally:
         if stream is not sys.stdin:
             stream.close()
         if out not in (None, sys.stdout):
             out.close()
-    if not steps:
+    if not summary.T:
         raise DataError(f"{source}: no data rows")
-    result = Result.from_steps(model, args.filter, f.particles, steps, seconds)
-    return result, None if truth[0] is None else truth
+    return summary, f
 
 
-def segments(result):
-    """(first t, last t, mode index, mean posterior of that mode) for each run of one MAP mode."""
-    modes = result.map_modes
-    starts = [0] + [t for t in range(1, len(modes)) if modes[t] != modes[t - 1]]
-    ends = starts[1:] + [len(modes)]
-    return [(a + 1, b, int(modes[a]), float(result.mode_posterior[a:b, modes[a]].mean()))
-            for a, b in zip(starts, ends)]
-
-
-def summary(result, truth) -> str:
+def report(summary, f) -> str:
     """The terminal report: mode segments, the diagnosis error when the truth is known, fit and speed."""
-    model = result.model
-    who = f"{result.algorithm}" + (f" with {result.particles} particles" if result.particles else "")
-    lines = [f"{model.name}: {result.T} steps, filter {who}", "mode segments (most probable mode):"]
-    segs = segments(result)
-    for a, b, k, p in segs[:MAX_SEGMENTS]:
+    model = f.model
+    who = f"{f.algorithm}" + (f" with {f.particles} particles" if f.particles else "")
+    lines = [f"{model.name}: {summary.T} steps, filter {who}", "mode segments (most probable mode):"]
+    for a, b, k, total in summary.segments:
         span = f"{a}" if a == b else f"{a}\u2013{b}"
-        lines.append(f"  t {span}: {model.modes[k]} (p\u0304 {p:.2f})")
-    if len(segs) > MAX_SEGMENTS:
-        lines.append(f"  \u2026 {len(segs) - MAX_SEGMENTS} more segments (see the output CSV)")
-    if truth is not None:
-        wrong = int((result.map_modes != truth).sum())
-        lines.append(f"diagnosis error: {100.0 * wrong / result.T:.2f} % ({wrong} of {result.T} steps)")
-    lines.append(f"log-likelihood: {result.loglik:.2f}")
-    lines.append(f"time per step: {1e3 * result.seconds / result.T:.3f} ms")
+        lines.append(f"  t {span}: {model.modes[k]} (p\u0304 {total / (b - a + 1):.2f})")
+    if summary.more_segments:
+        lines.append(f"  \u2026 {summary.more_segments} more segments (see the output CSV)")
+    if summary.labelled:
+        lines.append(f"diagnosis error: {summary.diagnosis_error:.2f} % ({summary.wrong} of {summary.labelled} steps)")
+    lines.append(f"log-likelihood: {summary.loglik:.2f}")
+    lines.append(f"time per step: {1e3 * f.seconds / summary.T:.3f} ms")
     return "\n".join(lines)
 
 
 def main(args) -> int:
     import numpy as np
 
-    result, truth = diagnose(args)
-    truth = None if truth is None else np.array(truth)
-    report = sys.stderr if args.output == "-" else sys.stdout
-    print(summary(result, truth), file=report)
+    steps, truth = [], []
+    summary, f = diagnose(args, (lambda step, row: (steps.append(step), truth.append(row.mode)))
+                          if args.plot else None)
+    out = sys.stderr if args.output == "-" else sys.stdout
+    print(report(summary, f), file=out)
     if args.plot:
+        from ..infer import Result
         from ..plots import result_figure
 
-        result_figure(result, args.plot, true_modes=truth)
-        print(f"figure: {args.plot}", file=report)
+        result = Result.from_steps(f.model, f.algorithm, f.particles, steps, f.seconds)
+        result_figure(result, args.plot, true_modes=None if truth[0] is None else np.array(truth))
+        print(f"figure: {args.plot}", file=out)
     return 0

@@ -1,13 +1,21 @@
-"""What a filter reports: one `Step` record per time step on-line, a `Result` for a whole sequence."""
+"""What a filter reports: one `Step` record per time step on-line, a `Result` for a whole sequence,
+and a `Summary` gathered step by step (constant memory, for streams of any length)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..model import Model
 
-@dataclass(frozen=True)
+
+def diagnosis_error(map_modes, true_modes) -> float:
+    """Percentage of steps whose diagnosed (MAP) mode index differs from the true one."""
+    return 100.0 * float(np.mean(np.asarray(map_modes) != np.asarray(true_modes)))
+
+
+@dataclass(frozen=True, slots=True)
 class Step:
     """The estimates after seeing y_t (t counts from 1)."""
 
@@ -30,7 +38,7 @@ class Step:
 class Result:
     """A filtered sequence: arrays over time steps t = 1..T (row 0 is t = 1)."""
 
-    model: object
+    model: Model
     algorithm: str
     particles: int | None
     mode_posterior: np.ndarray  # (T, K)
@@ -43,17 +51,16 @@ class Result:
     seconds: float  # wall-clock time spent filtering
 
     @classmethod
-    def from_steps(cls, model, algorithm, particles, steps, seconds) -> "Result":
+    def from_steps(cls, model: Model, algorithm: str, particles: int | None, steps, seconds: float) -> "Result":
         """Stack on-line step records into arrays."""
-        fields = ("mode_posterior", "state_mean", "state_cov", "y_pred", "residual", "loglik", "ess")
-        stacked = {f: np.array([getattr(s, f) for s in steps]) for f in fields}
-        if not steps:
-            K, nx, ny = model.K, model.nx, model.ny
-            stacked = {f: np.zeros(shape) for f, shape in zip(fields, ((0, K), (0, nx), (0, nx, nx), (0, ny),
-                                                                      (0, ny), (0,), (0,)))}
-        return cls(model, algorithm, particles, stacked["mode_posterior"], stacked["state_mean"],
-                   stacked["state_cov"], stacked["y_pred"], stacked["residual"], stacked["loglik"],
-                   stacked["ess"], seconds)
+        K, nx, ny, T = model.K, model.nx, model.ny, len(steps)
+
+        def stack(name, shape):
+            return np.array([getattr(s, name) for s in steps]).reshape((T,) + shape)
+
+        return cls(model, algorithm, particles, stack("mode_posterior", (K,)), stack("state_mean", (nx,)),
+                   stack("state_cov", (nx, nx)), stack("y_pred", (ny,)), stack("residual", (ny,)),
+                   stack("loglik", ()), stack("ess", ()), seconds)
 
     @property
     def map_modes(self) -> np.ndarray:
@@ -72,4 +79,44 @@ class Result:
 
     def diagnosis_error(self, true_modes) -> float:
         """Percentage of steps whose MAP mode differs from the true mode indices (T,)."""
-        return 100.0 * float(np.mean(self.map_modes != np.asarray(true_modes)))
+        return diagnosis_error(self.map_modes, true_modes)
+
+
+@dataclass
+class Summary:
+    """A run's figures, gathered one step at a time in constant memory: the segments of one MAP mode
+    (the first `max_segments` kept, the rest counted), the number of wrongly diagnosed steps where
+    the true mode is known, the log-likelihood and the time spent."""
+
+    max_segments: int = 30
+    T: int = 0
+    loglik: float = 0.0
+    segments: list = field(default_factory=list)  # [first t, last t, mode, summed posterior of that mode]
+    more_segments: int = 0
+    labelled: int = 0  # steps with a known true mode
+    wrong: int = 0  # of those, steps whose MAP mode is not the true one
+    current: int = -1  # the MAP mode of the last step
+
+    def add(self, step: Step, true_mode: int | None = None):
+        """Count one step (and its true mode index, when known)."""
+        k = step.map_mode
+        self.T = step.t
+        self.loglik += step.loglik
+        if true_mode is not None:
+            self.labelled += 1
+            self.wrong += int(k != true_mode)
+        if k != self.current:
+            self.current = k
+            if len(self.segments) < self.max_segments:
+                self.segments.append([step.t, step.t, k, 0.0])
+            else:
+                self.more_segments += 1
+        if not self.more_segments:
+            segment = self.segments[-1]
+            segment[1] = step.t
+            segment[3] += float(step.mode_posterior[k])
+
+    @property
+    def diagnosis_error(self) -> float | None:
+        """Percentage of the labelled steps diagnosed wrongly, None without labels."""
+        return 100.0 * self.wrong / self.labelled if self.labelled else None

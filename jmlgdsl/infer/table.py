@@ -1,0 +1,106 @@
+"""The result table: the one CSV layout for per-step results, written by `run -o`, read by `plot`.
+
+Columns, in order: `t`, `time` (when the data had one), `map_mode`, `p_<mode>` for every mode,
+`<state>_mean`, `<output>_pred`, `<output>_resid`, `ess`. Rows are written as they are computed, so
+a stream is written on-line.
+"""
+
+from __future__ import annotations
+
+import csv
+import sys
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..data import CsvWriter, open_source, open_target
+from ..errors import DataError
+from ..model import Model
+from .result import Result, Step
+
+
+def columns(model: Model, with_time: bool) -> list[str]:
+    """The header of the result table."""
+    return (["t"] + (["time"] if with_time else []) + ["map_mode"] + [f"p_{m}" for m in model.modes]
+            + [f"{s}_mean" for s in model.states] + [f"{o}_pred" for o in model.outputs]
+            + [f"{o}_resid" for o in model.outputs] + ["ess"])
+
+
+class TableWriter:
+    """Writes result rows to a text stream; with flush=True each row reaches the reader at once."""
+
+    def __init__(self, stream, model: Model, with_time: bool, flush: bool = False):
+        self.model, self.with_time = model, with_time
+        self._writer = CsvWriter(stream, columns(model, with_time), flush)
+
+    def write(self, step: Step, time: float | None = None):
+        """One row: a filter step and, when the table has a time column, the data row's time."""
+        self._writer.write([step.t] + ([time] if self.with_time else []) + [self.model.modes[step.map_mode]]
+                           + list(step.mode_posterior) + list(step.state_mean) + list(step.y_pred)
+                           + list(step.residual) + [step.ess])
+
+
+def write_result(path, result: Result, time=None):
+    """Write a whole Result as a result table ('-' = standard output); `time` (T,) adds the time column."""
+    stream = open_target(path)
+    try:
+        writer = TableWriter(stream, result.model, time is not None)
+        for i in range(result.T):
+            step = Step(i + 1, result.mode_posterior[i], result.state_mean[i], result.state_cov[i],
+                        result.y_pred[i], result.residuals[i], result.loglik_steps[i], result.ess[i])
+            writer.write(step, None if time is None else time[i])
+    finally:
+        if stream is not sys.stdout:
+            stream.close()
+
+
+@dataclass(frozen=True)
+class Table:
+    """A result table read back: what a figure of the run needs."""
+
+    modes: list[str]
+    outputs: list[str]
+    t: np.ndarray  # (T,)
+    time: np.ndarray | None  # (T,) the data's time column, when it had one
+    mode_posterior: np.ndarray  # (T, K)
+    y_pred: np.ndarray  # (T, ny)
+    residuals: np.ndarray  # (T, ny)
+
+    @property
+    def T(self) -> int:
+        return len(self.t)
+
+
+def read_table(path) -> Table:
+    """Read a result table; a DataError naming the file (and line) when it is not one."""
+    with open_source(path) as stream:
+        rows = [row for row in csv.reader(stream) if row]
+    if len(rows) < 2:
+        raise DataError(f"{path}: no data rows")
+    header, rows = [h.strip() for h in rows[0]], rows[1:]
+    start = header.index("map_mode") + 1 if "map_mode" in header else len(header)
+    modes = []
+    while start + len(modes) < len(header) and header[start + len(modes)].startswith("p_"):
+        modes.append(header[start + len(modes)][2:])
+    outputs = [h[:-len("_resid")] for h in header if h.endswith("_resid")]
+    if not modes or not outputs:
+        raise DataError(f"{path}: no map_mode, p_<mode> or <output>_resid columns; "
+                        "is this a table written by 'jmlgdsl run -o'?")
+
+    def column(name):
+        i = header.index(name)
+        values = []
+        for line, row in enumerate(rows, start=2):
+            text = row[i].strip() if i < len(row) else ""
+            try:
+                values.append(float(text) if text else np.nan)
+            except ValueError:
+                raise DataError(f"{path}:{line}: column {name!r}: {text!r} is not a number") from None
+        return np.array(values)
+
+    def block(names):
+        return np.column_stack([column(n) for n in names])
+
+    return Table(modes, outputs, column("t"), column("time") if "time" in header else None,
+                 block([f"p_{m}" for m in modes]), block([f"{o}_pred" for o in outputs]),
+                 block([f"{o}_resid" for o in outputs]))
