@@ -1,18 +1,16 @@
-"""Figures for diagnosis studies and single runs (matplotlib, Agg backend, PNG files).
+"""Figures for diagnosis studies and single runs, written as PNG files.
 
 Study figures take the summaries and run records of `jmlgdsl.bench`; the diagnosis figure shows one
 run: the mode posterior over time with the MAP and true modes, measured vs predicted outputs and the
-residuals.
+residuals. Figures are built with matplotlib's object API (no pyplot), so importing this module
+never changes a notebook's backend and no figure outlives its file.
 """
 
 from __future__ import annotations
 
 import matplotlib
-
-matplotlib.use("Agg")
-
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import numpy as np
+from matplotlib.figure import Figure
 
 STYLE = {"pf": ("tab:red", "v"), "rbpf": ("tab:orange", "s"), "la-rbpf": ("tab:blue", "o"),
          "fc-rbpf": ("tab:green", "D"), "imm": ("tab:purple", None), "exact": ("black", None)}
@@ -32,17 +30,22 @@ def _by_filter(summary):
     return {f: sorted(rows, key=lambda r: r["particles"] or 0) for f, rows in groups.items()}
 
 
+def figure(**kwargs) -> Figure:
+    """A new figure, not registered with pyplot (keyword arguments as for matplotlib's Figure)."""
+    return Figure(**kwargs)
+
+
 def save(fig, path, dpi=DPI):
-    """Write the figure as a PNG and release it (pyplot keeps every open figure alive)."""
+    """Write the figure as a PNG."""
     fig.savefig(path, dpi=dpi)
-    plt.close(fig)
 
 
 def error_vs_particles(summary, path, title="", reference=None):
     """Diagnosis error (mean ± SD over runs) against the number of particles on a log axis; filters
     without particles (imm, exact) are horizontal lines. `reference` adds published points:
     {filter: [(N, mean, sd), ...]} drawn hollow and dashed."""
-    fig, ax = plt.subplots(figsize=(8.5, 4.5))
+    fig = figure(figsize=(8.5, 4.5))
+    ax = fig.subplots()
     for name, rows in _by_filter(summary).items():
         color, marker = _style(name)
         if rows[0]["particles"] is None:
@@ -74,7 +77,8 @@ def error_vs_time(summary, path, sample_time, title=""):
     """Diagnosis error (mean ± SD) against the mean computing time per step (log axis), one curve per
     filter through its particle counts; a vertical line marks the sample time (the real-time limit).
     `sample_time` is in seconds."""
-    fig, ax = plt.subplots(figsize=(8, 4.5))
+    fig = figure(figsize=(8, 4.5))
+    ax = fig.subplots()
     for name, rows in _by_filter(summary).items():
         color, marker = _style(name)
         ax.errorbar([r["ms_per_step_mean"] for r in rows], [r["error_mean"] for r in rows],
@@ -108,7 +112,8 @@ def error_boxplots(records, path, title=""):
             groups.setdefault(r["filter"], {}).setdefault(r["particles"], []).append(r["error"])
     if not groups:
         raise ValueError("no particle-filter runs to draw")
-    fig, axes = plt.subplots(1, len(groups), figsize=(3.2 * len(groups) + 0.8, 4.2), sharey=True, squeeze=False)
+    fig = figure(figsize=(3.2 * len(groups) + 0.8, 4.2))
+    axes = fig.subplots(1, len(groups), sharey=True, squeeze=False)
     for ax, (name, by_n) in zip(axes[0], groups.items()):
         counts = sorted(by_n)
         ax.boxplot([by_n[n] for n in counts], tick_labels=[str(n) for n in counts], widths=0.6,
@@ -138,7 +143,7 @@ def study_figures(folder, prefix, title, sample_time, summary, records, referenc
 
 def _mode_colors(K):
     """One RGBA colour per mode (tab10, or tab20 beyond ten modes)."""
-    return plt.get_cmap("tab10" if K <= 10 else "tab20")(np.arange(K) % 20)
+    return matplotlib.colormaps["tab10" if K <= 10 else "tab20"](np.arange(K) % 20)
 
 
 def diagnosis_figure(path, mode_names, posterior, time, y, y_pred, output_names, true_modes=None,
@@ -155,8 +160,8 @@ def diagnosis_figure(path, mode_names, posterior, time, y, y_pred, output_names,
     ny = y.shape[1]
     units = output_units or {}
     heights = [max(1.0, 0.25 * K), max(1.5, 0.3 * K)] + [1.6] * ny + [1.2]
-    fig, axes = plt.subplots(len(heights), 1, sharex=True, figsize=(9, 1.0 + sum(heights)),
-                             gridspec_kw={"height_ratios": heights}, layout="constrained")
+    fig = figure(figsize=(9, 1.0 + sum(heights)), layout="constrained")
+    axes = fig.subplots(len(heights), 1, sharex=True, gridspec_kw={"height_ratios": heights})
     colors = _mode_colors(K)
     edges = _edges(time)
     map_modes = posterior.argmax(axis=1)

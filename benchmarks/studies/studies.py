@@ -196,7 +196,8 @@ def variation_table(summary, name):
 
 def variation_figure(summary, filters, path, title):
     """Error against the perturbation, one line per particle count, one panel per filter."""
-    fig, axes = plots.plt.subplots(1, len(filters), figsize=(4.2 * len(filters) + 2, 4.2), sharey=True, squeeze=False)
+    fig = plots.figure(figsize=(4.2 * len(filters) + 2, 4.2))
+    axes = fig.subplots(1, len(filters), sharey=True, squeeze=False)
     for ax, name in zip(axes[0], filters):
         rows = [r for r in summary if r["filter"] == name]
         for n in sorted({r["particles"] for r in rows}):

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..plots import plt, save
+from ..plots import figure, save
 
 #: Resolution of the learning figures (dots per inch).
 DPI = 110
@@ -15,7 +15,8 @@ def plot_step(fit, y, path, title="Step test", ylabel="output"):
     """Measured step response and the fitted FOPDT curve; writes `path`."""
     y = np.asarray(y, float).ravel()
     t = np.arange(len(y)) * fit.dt
-    fig, ax = plt.subplots(figsize=(7, 3.5))
+    fig = figure(figsize=(7, 3.5))
+    ax = fig.subplots()
     ax.plot(t, y, ".", ms=2, color="0.5", label="measured")
     ax.plot(t, fit.response(len(y)), color="C3",
             label=f"FOPDT: K {fit.gain:.3g}, tau {fit.tau:.3g} s, dead time {fit.delay * fit.dt:g} s")
@@ -42,7 +43,7 @@ def plot_validation(learned, path, dt=1.0, ylabel="output", input_name="input"):
     v = learned.validation
     y = learned.experiment.y[:, 0]
     t = np.arange(1, len(y) + 1) * dt
-    fig = plt.figure(figsize=(9, 6))
+    fig = figure(figsize=(9, 6))
     grid = fig.add_gridspec(2, 2)
     ax = fig.add_subplot(grid[0, 0])
     _stems(ax, np.arange(1, v.autocorr.shape[1] + 1), v.autocorr[0], v.band, "residual autocorrelation")
