@@ -14,6 +14,7 @@ import math
 import os
 import sys
 import time
+import zlib
 from dataclasses import dataclass
 
 import numpy as np
@@ -81,13 +82,13 @@ def sequence_of(job: Job) -> Sequence:
 @functools.lru_cache(maxsize=8)
 def _simulated(source, plant, entropy, spawn_key) -> Sequence:
     """One run's simulated sequence, kept while a worker's consecutive jobs filter the same run."""
-    rng = np.random.default_rng(np.random.SeedSequence(entropy, spawn_key=spawn_key))
+    seed = np.random.SeedSequence(entropy, spawn_key=spawn_key)
     if isinstance(plant, str):
         from .nonlinear import simulate_nonlinear
 
-        sim = simulate_nonlinear(nonlinear_plant(plant), source.steps, rng=rng, modes=source.schedule)
+        sim = simulate_nonlinear(nonlinear_plant(plant), source.steps, seed=seed, modes=source.schedule)
     else:
-        sim = simulate(plant, source.steps, rng=rng, modes=source.schedule)
+        sim = simulate(plant, source.steps, seed=seed, modes=source.schedule)
     return Sequence(source.name, sim.y, sim.u, sim.modes)
 
 
@@ -105,7 +106,7 @@ def filter_job(job: Job):
     data = sequence_of(job)
     y = data.y if job.prefilter is None else moving_average(data.y, job.prefilter)
     return data, run_filter(job.model, y, data.u, algorithm=job.algorithm, particles=job.particles,
-                            rng=np.random.default_rng(job.filter_seed))
+                            seed=job.filter_seed)
 
 
 def run_job(job: Job) -> dict:
@@ -118,10 +119,12 @@ def run_job(job: Job) -> dict:
 
 def make_jobs(model, sources, filters=DEFAULT_FILTERS, particles=DEFAULT_PARTICLES, runs=25, seed=0,
               prefilter=None) -> list[Job]:
-    """Every (source, filter, particle count, run) with seeds spawned from `seed`.
+    """Every (source, filter, particle count, run) with seeds derived from `seed`.
 
     Run r draws its data from the same seed for every filter (paired comparisons); each filter and
-    particle count gets its own stream. Deterministic filters (imm, exact) run once per run.
+    particle count gets its own stream, keyed by (run, filter name, particle count), so adding a
+    filter or a count to a sweep leaves every other setting's draws as they were. Deterministic
+    filters (imm, exact) run once per run.
     """
     if not filters:
         raise DataError(f"no filter to run; choose from {', '.join(ALGORITHMS)}")
@@ -138,9 +141,10 @@ def make_jobs(model, sources, filters=DEFAULT_FILTERS, particles=DEFAULT_PARTICL
     cells = [(f, n) for f in filters for n in ((None,) if f in DETERMINISTIC else particles)]
     cells = list(dict.fromkeys(cells))  # a filter named twice runs once
     jobs = []
-    for run, run_seed in enumerate(np.random.SeedSequence(seed).spawn(runs)):
-        data_seed, filter_root = run_seed.spawn(2)
-        for (algorithm, n), filter_seed in zip(cells, filter_root.spawn(len(cells))):
+    for run in range(runs):
+        data_seed = np.random.SeedSequence(seed, spawn_key=(run, 0))
+        for algorithm, n in cells:
+            filter_seed = np.random.SeedSequence(seed, spawn_key=(run, 1, zlib.crc32(algorithm.encode()), n or 0))
             jobs += [Job(model, source, algorithm, n, run, data_seed, filter_seed, prefilter) for source in sources]
     return jobs
 
@@ -302,11 +306,3 @@ def write_records_csv(path, records):
         for r in records:
             writer.writerow([r["data"], r["filter"], "" if r["particles"] is None else r["particles"], r["run"],
                              *(f"{r[k]:.10g}" for k in ("error", "ms_per_step", "loglik"))])
-
-
-def read_records_csv(path) -> list[dict]:
-    """Run records written by write_records_csv."""
-    with open(path, newline="") as stream:
-        rows = list(csv.DictReader(stream))
-    return [{"data": r["data"], "filter": r["filter"], "particles": int(r["particles"]) if r["particles"] else None,
-             "run": int(r["run"]), **{k: float(r[k]) for k in ("error", "ms_per_step", "loglik")}} for r in rows]
