@@ -267,6 +267,8 @@ def confusion(true_modes, diagnosed_modes, K: int) -> np.ndarray:
     true_modes, diagnosed_modes = np.asarray(true_modes, dtype=int), np.asarray(diagnosed_modes, dtype=int)
     if true_modes.shape != diagnosed_modes.shape:
         raise ValueError(f"{true_modes.shape} true modes against {diagnosed_modes.shape} diagnosed")
+    if ((true_modes < 0) | (true_modes >= K) | (diagnosed_modes < 0) | (diagnosed_modes >= K)).any():
+        raise ValueError(f"mode indices must lie in 0..{K - 1}")
     return np.bincount(true_modes * K + diagnosed_modes, minlength=K * K).reshape(K, K)
 
 

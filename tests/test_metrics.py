@@ -206,6 +206,13 @@ def test_a_point_at_the_next_change_point_inside_the_previous_window_cannot_dete
     assert (n.events, n.missed, n.fp) == ((500,), 1, 0)   # floor(30 / 60 * 1000) = 500
 
 
+def test_two_change_points_on_one_time_stamp_give_a_window_of_one_instant():
+    time = np.array([0.0, 10.0, 10.0, 11.0, 70.0])   # rows 1 and 2 share t = 10
+    assert nab_windows(points(5, 1, 2), time).tolist() == [[10, 70], [70, 70]]
+    n = nab(5, [1, 2], [4], time)   # p = 70: window 1 at e 999, the one-instant window at its left end
+    assert (n.events, n.missed, n.fp) == ((999, 0), 0, 0)
+
+
 def test_windows_are_in_time_not_rows():
     time = np.array([0.0, 1.0, 2.0, 3.0, 100.0, 101.0])   # a 97 s gap after row 3
     n = nab(6, [1], [4], time)   # window [1, 61]; row 4 is at t = 100, outside it
@@ -250,3 +257,6 @@ def test_score_pools_every_part_and_names_the_summary():
 def test_confusion_matrix_counts_true_rows_against_diagnosed_columns():
     c = confusion([0, 0, 1, 1, 2], [0, 1, 1, 1, 0], 3)
     assert c.tolist() == [[1, 1, 0], [0, 2, 0], [1, 0, 0]]
+    assert (c + c).sum() == 10   # files pool by adding their matrices
+    with pytest.raises(ValueError, match="mode indices must lie in 0..2"):
+        confusion([0, 3], [0, 0], 3)
