@@ -43,7 +43,7 @@ class AlarmRule:
         for name in self.healthy:
             if name not in modes:
                 raise DataError(f"alarm rule: unknown healthy mode {name!r}{suggest(name, modes)}")
-        return np.array([name not in self.healthy for name in modes])
+        return np.array([name not in self.healthy for name in modes], dtype=bool)
 
     def fault_probability(self, posterior, modes) -> np.ndarray:
         """P(not healthy) for a (T, K) posterior (or one (K,) row): the sum over the non-healthy modes."""
