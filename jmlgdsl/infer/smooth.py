@@ -1,0 +1,327 @@
+"""Mode and state smoothing for the deterministic algorithms: off-line p(z_t | y_1:T) and fixed-lag
+p(z_t | y_1:min(T, t+L)), with the matching mixture moments of x_t.
+
+- `smooth_exact`: every mode history z_0..z_T is carried forward with its own Kalman filter, then
+  smoothed backwards along its own Rauch-Tung-Striebel recursion; the ground truth, K^(T+1)
+  histories, so only for short sequences.
+- `smooth_imm`: an IMM forward pass followed by Kim's backward recursion (Kim 1994), which works
+  on mode pairs (z_t, z_t+1) from the stored forward quantities alone. Kim's smoother was chosen
+  over the two-filter IMM smoother of Helmick, Blair and Hoffman because it needs no backward
+  filter: that one starts from a diffuse prior in information form and runs the dynamics
+  backwards, which is awkward with the inputs, singular A and singular noise of compiled specs.
+  Kim's pass is a few batched K x K small-matrix operations per step, the fixed-lag form
+  batches every window into one pass, and lag 0 is the filter itself.
+
+Inputs are arrays: y (T, ny) with NaN for unmeasured entries, u (T, nu) already resolved. Row t
+(0-based) is time t+1; a missing output is left out of the update, never out of the prediction.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import JmlgError
+from . import kalman
+
+# Exact smoothing keeps every history's Kalman statistics at every step: up to twice this many
+# Gaussians in memory, and as many small Rauch-Tung-Striebel steps per smoothed row.
+MAX_HISTORIES = 1_000_000
+
+
+class SmoothError(JmlgError, ValueError):
+    """A smoother asked for something it cannot do (bad lag, too many mode histories, bad shapes)."""
+
+
+@dataclass(frozen=True)
+class Smoothed:
+    """Per-step smoothed estimates over t = 1..T (row 0 is t = 1)."""
+
+    mode_posterior: np.ndarray  # (T, K) p(z_t = k | y_1:min(T, t+lag))
+    state_mean: np.ndarray  # (T, nx) mixture mean of x_t given the same data
+    state_cov: np.ndarray  # (T, nx, nx) mixture covariance
+
+
+# ----------------------------------------------------------------------------- shared pieces
+def _t(M):
+    return np.swapaxes(M, -1, -2)
+
+
+def _symmetrize(S):
+    """(S + S') / 2 over the last two axes."""
+    return 0.5 * (S + _t(S))
+
+
+def _check(model, y, u, lag):
+    """y and u as float arrays of the model's sizes, and the lag (None or a whole number >= 0)."""
+    y = np.asarray(y, dtype=float)
+    u = np.asarray(u, dtype=float)
+    if y.ndim != 2 or y.shape[1] != model.ny or u.shape != (len(y), model.nu):
+        raise SmoothError(f"y must be (T, {model.ny}) and u (T, {model.nu}); got {y.shape} and {u.shape}")
+    if not len(y):
+        raise SmoothError("there is nothing to smooth: no time steps")
+    if lag is not None and (isinstance(lag, bool) or not isinstance(lag, (int, np.integer)) or lag < 0):
+        raise SmoothError(f"the lag must be None (off-line) or a whole number >= 0, got {lag!r}")
+    return y, u
+
+
+def _offsets(model, u):
+    """Per-step, per-mode constant terms of the state and output equations: (T, K, nx), (T, K, ny)."""
+    return (np.einsum("kij,tj->tki", model.F, u) + model.f,
+            np.einsum("kij,tj->tki", model.G, u) + model.g)
+
+
+def _log_normalize(logw, axis=-1):
+    """Log-weights shifted so that their exponentials sum to one along `axis` (logsumexp)."""
+    top = np.max(logw, axis=axis, keepdims=True)
+    return logw - (top + np.log(np.exp(logw - top).sum(axis=axis, keepdims=True)))
+
+
+def _mixture(w, means, covs):
+    """Moments of Gaussian mixtures: weights (..., n), means (..., n, nx), covs (..., n, nx, nx)."""
+    mean = np.einsum("...n,...na->...a", w, means)
+    d = means - mean[..., None, :]
+    cov = np.einsum("...n,...nab->...ab", w, covs) + np.einsum("...n,...na,...nb->...ab", w, d, d)
+    return mean, _symmetrize(cov)
+
+
+def _rts_gain(Sig_f, A, Sig_p):
+    """Smoother gain Sig_f A' Sig_p^+ (pseudo-inverse: a noiseless direction makes Sig_p singular)."""
+    return Sig_f @ _t(A) @ np.linalg.pinv(Sig_p, hermitian=True)
+
+
+# ----------------------------------------------------------------------------- exact
+@dataclass(frozen=True)
+class _Level:
+    """The K^(s+1) mode histories z_0..z_s after step s: history h ends in mode h % K and extends
+    history h // K of step s-1. The prediction and gain link each history to that parent."""
+
+    logw: np.ndarray  # (n,) log p(z_0:s, y_1:s)
+    mean: np.ndarray  # (n, nx) filtered mean of x_s
+    cov: np.ndarray  # (n, nx, nx)
+    pred_mean: np.ndarray | None = None  # (n, nx) mean of x_s given y_1:s-1 (None at s = 0)
+    pred_cov: np.ndarray | None = None
+    gain: np.ndarray | None = None  # (n, nx, nx) Rauch-Tung-Striebel gain from x_s back to x_s-1
+
+
+def smooth_exact(model, y, u, lag=None) -> Smoothed:
+    """Exact smoothed mode posteriors and mixture state moments over all K^(T+1) mode histories.
+
+    `lag=None` conditions every row on all the data; `lag=L` conditions row t on y_1:min(T, t+L)
+    (lag 0 is the exact filter). Refused above MAX_HISTORIES histories.
+    """
+    y, u = _check(model, y, u, lag)
+    T, K = len(y), model.K
+    levels = _exact_forward(model, y, u)
+    ends = np.full(T, T) if lag is None else np.minimum(T, np.arange(1, T + 1) + lag)
+    post, mean, cov = np.empty((T, K)), np.empty((T, model.nx)), np.empty((T, model.nx, model.nx))
+    for s in np.unique(ends):
+        first = int(np.flatnonzero(ends == s)[0]) + 1
+        for t, row in _exact_backward(K, levels, int(s), first):
+            if ends[t - 1] == s:
+                post[t - 1], mean[t - 1], cov[t - 1] = row
+    return Smoothed(post, mean, cov)
+
+
+def _exact_forward(model, y, u) -> list:
+    """One _Level per step s = 0..T: every mode history with its Kalman filter."""
+    K, T = model.K, len(y)
+    if K ** (T + 1) > MAX_HISTORIES:
+        raise SmoothError(f"exact smoothing of {T} steps would carry {K}^{T + 1} = {K ** (T + 1)} mode "
+                          f"histories, more than the limit of {MAX_HISTORIES}; use imm for longer data")
+    b, c = _offsets(model, u)
+    with np.errstate(divide="ignore"):
+        levels = [_Level(np.log(model.p0), model.mu0, np.broadcast_to(model.Sigma0, (K,) + model.Sigma0.shape))]
+    for s in range(T):
+        levels.append(_exact_step(model, levels[-1], b[s], c[s], y[s]))
+    return levels
+
+
+def _exact_step(model, prev: _Level, b, c, y) -> _Level:
+    """Extend every history by every mode: predict, update with the measured outputs, reweight."""
+    n, K = len(prev.logw), model.K
+    mu, Sig = prev.mean[:, None], prev.cov[:, None]
+    mean, cov, ll, _, _ = kalman.step(mu, Sig, model.A, b, model.Q, model.C, c, model.R, y)
+    pred_mean, pred_cov = kalman.predict(mu, Sig, model.A, b, model.Q)
+    gain = _rts_gain(Sig, model.A, pred_cov)
+    logw = prev.logw[:, None] + model.logP[np.arange(n) % K] + ll
+    return _Level(*(a.reshape((n * K,) + a.shape[2:]) for a in (logw, mean, cov, pred_mean, pred_cov, gain)))
+
+
+def _exact_backward(K, levels, s, first):
+    """(t, (mode posterior, mean, cov)) given y_1:s for t = s down to `first`: each history's own
+    Rauch-Tung-Striebel pass, mixed with the history weights."""
+    top = levels[s]
+    w = np.exp(_log_normalize(top.logw))
+    h = np.arange(len(w))
+    mean, cov = top.mean, top.cov
+    for t in range(s, first - 1, -1):
+        ancestor = h // K ** (s - t)  # index of each history's prefix z_0:t on level t
+        yield t, (np.bincount(ancestor % K, weights=w, minlength=K), *_mixture(w, mean, cov))
+        if t > first:
+            level, parent = levels[t], levels[t - 1]
+            J = level.gain[ancestor]
+            mean = parent.mean[ancestor // K] + (J @ (mean - level.pred_mean[ancestor])[..., None])[..., 0]
+            cov = _symmetrize(parent.cov[ancestor // K] + J @ (cov - level.pred_cov[ancestor]) @ _t(J))
+
+
+# ----------------------------------------------------------------------------- imm
+@dataclass(frozen=True)
+class _ModeGaussians:
+    """Log mode probabilities and one Gaussian per mode, over any leading axes (steps, windows)."""
+
+    log_w: np.ndarray  # (..., K)
+    mean: np.ndarray  # (..., K, nx)
+    cov: np.ndarray  # (..., K, nx, nx)
+
+    def take(self, index) -> "_ModeGaussians":
+        return _ModeGaussians(self.log_w[index], self.mean[index], self.cov[index])
+
+    def then(self, later: "_ModeGaussians") -> "_ModeGaussians":
+        """These steps followed by the later ones (along the leading axis)."""
+        return _ModeGaussians(*(np.concatenate(pair) for pair in
+                                zip((self.log_w, self.mean, self.cov), (later.log_w, later.mean, later.cov))))
+
+
+@dataclass(frozen=True)
+class _Pairs:
+    """Kim's quantities for the pairs (z_t = i, z_t+1 = j), over steps t = 0..T-2 (leading axis)."""
+
+    log_pred: np.ndarray  # (..., K) log p(z_t+1 = j | y_1:t)
+    pred_mean: np.ndarray  # (..., K, K, nx) A_j m_i + F_j u_t+1 + f_j
+    gain: np.ndarray  # (..., K, K, nx, nx) Rauch-Tung-Striebel gain of the pair
+    rest: np.ndarray  # (..., K, K, nx, nx) Sig_i - J Sig_pred J': the smoothed covariance less J Sig_t+1 J'
+
+    def take(self, index) -> "_Pairs":
+        return _Pairs(self.log_pred[index], self.pred_mean[index], self.gain[index], self.rest[index])
+
+
+def smooth_imm(model, y, u, lag=None) -> Smoothed:
+    """IMM filter, then Kim's backward pass: smoothed mode posteriors and mixture state moments.
+
+    `lag=None` is the fixed-interval smoother, O(T K^2) Kalman-sized steps. `lag=L` runs the backward
+    pass over the window t..min(T, t+L) for every row, all windows batched into L steps: O(T L K^2)
+    work in L numpy passes. Lag 0 is the IMM filter.
+    """
+    y, u = _check(model, y, u, lag)
+    T = len(y)
+    b, c = _offsets(model, u)
+    fwd = _imm_forward(model, y, b, c)
+    pairs = _kim_pairs(model, fwd, b)
+    # Rows whose window reaches the last step see all the data: one off-line pass over them.
+    first = 0 if lag is None else max(0, T - 1 - lag)
+    smoothed = _kim_offline(model.logP, fwd, pairs, first)
+    if first:  # the earlier rows: every window at once
+        smoothed = _kim_windows(model.logP, fwd, pairs, np.arange(first) + lag, lag).then(smoothed)
+    post = np.exp(_log_normalize(smoothed.log_w))
+    mean, cov = _mixture(post, smoothed.mean, smoothed.cov)
+    return Smoothed(post, mean, cov)
+
+
+def _imm_forward(model, y, b, c) -> _ModeGaussians:
+    """The IMM filter's per-mode output at every step: log p(z_t | y_1:t) and filtered moments."""
+    T, K = len(y), model.K
+    C, c, R, y = _measured(model, y, c)
+    out = _ModeGaussians(np.empty((T, K)), np.empty((T, K, model.nx)), np.empty((T, K, model.nx, model.nx)))
+    with np.errstate(divide="ignore"):
+        log_mu = np.log(model.p0)
+    mean, cov = model.mu0, np.broadcast_to(model.Sigma0, (K,) + model.Sigma0.shape)
+    for t in range(T):
+        joint = log_mu[:, None] + model.logP
+        log_pred = np.logaddexp.reduce(joint, axis=0)
+        mix = np.exp(_log_ratio(joint, log_pred))  # p(z_t-1 = i | z_t = j, y_1:t-1)
+        mean, cov = kalman.predict(*_mixture(mix.T, mean, cov), model.A, b[t], model.Q)
+        mean, cov, ll = _update(mean, cov, C[t], c[t], R[t], y[t])
+        log_mu = _log_normalize(log_pred + ll)
+        out.log_w[t], out.mean[t], out.cov[t] = log_mu, mean, cov
+    return out
+
+
+def _measured(model, y, c):
+    """(C, c, R, y) per step (T, K, ...) that leave unmeasured outputs out of the update: their rows
+    of C, c and y are zero and R gives them unit variance uncorrelated with the rest, so each adds a
+    zero residual with no gain and the same factor N(0; 0, 1) to every mode's likelihood."""
+    miss = np.isnan(y)
+    C = np.where(miss[:, None, :, None], 0.0, model.C)
+    both = miss[:, None, :, None] | miss[:, None, None, :]
+    R = np.where(both, np.eye(model.ny), model.R)
+    return C, np.where(miss[:, None], 0.0, c), R, np.where(miss, 0.0, y)
+
+
+def _update(mean_p, cov_p, C, c, R, y):
+    """Measurement update of each mode's prediction and log p(y | mode, past), through the inverse
+    Cholesky factor of the innovation covariance."""
+    CS = C @ cov_p
+    Linv, logdet = kalman.inverse_cholesky(CS @ _t(C) + R)
+    z = np.einsum("kab,kb->ka", Linv, y - c - np.einsum("kab,kb->ka", C, mean_p))
+    W = Linv @ CS
+    return mean_p + np.einsum("kab,ka->kb", W, z), _symmetrize(cov_p - _t(W) @ W), kalman.whitened_log_normal(z, logdet)
+
+
+def _kim_pairs(model, fwd: _ModeGaussians, b) -> _Pairs:
+    """Every pair's one-step prediction from the filtered moments of mode i under mode j's dynamics,
+    its smoother gain, and the predicted mode probabilities: all steps at once."""
+    mu, Sig = fwd.mean[:-1, :, None], fwd.cov[:-1, :, None]
+    pred_mean, pred_cov = kalman.predict(mu, Sig, model.A, b[1:, None], model.Q)
+    gain = _rts_gain(Sig, model.A, pred_cov)
+    rest = _symmetrize(Sig - gain @ pred_cov @ _t(gain))
+    log_pred = np.logaddexp.reduce(fwd.log_w[:-1, :, None] + model.logP, axis=1)
+    return _Pairs(log_pred, pred_mean, gain, rest)
+
+
+def _kim_modes(logP, log_filt, log_pred, log_next):
+    """Kim's mode recursion, batched over leading axes: log p(z_t | data) from log p(z_t+1 | data),
+    and the backward transition p(z_t+1 = j | z_t = i, data) as a (..., K, K) array."""
+    log_joint = log_filt[..., :, None] + logP + _log_ratio(log_next, log_pred)[..., None, :]
+    log_w = np.logaddexp.reduce(log_joint, axis=-1)
+    return log_w, np.exp(_log_ratio(log_joint, log_w[..., None]))
+
+
+def _log_ratio(log_a, log_b):
+    """log(a / b) where b = 0 implies a = 0: an impossible event stays impossible (-inf, not NaN)."""
+    return log_a - np.maximum(log_b, np.finfo(float).min)
+
+
+def _kim_step(logP, filt: _ModeGaussians, pairs: _Pairs, nxt: _ModeGaussians) -> _ModeGaussians:
+    """One backward step of Kim's smoother, batched over leading axes: from the smoothed mode
+    probabilities and per-mode moments at t+1 to those at t."""
+    log_w, cond = _kim_modes(logP, filt.log_w, pairs.log_pred, nxt.log_w)
+    dx = nxt.mean[..., None, :, :] - pairs.pred_mean
+    means = filt.mean[..., :, None, :] + (pairs.gain @ dx[..., None])[..., 0]
+    covs = pairs.rest + pairs.gain @ nxt.cov[..., None, :, :, :] @ _t(pairs.gain)
+    mean, cov = _mixture(cond, means, covs)
+    return _ModeGaussians(log_w, mean, cov)
+
+
+def _kim_offline(logP, fwd: _ModeGaussians, pairs: _Pairs, first) -> _ModeGaussians:
+    """The fixed-interval backward pass from the last step down to step `first` (rows first..T-1).
+
+    Kim's step is affine in the smoothed moments at t+1 once the mode recursion has fixed the
+    backward transitions, so the modes are recursed first and everything else is batched over the
+    steps, leaving two small products a step in the mean and covariance recursions."""
+    filt, pairs = fwd.take(slice(first, None)), pairs.take(slice(first, None))
+    n = len(filt.log_w)
+    log_w, cond = filt.log_w.copy(), np.empty((n - 1,) + logP.shape)
+    for t in range(n - 2, -1, -1):
+        log_w[t], cond[t] = _kim_modes(logP, filt.log_w[t], pairs.log_pred[t], log_w[t + 1])
+    CJ = cond[..., None, None] * pairs.gain  # (n-1, i, j, nx, nx)
+    mean = filt.mean.copy()
+    shift = filt.mean[:-1] - np.einsum("tijab,tijb->tia", CJ, pairs.pred_mean)
+    for t in range(n - 2, -1, -1):
+        mean[t] = shift[t] + np.einsum("ijab,jb->ia", CJ[t], mean[t + 1])
+    d = (filt.mean[:-1, :, None] - mean[:-1, :, None]
+         + (pairs.gain @ (mean[1:, None] - pairs.pred_mean)[..., None])[..., 0])  # pair mean - mode mean
+    base = np.einsum("tij,tijab->tiab", cond, pairs.rest + d[..., :, None] * d[..., None, :])
+    cov = filt.cov.copy()
+    for t in range(n - 2, -1, -1):
+        cov[t] = _symmetrize(base[t] + np.einsum("ijab,jbc,ijdc->iad", CJ[t], cov[t + 1], pairs.gain[t]))
+    return _ModeGaussians(log_w, mean, cov)
+
+
+def _kim_windows(logP, fwd: _ModeGaussians, pairs: _Pairs, ends, lag) -> _ModeGaussians:
+    """Kim's backward pass over the windows ends-lag..ends, all batched: smoothed at ends - lag."""
+    nxt = fwd.take(ends)
+    for k in range(1, lag + 1):
+        nxt = _kim_step(logP, fwd.take(ends - k), pairs.take(ends - k), nxt)
+    return nxt
