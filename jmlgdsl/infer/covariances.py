@@ -11,8 +11,6 @@ arithmetic at all.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
 from . import kalman
@@ -39,24 +37,44 @@ class _Growing:
     def data(self):
         return self._data[:self.size]
 
+    @property
+    def buffer(self):
+        """The whole storage, valid up to `size` (indexing it skips the slice of `data`)."""
+        return self._data
 
-@dataclass
+
 class _Rows:
-    """Per (node, mode) results of one Kalman step under one observation mask, for nodes 0..done-1."""
+    """Per (node, mode) results of one Kalman step under one observation mask, for nodes 0..done-1.
 
-    Linv: _Growing  # inverse Cholesky factor of the innovation covariance, (m, m)
-    logdet: _Growing  # log det of the innovation covariance
-    gain_t: _Growing  # transposed Kalman gain, (m, nx)
-    Sig_f: _Growing  # filtered covariance, (nx, nx)
-    child: _Growing  # node of Sig_f, -1 until a particle needs it
+    The four pieces a particle needs are packed side by side in one row per (node, mode), so that
+    gathering them for every particle is one indexing operation."""
 
-    def take(self, name, node, mode=None):
-        """Entries of one field at (node, mode) pairs; with mode None, every mode of each node in turn."""
-        a = getattr(self, name).data
-        if mode is not None:
-            return a[node, mode]
-        rows = a[node]
-        return rows.reshape((rows.shape[0] * rows.shape[1],) + a.shape[2:])
+    def __init__(self, K, m, nx, complete):
+        self.shapes = ((m, m), (), (m, nx), (nx, nx))  # Linv, logdet, gain_t, Sig_f
+        sizes = [int(np.prod(shape)) for shape in self.shapes]
+        self.bounds = [int(b) for b in np.cumsum([0] + sizes)]
+        self.packed = _Growing((K, self.bounds[-1]))
+        self.child = _Growing((K,), np.int64, -1)  # node of Sig_f, -1 until a particle needs it
+        self.complete = complete  # every output measured
+
+    def extend(self, Linv, logdet, gain_t, Sig_f):
+        """Append the pieces of new nodes, each with leading axes (nodes, K)."""
+        n, K = logdet.shape
+        self.packed.extend(np.concatenate([a.reshape(n, K, -1) for a in (Linv, logdet, gain_t, Sig_f)], axis=2))
+        self.child.extend(np.full((n, K), -1))
+
+    def at(self, at):
+        """(Linv, logdet, gain_t, Sig_f) at `at`: an array of nodes (every mode of each node in turn)
+        or a (nodes, modes) pair of arrays (one entry per pair)."""
+        rows = self.packed.buffer[at]
+        rows = rows.reshape(-1, rows.shape[-1])
+        (m, nx), (b1, b2, b3) = self.shapes[2], self.bounds[1:4]
+        J = len(rows)
+        return rows[:, :b1].reshape(J, m, m), rows[:, b1], rows[:, b2:b3].reshape(J, m, nx), rows[:, b3:].reshape(J, nx, nx)
+
+    def Sig_f(self, node, mode):
+        """Filtered covariances at (node, mode) pairs."""
+        return self.at((node, mode))[3]
 
 
 class CovarianceGraph:
@@ -109,9 +127,7 @@ class CovarianceGraph:
         key = mask.tobytes()
         rows = self._rows.get(key)
         if rows is None:
-            m, nx, K = int(mask.sum()), self.model.nx, self.model.K
-            rows = self._rows[key] = _Rows(_Growing((K, m, m)), _Growing((K,)), _Growing((K, m, nx)),
-                                           _Growing((K, nx, nx)), _Growing((K,), np.int64, -1))
+            rows = self._rows[key] = _Rows(self.model.K, int(mask.sum()), self.model.nx, bool(mask.all()))
         done = rows.child.size
         if done < self.size:
             self._compute(rows, self.Sig[done:], mask)
@@ -127,21 +143,17 @@ class CovarianceGraph:
         Linv, logdet = kalman.inverse_cholesky(S)
         gain_t = np.swapaxes(Linv, -1, -2) @ (Linv @ CS)  # S^-1 C Sig_p
         Sig_f = kalman.symmetrize(Sig_p - np.swapaxes(CS, -1, -2) @ gain_t)
-        rows.Linv.extend(Linv)
-        rows.logdet.extend(logdet)
-        rows.gain_t.extend(gain_t)
-        rows.Sig_f.extend(Sig_f)
-        rows.child.extend(np.full((len(Sig), model.K), -1))
+        rows.extend(Linv, logdet, gain_t, Sig_f)
 
     def children(self, rows: _Rows, node, mode) -> np.ndarray:
         """Nodes of the filtered covariances reached from `node` (n,) by `mode` (n,) under `rows`' mask."""
-        child = rows.child.data[node, mode]
+        child = rows.child.buffer[node, mode]
         missing = child < 0
         if missing.any():
-            pairs = np.unique(np.stack([node[missing], mode[missing]]), axis=1)
-            new = self.add(rows.Sig_f.data[pairs[0], pairs[1]])
-            rows.child.data[pairs[0], pairs[1]] = new
-            child = rows.child.data[node, mode]
+            K = self.model.K
+            new_node, new_mode = np.divmod(np.unique(node[missing] * K + mode[missing]), K)
+            rows.child.buffer[new_node, new_mode] = self.add(rows.Sig_f(new_node, new_mode))
+            child = rows.child.buffer[node, mode]
         return child
 
     def compact(self, nodes) -> np.ndarray:

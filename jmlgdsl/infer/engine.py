@@ -7,8 +7,7 @@ into records. Algorithms are registered by name in algorithms.py.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Protocol
+from typing import NamedTuple, Protocol
 
 import numpy as np
 
@@ -21,8 +20,7 @@ class FilterError(JmlgError, ValueError):
     """A filter asked for something it cannot do (unknown algorithm, too many Gaussians, ...)."""
 
 
-@dataclass(frozen=True)
-class Estimate:
+class Estimate(NamedTuple):
     """One time step's output of an engine (the Filter adds the clock and the residuals)."""
 
     mode_posterior: np.ndarray  # (K,) p(z_t = k | y_1:t)
@@ -49,15 +47,15 @@ def mixture_moments(w, means, weighted_cov):
     """Mean and covariance of a Gaussian mixture with weights w, component means and sum_j w_j Sig_j."""
     mean = w @ means
     d = means - mean
-    return mean, kalman.symmetrize(weighted_cov + (d * w[:, None]).T @ d)
+    return mean, kalman.symmetrize(weighted_cov + (d.T * w) @ d)
 
 
 def sample_rows(probs, rng):
     """One categorical draw per row of non-negative (unnormalised) probabilities (M, K): the first k
     with cdf_k > u for u uniform on [0, total), so a zero-probability category is never drawn."""
-    cdf = np.cumsum(probs, axis=1)
+    cdf = probs.cumsum(axis=1)
     u = rng.random(len(probs)) * cdf[:, -1]
-    return np.minimum((cdf <= u[:, None]).sum(axis=1), probs.shape[1] - 1)
+    return (cdf[:, :-1] <= u[:, None]).sum(axis=1)  # at most K - 1, even where u rounds up to the total
 
 
 class Resampler:
@@ -73,6 +71,7 @@ class Resampler:
         if not 0.0 < threshold <= 1.0:
             raise FilterError(f"the ESS threshold must be in (0, 1], got {threshold}")
         self.scheme, self.n, self.rng, self.threshold = scheme, n, rng, threshold
+        self.uniform = np.full(n, -np.log(n))  # the log-weights after resampling (never written to)
 
     def __call__(self, w, copies=None):
         """(ancestor indices, their new log-weights, ESS) for normalised weights w."""
@@ -80,18 +79,7 @@ class Resampler:
             copies = np.ones(len(w), dtype=np.int64)
         size = ess(w, copies)
         if self.threshold >= 1.0 or size < self.threshold * self.n or copies.sum() != self.n:
-            return self.scheme(w, self.n, self.rng), np.full(self.n, -np.log(self.n)), size
+            return self.scheme(w, self.n, self.rng), self.uniform, size
         ancestors = np.repeat(np.arange(len(w)), copies)
         with np.errstate(divide="ignore"):
             return ancestors, np.log(w / copies)[ancestors], size
-
-
-def weighted_posterior(q, modes, K):
-    """Mode posterior from candidate weights q and their modes."""
-    return np.bincount(modes, weights=q, minlength=K)
-
-
-def predictive_mean(logw, y_pred):
-    """Mixture mean of candidate predicted outputs under their prior (before seeing y) log-weights."""
-    w, _ = normalize(logw)
-    return w @ y_pred

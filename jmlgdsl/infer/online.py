@@ -49,7 +49,6 @@ class Filter:
         self.t = 0
         self.loglik = 0.0
         self.seconds = 0.0  # time spent inside step()
-        self._no_input = np.full(model.nu, np.nan)
 
     def step(self, y, u=None) -> Step:
         """Advance one time step with outputs y (ny,) and inputs u (nu,).
@@ -61,12 +60,14 @@ class Filter:
         model, t = self.model, self.t + 1
         y = _vector(y, model.outputs, "outputs", t)
         mask = np.abs(y) < MAX_READING  # False for NaN and for readings too large to be real
-        y = np.where(mask, y, np.nan)
-        u = self._no_input if u is None else _vector(u, model.inputs, "inputs", t)
-        u = np.where(np.isnan(u), model.input_defaults, u)
+        if not mask.all():
+            y = np.where(mask, y, np.nan)
+        u = model.input_defaults if u is None else _vector(u, model.inputs, "inputs", t)
         if not np.isfinite(u).all():
-            bad = [n for n, v in zip(model.inputs, u) if not np.isfinite(v)]
-            raise DataError(f"t={t}: no value and no default for input {', '.join(bad)}")
+            u = np.where(np.isnan(u), model.input_defaults, u)
+            if not np.isfinite(u).all():
+                bad = [n for n, v in zip(model.inputs, u) if not np.isfinite(v)]
+                raise DataError(f"t={t}: no value and no default for input {', '.join(bad)}")
         est = self.engine.step(y, mask, u)
         self.t = t
         self.loglik += est.loglik
@@ -79,6 +80,8 @@ class Filter:
 def _vector(values, names, what, t):
     """One step's values as a float vector (len(names),); a DataError naming the columns otherwise."""
     v = np.asarray(values, dtype=float)
+    if v.shape == (len(names),):
+        return v
     if v.size != len(names):
         raise DataError(f"t={t}: {v.size} {what} given, expected {len(names)} ({', '.join(names)})")
     return v.reshape(len(names))

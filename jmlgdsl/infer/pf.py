@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .engine import Estimate, Resampler, mixture_moments, offsets, predictive_mean, sample_rows, weighted_posterior
+from .engine import Estimate, Resampler, mixture_moments, offsets, sample_rows
 from ..gaussian import psd_sqrt
 from .kalman import inverse_cholesky, whitened_log_normal
 from .resample import normalize
@@ -39,7 +39,8 @@ class BootstrapPF:
         white = np.einsum("nab,nb->na", Linv[z], y[mask] - y_pred[:, mask])
         q, loglik = normalize(log_prior + whitened_log_normal(white, logdet[z]))
         mean, cov = mixture_moments(q, x, np.zeros((model.nx, model.nx)))
-        posterior = weighted_posterior(q, z, model.K)
+        posterior = np.bincount(z, weights=q, minlength=model.K)
         ancestors, self.logw, size = self.resampler(q)
         self.z, self.x = z[ancestors], x[ancestors]
-        return Estimate(posterior, mean, cov, predictive_mean(log_prior, y_pred), loglik, size)
+        prior = np.exp(log_prior - log_prior.max())
+        return Estimate(posterior, mean, cov, prior @ y_pred / prior.sum(), loglik, size)

@@ -20,8 +20,7 @@ from __future__ import annotations
 import numpy as np
 
 from .covariances import CovarianceGraph
-from .engine import (Estimate, FilterError, Resampler, mixture_moments, offsets, predictive_mean,
-                     sample_rows, weighted_posterior)
+from .engine import Estimate, FilterError, Resampler, mixture_moments, offsets, sample_rows
 from .kalman import whitened_log_normal
 from .resample import ess, fearnhead_clifford, normalize
 
@@ -39,9 +38,9 @@ class RaoBlackwellised:
         K, nx, ny = model.K, model.nx, model.ny
         self.graph = CovarianceGraph(model)
         root = self.graph.add(model.Sigma0[None])[0]
-        # Stacked maps from a particle mean to every mode's predicted state and output (one GEMM each).
-        self._A = model.A.reshape(K * nx, nx).T
-        self._CA = (model.C @ model.A).reshape(K * ny, nx).T
+        # One stacked map from a particle mean to every mode's predicted state and output, side by
+        # side per mode: (mu @ self._map).reshape(n * K, nx + ny) holds [A_k mu, C_k A_k mu] per row.
+        self._map = np.concatenate([model.A, model.C @ model.A], axis=1).reshape(K * (nx + ny), nx).T
         # t = 0: one weighted atom per mode the prior allows.
         atoms = np.flatnonzero(model.p0 > 0)
         self.logw = np.log(model.p0[atoms])
@@ -53,12 +52,12 @@ class RaoBlackwellised:
         self._u = None  # the last input and its per-mode offsets (inputs rarely change)
 
     def _offsets(self, u):
-        """Per-mode state offsets (K, nx) and output offsets of the predicted mean (K, ny) for input u."""
+        """Per-mode offsets of the predicted state and output means for input u, side by side: (K, nx + ny)."""
         key = u.tobytes()
         if key != self._u:
             b, c = offsets(self.model, u)
-            self._u, self._b, self._c = key, b, np.einsum("kij,kj->ki", self.model.C, b) + c
-        return self._b, self._c
+            self._u, self._bc = key, np.concatenate([b, np.einsum("kij,kj->ki", self.model.C, b) + c], axis=1)
+        return self._bc
 
     # Subclasses: which candidates to evaluate, and how to select the next particles from them.
     def candidates(self):
@@ -75,35 +74,36 @@ class RaoBlackwellised:
         raise NotImplementedError
 
     def step(self, y, mask, u) -> Estimate:
-        model, K = self.model, self.model.K
+        model, K, nx, ny = self.model, self.model.K, self.model.nx, self.model.ny
         rows = self.graph.rows(mask)
         parent, mode, log_prop = self.candidates()
-        b, c = self._offsets(u)
-        n, nx, ny = len(self.z), model.nx, model.ny
-        mu_p = (self.mu @ self._A).reshape(n, K, nx) + b
-        y_pred = (self.mu @ self._CA).reshape(n, K, ny) + c
-        if log_prop is None:  # every (particle, mode) pair, in order
-            mu_p, y_pred = mu_p.reshape(n * K, nx), y_pred.reshape(n * K, ny)
-            node, node_mode = self.node, None
+        n = len(self.z)
+        pred = (self.mu @ self._map).reshape(n, K, nx + ny) + self._offsets(u)
+        if log_prop is None:  # every (particle, mode) pair, in order: rows of every mode of each node
+            pred = pred.reshape(n * K, nx + ny)
+            at = self.node
+            log_prior = (self.logw[:, None] + model.logP[self.z]).reshape(n * K)
         else:
-            mu_p, y_pred = mu_p[parent, mode], y_pred[parent, mode]
-            node, node_mode = self.node[parent], mode
-        m = int(mask.sum())
-        r = y - y_pred if m == ny else y[mask] - y_pred[:, mask]
-        z = np.einsum("jab,jb->ja", rows.take("Linv", node, node_mode), r)
-        ll = whitened_log_normal(z, rows.take("logdet", node, node_mode))
-        mu_f = mu_p + np.einsum("jai,ja->ji", rows.take("gain_t", node, node_mode), r)
+            pred = pred[parent, mode]
+            at = (self.node[parent], mode)
+            log_prior = self.logw[parent] + model.logP[self.z[parent], mode] - log_prop
+        mu_p, y_pred = pred[:, :nx], pred[:, nx:]
+        Linv, logdet, gain_t, Sig_f = rows.at(at)
+        r = y - y_pred if rows.complete else y[mask] - y_pred[:, mask]
+        z = (Linv @ r[:, :, None])[:, :, 0]
+        ll = whitened_log_normal(z, logdet)
+        mu_f = mu_p + (r[:, None, :] @ gain_t)[:, 0]
 
-        log_prior = self.logw[parent] + model.logP[self.z[parent], mode]
-        if log_prop is not None:
-            log_prior = log_prior - log_prop
+        top = log_prior.max()
+        prior = np.exp(log_prior - top)
         q, loglik = normalize(log_prior + ll)
-        mean, cov = mixture_moments(q, mu_f, np.einsum("j,jab->ab", q, rows.take("Sig_f", node, node_mode)))
-        posterior = weighted_posterior(q, mode, K)
-        yp = predictive_mean(log_prior, y_pred)
+        mean, cov = mixture_moments(q, mu_f, (q @ Sig_f.reshape(len(q), nx * nx)).reshape(nx, nx))
+        posterior = np.bincount(mode, weights=q, minlength=K)
+        yp = prior @ y_pred / prior.sum()
 
         chosen, logw, size = self.select(q, parent, mode)
-        chosen, self.logw, self.copies = merge_copies(parent[chosen] * K + mode[chosen], chosen, logw)
+        key = chosen if log_prop is None else parent[chosen] * K + mode[chosen]  # (parent, mode) as one number
+        chosen, self.logw, self.copies = merge_copies(key, chosen, logw, n * K)
         self.z = mode[chosen]
         self.mu = mu_f[chosen]
         self.node = self.graph.children(rows, self.node[parent[chosen]], self.z)
@@ -112,15 +112,23 @@ class RaoBlackwellised:
         return Estimate(posterior, mean, cov, yp, loglik, size)
 
 
-def merge_copies(key, chosen, logw):
+def merge_copies(key, chosen, logw, size):
     """Chosen candidates with equal keys (same parent, same mode) are identical particles: keep one
-    of each with the summed weight. Returns (chosen, log-weights, copy counts)."""
-    distinct, first, inverse, counts = np.unique(key, return_index=True, return_inverse=True, return_counts=True)
+    of each, in key order, with the summed weight. Keys lie in [0, size).
+    Returns (chosen, log-weights, copy counts)."""
+    counts = np.bincount(key, minlength=size)
+    distinct = np.flatnonzero(counts)
     if len(distinct) == len(key):
-        return chosen, logw, counts
+        return chosen, logw, counts[key]
+    if key is chosen:  # a candidate is its own key
+        kept = distinct
+    else:
+        first = np.empty(size, dtype=np.int64)
+        first[key[::-1]] = chosen[::-1]  # the first chosen candidate with each key
+        kept = first[distinct]
     top = logw.max()
-    with np.errstate(divide="ignore"):
-        return chosen[first], np.log(np.bincount(inverse, weights=np.exp(logw - top))) + top, counts
+    summed = np.bincount(key, weights=np.exp(logw - top), minlength=size)[distinct]
+    return kept, np.log(summed, out=np.full(len(summed), -np.inf), where=summed > 0) + top, counts[distinct]
 
 
 class RBPF(RaoBlackwellised):

@@ -8,15 +8,17 @@ most, systematic usually the least).
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 
 def normalize(logw):
     """Normalised weights and log of their sum from unnormalised log-weights (logsumexp, no overflow)."""
-    top = np.max(logw)
+    top = logw.max()
     w = np.exp(logw - top)
     total = w.sum()
-    return w / total, top + np.log(total)
+    return w / total, float(top + np.log(total))
 
 
 def ess(w, copies=None):
@@ -27,7 +29,7 @@ def ess(w, copies=None):
 
 def _inverse_cdf(w, points):
     """Indices i with cumsum(w)[i-1] <= point < cumsum(w)[i] for sorted points in [0, 1)."""
-    cdf = np.cumsum(w)
+    cdf = w.cumsum()
     cdf[-1] = 1.0  # guard against round-off leaving the last point beyond the end
     return np.searchsorted(cdf, points, side="right")
 
@@ -44,7 +46,15 @@ def stratified(w, n, rng):
 
 def systematic(w, n, rng):
     """One uniform offset shared by n evenly spaced points: the minimum-variance scheme."""
-    return _inverse_cdf(w, (np.arange(n) + rng.random()) / n)
+    return _inverse_cdf(w, _grid(n) + rng.random() / n)
+
+
+@functools.lru_cache(maxsize=64)
+def _grid(n):
+    """The n points j / n, j = 0..n-1 (kept: the particle filters ask for the same n at every step)."""
+    grid = np.arange(n) / n
+    grid.flags.writeable = False
+    return grid
 
 
 def residual(w, n, rng):

@@ -34,7 +34,7 @@ class SmoothError(JmlgError, ValueError):
     """A smoother asked for something it cannot do (bad lag, too many mode histories, bad shapes)."""
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Smoothed:
     """Per-step smoothed estimates over t = 1..T (row 0 is t = 1)."""
 
@@ -200,9 +200,9 @@ class _Pairs:
 def smooth_imm(model, y, u, lag=None) -> Smoothed:
     """IMM filter, then Kim's backward pass: smoothed mode posteriors and mixture state moments.
 
-    `lag=None` is the fixed-interval smoother, O(T K^2) Kalman-sized steps. `lag=L` runs the backward
-    pass over the window t..min(T, t+L) for every row, all windows batched into L steps: O(T L K^2)
-    work in L numpy passes. Lag 0 is the IMM filter.
+    `lag=None` is the fixed-interval smoother: O(T K^2) Kalman-sized steps, and O(T K^2 nx^2) memory
+    for the mode pairs' gains. `lag=L` runs the backward pass over the window t..min(T, t+L) of every
+    row, all windows batched into L numpy steps: O(T L K^2) work. Lag 0 is the IMM filter.
     """
     y, u = _check(model, y, u, lag)
     T = len(y)
