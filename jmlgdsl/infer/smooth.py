@@ -255,8 +255,9 @@ def _update(mean_p, cov_p, C, c, R, y):
     CS = C @ cov_p
     Linv, logdet = kalman.inverse_cholesky(CS @ _t(C) + R)
     z = np.einsum("kab,kb->ka", Linv, y - c - np.einsum("kab,kb->ka", C, mean_p))
-    W = Linv @ CS
-    return mean_p + np.einsum("kab,ka->kb", W, z), _symmetrize(cov_p - _t(W) @ W), kalman.whitened_log_normal(z, logdet)
+    W = Linv @ CS  # the gain is W' Linv
+    mean = mean_p + np.einsum("kab,ka->kb", W, z)
+    return mean, _symmetrize(cov_p - _t(W) @ W), kalman.whitened_log_normal(z, logdet)
 
 
 def _kim_pairs(model, fwd: _ModeGaussians, b) -> _Pairs:
