@@ -135,7 +135,7 @@ class CovarianceGraph:
 
     def _compute(self, rows, Sig, mask):
         """Append the Kalman pieces of covariances Sig (n, nx, nx) under every mode to `rows`
-        (the update of kalman.correct, kept in factored form for reuse across particles)."""
+        (the update of kalman.update, kept in factored form for reuse across particles)."""
         model = self.model
         Sig_p = kalman.predict_cov(Sig[:, None], model.A, model.Q)
         C = model.C[:, mask, :]

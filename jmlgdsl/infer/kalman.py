@@ -50,14 +50,14 @@ def log_normal(r, S):
     """log N(r; 0, S) for residuals r (..., n) and covariances S (..., n, n), via Cholesky."""
     if r.shape[-1] == 0:
         return np.zeros(np.broadcast_shapes(r.shape[:-1], S.shape[:-2]))
-    L = np.linalg.cholesky(S)
-    z = np.linalg.solve(L, r[..., None])[..., 0]
-    return whitened_log_normal(z, 2.0 * np.log(np.diagonal(L, axis1=-2, axis2=-1)).sum(-1))
+    Linv, logdet = inverse_cholesky(S)
+    return whitened_log_normal(np.einsum("...ij,...j->...i", Linv, r), logdet)
 
 
 def inverse_cholesky(S):
-    """(Linv, log det S) with Linv = L^-1 for the Cholesky factor L of S: kept where one S whitens
-    the residuals of many particles, z = Linv r, with one matrix product."""
+    """(Linv, log det S) with Linv = L^-1 for the Cholesky factor L of S (..., n, n): the one
+    factorisation of an innovation covariance, reused for its density (z = Linv r) and for the
+    gain (S^-1 = Linv' Linv), and kept where one S whitens the residuals of many particles."""
     Linv = np.linalg.inv(np.linalg.cholesky(S))
     return Linv, -2.0 * np.log(np.diagonal(Linv, axis1=-2, axis2=-1)).sum(-1)
 
@@ -68,15 +68,18 @@ def whitened_log_normal(z, logdet):
     return -0.5 * (quad + logdet + z.shape[-1] * LOG_2PI)
 
 
-def correct(mu_p, Sig_p, y_pred, S, CS, y):
-    """Measurement update given the innovation pieces: returns the filtered mean and covariance."""
+def update(mu_p, Sig_p, y_pred, S, CS, y):
+    """Measurement update with the innovation pieces (mu_p (..., nx), Sig_p (..., nx, nx), y_pred
+    (..., m), S (..., m, m), CS = C Sig_p (..., m, nx), y (m,)): returns the filtered mean and
+    covariance and log N(y; y_pred, S), all from one Cholesky factorisation of S."""
     if y.shape[-1] == 0:
-        return mu_p, Sig_p
-    gain_t = np.linalg.solve(S, CS)  # (S^-1 C Sig_p) = gain'
-    r = y - y_pred
-    mu = mu_p + np.einsum("...ji,...j->...i", gain_t, r)
-    Sig = symmetrize(Sig_p - _t(CS) @ gain_t)
-    return mu, Sig
+        return mu_p, Sig_p, np.zeros(np.broadcast_shapes(y_pred.shape[:-1], S.shape[:-2]))
+    Linv, logdet = inverse_cholesky(S)
+    z = np.einsum("...ij,...j->...i", Linv, y - y_pred)  # whitened innovation
+    W = Linv @ CS  # whitened C Sig_p: the gain is W' Linv, and C' S^-1 C = W' W
+    mu = mu_p + np.einsum("...ji,...j->...i", W, z)
+    Sig = symmetrize(Sig_p - _t(W) @ W)
+    return mu, Sig, whitened_log_normal(z, logdet)
 
 
 def observed(y):
@@ -93,10 +96,7 @@ def step(mu, Sig, A, b, Q, C, c, R, y):
     y_pred, S, CS = innovation(mu_p, Sig_p, C, c, R)
     m = observed(y)
     if m.all():
-        ll = log_normal(y - y_pred, S)
-        mu_f, Sig_f = correct(mu_p, Sig_p, y_pred, S, CS, y)
+        mu_f, Sig_f, ll = update(mu_p, Sig_p, y_pred, S, CS, y)
     else:
-        S_o = S[..., m, :][..., :, m]
-        ll = log_normal(y[m] - y_pred[..., m], S_o)
-        mu_f, Sig_f = correct(mu_p, Sig_p, y_pred[..., m], S_o, CS[..., m, :], y[m])
+        mu_f, Sig_f, ll = update(mu_p, Sig_p, y_pred[..., m], S[..., m, :][..., :, m], CS[..., m, :], y[m])
     return mu_f, Sig_f, ll, y_pred, S
