@@ -35,9 +35,10 @@ def figure(**kwargs) -> Figure:
     return Figure(**kwargs)
 
 
-def save(fig, path, dpi=DPI):
-    """Write the figure as a PNG."""
+def save(fig, path, dpi=DPI) -> Figure:
+    """Write the figure as a PNG and return it (for a caller that wants to look at or reuse it)."""
     fig.savefig(path, dpi=dpi)
+    return fig
 
 
 def error_vs_particles(summary, path, title="", reference=None):
@@ -70,7 +71,7 @@ def error_vs_particles(summary, path, title="", reference=None):
     ax.set_title(title or "Diagnosis error against particles (mean ± SD over runs)")
     ax.legend(fontsize="small", loc="upper left", bbox_to_anchor=(1.01, 1))
     fig.tight_layout()
-    save(fig, path)
+    return save(fig, path)
 
 
 def error_vs_time(summary, path, sample_time, title=""):
@@ -96,7 +97,7 @@ def error_vs_time(summary, path, sample_time, title=""):
     ax.legend(fontsize="small", loc="upper left", bbox_to_anchor=(1.01, 1), title="filter\n(N increases\nto the right)",
               title_fontsize="small")
     fig.tight_layout()
-    save(fig, path)
+    return save(fig, path)
 
 
 def _duration(seconds):
@@ -125,7 +126,7 @@ def error_boxplots(records, path, title=""):
     axes[0, 0].set_ylabel("diagnosis error (% of steps)")
     fig.suptitle(title or "Diagnosis error per run")
     fig.tight_layout()
-    save(fig, path)
+    return save(fig, path)
 
 
 def study_figures(folder, prefix, title, sample_time, summary, records, reference=None) -> list:
@@ -209,7 +210,7 @@ def diagnosis_figure(path, mode_names, posterior, time, y, y_pred, output_names,
     ax.set_xlim(edges[0], edges[-1])
     fig.suptitle(title or "Mode diagnosis")
     fig.align_ylabels(axes)
-    save(fig, path)
+    return save(fig, path)
 
 
 def _edges(time):
@@ -237,7 +238,7 @@ def result_figure(result, path, true_modes=None, title=""):
     model = result.model
     time = model.dt * np.arange(1, result.T + 1)
     who = result.algorithm + (f", {result.particles} particles" if result.particles else "")
-    diagnosis_figure(path, model.modes, result.mode_posterior, time, result.y_pred + result.residuals,
+    return diagnosis_figure(path, model.modes, result.mode_posterior, time, result.y_pred + result.residuals,
                      result.y_pred, model.outputs,
                      true_modes=true_modes, output_units=model.units,
                      title=title or f"{model.name}: mode diagnosis ({who})")
