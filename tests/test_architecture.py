@@ -1,0 +1,110 @@
+"""The package's layers import one way: no cycles between files or packages, nothing from above.
+
+The layers, lowest first (docs/architecture.md draws them): leaf helpers; the model type and the
+data and metric helpers that know only names and arrays; the language; the compiler; inference and
+simulation; the studies, learning and figures built on them; the command line.
+"""
+
+import ast
+from pathlib import Path
+
+import pytest
+
+PACKAGE = Path(__file__).resolve().parents[1] / "jmlgdsl"
+LAYERS = [
+    {"errors", "names", "random", "gaussian"},
+    {"model", "data", "prefilter", "metrics", "alarms"},
+    {"lang"},
+    {"compile"},
+    {"infer", "simulate", "nonlinear"},
+    {"bench", "learn", "plots"},
+    {"commands", "cli", "__main__", "jmlgdsl"},
+]
+RANK = {name: rank for rank, names in enumerate(LAYERS) for name in names}
+
+
+def modules():
+    """{dotted module name: path} for every file of the package."""
+    found = {}
+    for path in PACKAGE.rglob("*.py"):
+        parts = path.relative_to(PACKAGE.parent).with_suffix("").parts
+        found[".".join(parts[:-1] if parts[-1] == "__init__" else parts)] = path
+    return found
+
+
+def imports(name, path, known):
+    """The package's modules that `name` imports (a package's __init__ re-exporting its own
+    submodules does not count: that is the package's entry point, not a dependency)."""
+    package = name if path.name == "__init__.py" else name.rsplit(".", 1)[0]
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.ImportFrom):
+            base = package.split(".")[:len(package.split(".")) - node.level + 1] if node.level else []
+            target = ".".join(base + ([node.module] if node.module else []))
+            candidates = [target] + [f"{target}.{alias.name}" for alias in node.names]
+        elif isinstance(node, ast.Import):
+            candidates = [alias.name for alias in node.names]
+        else:
+            continue
+        found |= {c for c in candidates if c in known and c != name}
+    if path.name == "__init__.py":
+        found = {t for t in found if not t.startswith(name + ".")}
+    return found
+
+
+def graph():
+    known = modules()
+    return {name: imports(name, path, known) for name, path in known.items()}
+
+
+def layer(name):
+    """The layer a module belongs to: its subpackage, or its own name for a top-level file."""
+    parts = name.split(".")
+    return parts[1] if len(parts) > 1 else parts[0]
+
+
+def cycle(edges):
+    """One cycle of a directed graph as a list of nodes, or None."""
+    state, path = {}, []
+
+    def visit(node):
+        state[node] = "open"
+        path.append(node)
+        for nxt in sorted(edges.get(node, ())):
+            if state.get(nxt) == "open":
+                return path[path.index(nxt):] + [nxt]
+            if nxt not in state and (found := visit(nxt)):
+                return found
+        state[node] = "done"
+        path.pop()
+        return None
+
+    for node in sorted(edges):
+        if node not in state and (found := visit(node)):
+            return found
+    return None
+
+
+def test_every_module_has_a_layer():
+    assert {layer(name) for name in graph()} <= set(RANK)
+
+
+def test_no_cycle_between_files():
+    assert cycle(graph()) is None
+
+
+def test_no_cycle_between_packages_and_no_import_from_a_layer_above():
+    packages = {}
+    for name, targets in graph().items():
+        for target in targets:
+            a, b = layer(name), layer(target)
+            if a != b:
+                packages.setdefault(a, set()).add(b)
+                assert RANK[b] <= RANK[a], f"{name} imports {target}, from a layer above it"
+    assert cycle(packages) is None
+
+
+@pytest.mark.parametrize("edges, expected", [({"a": {"b"}, "b": {"c"}, "c": {"a"}}, ["a", "b", "c", "a"]),
+                                             ({"a": {"b"}, "b": set()}, None)])
+def test_the_cycle_finder_finds_cycles(edges, expected):
+    assert cycle(edges) == expected
