@@ -1,8 +1,10 @@
 """CSV data bound to a model by column name: read measured sequences (also row by row from a
 stream, for on-line monitoring) and write result tables.
 
-Columns named after the model's outputs and inputs are used; `time` and `mode` (the true mode
-names) are optional; any other column is ignored. An empty cell (or NA / NaN) is a missing value:
+Columns named after the model's outputs and inputs are used; `time` (seconds) or `datetime` (ISO
+time stamps), `mode` (the true mode names) and 0/1 `anomaly` / `changepoint` labels are optional;
+any other column is ignored. Cells are separated by commas, or by semicolons when the header line
+has semicolons and no commas (as many loggers write). An empty cell (or NA / NaN) is a missing value:
 an output that was not measured, or an input that takes its default. Every problem is a DataError
 naming the file, the CSV line and the column.
 """
@@ -13,6 +15,7 @@ import csv
 import math
 import sys
 from dataclasses import dataclass, field
+from datetime import datetime, timezone
 from typing import Iterator
 
 import numpy as np
@@ -54,13 +57,15 @@ class Columns:
 
 @dataclass(frozen=True)
 class Row:
-    """One data row: its CSV line, the optional time and true mode index, outputs and inputs."""
+    """One data row: its CSV line, the optional time, outputs and inputs, and the labels it carries."""
 
     line: int
-    time: float | None
+    time: float | None  # seconds (from a `datetime` column: seconds since 1970, UTC)
     y: np.ndarray  # (ny,), NaN where not measured
     u: np.ndarray  # (nu,), NaN where the default applies
-    mode: int | None
+    mode: int | None  # true mode index
+    anomaly: int | None = None  # 0/1 label
+    changepoint: int | None = None  # 0/1 label
 
 
 @dataclass(frozen=True)
@@ -72,6 +77,8 @@ class Data:
     u: np.ndarray  # (T, nu), defaults filled in
     modes: np.ndarray | None  # (T,) true mode indices
     source: str
+    anomaly: np.ndarray | None = None  # (T,) 0/1 labels
+    changepoint: np.ndarray | None = None  # (T,) 0/1 labels
 
 
 def open_source(path):
@@ -95,10 +102,39 @@ def open_target(path):
 
 
 def _records(stream):
-    """(line number, cells) for each line that is neither blank nor a # comment, read one at a time."""
+    """(line number, cells) for each line that is neither blank nor a # comment, read one at a time;
+    the separator is chosen on the first such line (the header)."""
+    delimiter = None
     for number, line in enumerate(iter(stream.readline, ""), start=1):
         if line.strip() and not line.lstrip().startswith("#"):
-            yield number, next(csv.reader([line]))
+            if delimiter is None:
+                delimiter = ";" if ";" in line and "," not in line else ","
+            yield number, next(csv.reader([line], delimiter=delimiter))
+
+
+def _timestamp(cells, col, where):
+    """Seconds since 1970 (UTC) from an ISO time stamp cell; None when the column is absent."""
+    if col is None:
+        return None
+    text = cells[col].strip() if col < len(cells) else ""
+    try:
+        stamp = datetime.fromisoformat(text)
+    except ValueError:
+        raise DataError(f"{where}: column 'datetime': {text!r} is not an ISO time stamp "
+                        "(such as 2020-03-09 10:14:33)") from None
+    if stamp.tzinfo is None:
+        stamp = stamp.replace(tzinfo=timezone.utc)
+    return stamp.timestamp()
+
+
+def _label(cells, col, name, where):
+    """A 0/1 label cell (None when the column is absent or the cell is missing)."""
+    value = _number(cells, col, name, where)
+    if math.isnan(value):
+        return None
+    if value not in (0.0, 1.0):
+        raise DataError(f"{where}: column {name!r}: {cells[col].strip()!r} is not a 0/1 label")
+    return int(value)
 
 
 def _number(cells, col, name, where):
@@ -144,7 +180,8 @@ def iter_rows(stream, model, source="<data>", outputs=True) -> Iterator[Row]:
 
     y_cols = [column(n, outputs) for n in model.outputs]
     u_cols = [column(n, math.isnan(d)) for n, d in zip(model.inputs, model.input_defaults)]
-    t_col, mode_col = column("time", False), column("mode", False)
+    t_col, stamp_col, mode_col = column("time", False), column("datetime", False), column("mode", False)
+    anomaly_col, change_col = column("anomaly", False), column("changepoint", False)
     defaults = model.input_defaults
 
     for line, cells in records:
@@ -155,7 +192,7 @@ def iter_rows(stream, model, source="<data>", outputs=True) -> Iterator[Row]:
         if lacking.any():
             name = model.inputs[int(np.argmax(lacking))]
             raise DataError(f"{where}: column {name!r}: missing value and the input has no default")
-        time = None if t_col is None else _number(cells, t_col, "time", where)
+        time = _timestamp(cells, stamp_col, where) if t_col is None else _number(cells, t_col, "time", where)
         mode = None
         if mode_col is not None:
             name = cells[mode_col].strip() if mode_col < len(cells) else ""
@@ -163,7 +200,8 @@ def iter_rows(stream, model, source="<data>", outputs=True) -> Iterator[Row]:
                 raise DataError(f"{where}: column 'mode': unknown mode {name!r}; modes are "
                                 f"{', '.join(model.modes)}{suggest(name, model.modes)}")
             mode = model.modes.index(name)
-        yield Row(line, time, y, np.where(np.isnan(u), defaults, u), mode)
+        yield Row(line, time, y, np.where(np.isnan(u), defaults, u), mode,
+                  _label(cells, anomaly_col, "anomaly", where), _label(cells, change_col, "changepoint", where))
 
 
 def read_csv(path, model, outputs=True) -> Data:
@@ -179,12 +217,13 @@ def read_csv(path, model, outputs=True) -> Data:
             stream.close()
     if not rows:
         raise DataError(f"{source}: no data rows")
-    has_time = rows[0].time is not None
-    has_modes = rows[0].mode is not None
-    return Data(time=np.array([r.time for r in rows]) if has_time else None,
-                y=np.array([r.y for r in rows]).reshape(len(rows), model.ny),
-                u=np.array([r.u for r in rows]).reshape(len(rows), model.nu),
-                modes=np.array([r.mode for r in rows]) if has_modes else None, source=source)
+    def labels(name):
+        values = [getattr(r, name) for r in rows]
+        return None if values[0] is None else np.array(values)
+
+    return Data(time=labels("time"), y=np.array([r.y for r in rows]).reshape(len(rows), model.ny),
+                u=np.array([r.u for r in rows]).reshape(len(rows), model.nu), modes=labels("mode"),
+                source=source, anomaly=labels("anomaly"), changepoint=labels("changepoint"))
 
 
 def format_cell(value) -> str:
