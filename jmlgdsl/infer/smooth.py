@@ -28,6 +28,7 @@ from . import kalman
 # Exact smoothing keeps every history's Kalman statistics at every step: up to twice this many
 # Gaussians in memory, and as many small Rauch-Tung-Striebel steps per smoothed row.
 MAX_HISTORIES = 1_000_000
+_LOG_FLOOR = np.finfo(float).min  # below every finite log-probability
 
 
 class SmoothError(JmlgError, ValueError):
@@ -45,12 +46,13 @@ class Smoothed:
 
 # ----------------------------------------------------------------------------- shared pieces
 def _t(M):
-    return np.swapaxes(M, -1, -2)
+    """Transpose over the last two axes."""
+    return M.swapaxes(-1, -2)
 
 
 def _symmetrize(S):
     """(S + S') / 2 over the last two axes."""
-    return 0.5 * (S + _t(S))
+    return 0.5 * (S + S.swapaxes(-1, -2))
 
 
 def _check(model, y, u, lag):
@@ -74,8 +76,7 @@ def _offsets(model, u):
 
 def _log_normalize(logw, axis=-1):
     """Log-weights shifted so that their exponentials sum to one along `axis` (logsumexp)."""
-    top = np.max(logw, axis=axis, keepdims=True)
-    return logw - (top + np.log(np.exp(logw - top).sum(axis=axis, keepdims=True)))
+    return logw - np.logaddexp.reduce(logw, axis=axis, keepdims=True)
 
 
 def _mixture(w, means, covs):
@@ -222,42 +223,50 @@ def smooth_imm(model, y, u, lag=None) -> Smoothed:
 def _imm_forward(model, y, b, c) -> _ModeGaussians:
     """The IMM filter's per-mode output at every step: log p(z_t | y_1:t) and filtered moments."""
     T, K = len(y), model.K
-    C, c, R, y = _measured(model, y, c)
+    C, R, target = _measured(model, y, c)
     out = _ModeGaussians(np.empty((T, K)), np.empty((T, K, model.nx)), np.empty((T, K, model.nx, model.nx)))
     with np.errstate(divide="ignore"):
         log_mu = np.log(model.p0)
     mean, cov = model.mu0, np.broadcast_to(model.Sigma0, (K,) + model.Sigma0.shape)
     for t in range(T):
-        joint = log_mu[:, None] + model.logP
-        log_pred = np.logaddexp.reduce(joint, axis=0)
-        mix = np.exp(_log_ratio(joint, log_pred))  # p(z_t-1 = i | z_t = j, y_1:t-1)
-        mean, cov = kalman.predict(*_mixture(mix.T, mean, cov), model.A, b[t], model.Q)
-        mean, cov, ll = _update(mean, cov, C[t], c[t], R[t], y[t])
+        log_pred, mean, cov = _imm_mix(model.logP, log_mu, mean, cov)
+        mean, cov = kalman.predict(mean, cov, model.A, b[t], model.Q)
+        mean, cov, ll = _update(mean, cov, C[t], R[t], target[t])
         log_mu = _log_normalize(log_pred + ll)
         out.log_w[t], out.mean[t], out.cov[t] = log_mu, mean, cov
     return out
 
 
+def _imm_mix(logP, log_mu, mean, cov):
+    """IMM's interaction: log p(z_t = j | y_1:t-1) and each mode's moment-matched prior, the
+    mixture of the filtered modes i weighted by p(z_t-1 = i | z_t = j, y_1:t-1)."""
+    joint = log_mu[:, None] + logP
+    log_pred = np.logaddexp.reduce(joint, axis=0)
+    mix = np.exp(_log_ratio(joint, log_pred)).T  # (j, i)
+    mixed = mix @ mean
+    d = mean - mixed[:, None]
+    return log_pred, mixed, np.einsum("ji,iab->jab", mix, cov) + np.einsum("ji,jia,jib->jab", mix, d, d)
+
+
 def _measured(model, y, c):
-    """(C, c, R, y) per step (T, K, ...) that leave unmeasured outputs out of the update: their rows
-    of C, c and y are zero and R gives them unit variance uncorrelated with the rest, so each adds a
-    zero residual with no gain and the same factor N(0; 0, 1) to every mode's likelihood."""
+    """(C, R, y - c) per step (T, K, ...) that leave unmeasured outputs out of the update: their rows
+    of C and y - c are zero and R gives them unit variance uncorrelated with the rest, so each adds
+    a zero residual with no gain and the same factor N(0; 0, 1) to every mode's likelihood."""
     miss = np.isnan(y)
     C = np.where(miss[:, None, :, None], 0.0, model.C)
-    both = miss[:, None, :, None] | miss[:, None, None, :]
-    R = np.where(both, np.eye(model.ny), model.R)
-    return C, np.where(miss[:, None], 0.0, c), R, np.where(miss, 0.0, y)
+    R = np.where(miss[:, None, :, None] | miss[:, None, None, :], np.eye(model.ny), model.R)
+    return C, R, np.where(miss[:, None], 0.0, y[:, None] - c)
 
 
-def _update(mean_p, cov_p, C, c, R, y):
+def _update(mean_p, cov_p, C, R, target):
     """Measurement update of each mode's prediction and log p(y | mode, past), through the inverse
-    Cholesky factor of the innovation covariance."""
+    Cholesky factor of the innovation covariance; `target` is y minus the output offset."""
     CS = C @ cov_p
-    Linv, logdet = kalman.inverse_cholesky(CS @ _t(C) + R)
-    z = np.einsum("kab,kb->ka", Linv, y - c - np.einsum("kab,kb->ka", C, mean_p))
-    W = Linv @ CS  # the gain is W' Linv
-    mean = mean_p + np.einsum("kab,ka->kb", W, z)
-    return mean, _symmetrize(cov_p - _t(W) @ W), kalman.whitened_log_normal(z, logdet)
+    Linv = np.linalg.inv(np.linalg.cholesky(CS @ _t(C) + R))
+    z = (Linv @ (target - (C @ mean_p[..., None])[..., 0])[..., None])[..., 0]
+    Wt = _t(Linv @ CS)  # the gain is Wt Linv
+    ll = kalman.whitened_log_normal(z, -2.0 * np.log(np.diagonal(Linv, axis1=-2, axis2=-1)).sum(-1))
+    return mean_p + (Wt @ z[..., None])[..., 0], _symmetrize(cov_p - Wt @ _t(Wt)), ll
 
 
 def _kim_pairs(model, fwd: _ModeGaussians, b) -> _Pairs:
@@ -281,7 +290,7 @@ def _kim_modes(logP, log_filt, log_pred, log_next):
 
 def _log_ratio(log_a, log_b):
     """log(a / b) where b = 0 implies a = 0: an impossible event stays impossible (-inf, not NaN)."""
-    return log_a - np.maximum(log_b, np.finfo(float).min)
+    return log_a - np.maximum(log_b, _LOG_FLOOR)
 
 
 def _kim_step(logP, filt: _ModeGaussians, pairs: _Pairs, nxt: _ModeGaussians) -> _ModeGaussians:
