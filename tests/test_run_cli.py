@@ -35,7 +35,7 @@ def test_run_prints_a_diagnosis(files, capsys, tmp_path):
     table = list(csv.DictReader(out.open()))
     assert len(table) == 1000
     assert list(table[0]) == ["t", "time", "map_mode", "p_normal", "p_fan", "p_grill", "p_fan_grill",
-                              "x_mean", "temp_pred", "temp_resid", "ess"]
+                              "x_mean", "temp_pred", "temp_resid", "ess", "alarm"]
     assert table[100]["map_mode"] == "fan"
     probs = [float(table[5][f"p_{m}"]) for m in ("normal", "fan", "grill", "fan_grill")]
     assert sum(probs) == pytest.approx(1.0, abs=1e-8)

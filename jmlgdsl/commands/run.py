@@ -7,6 +7,7 @@ the same path; with a stream every output row is flushed as soon as it is comput
 from __future__ import annotations
 
 import sys
+from array import array
 
 MAX_SEGMENTS = 30
 
@@ -20,8 +21,12 @@ def register(subparsers):
         description="Filter measured data through a plant model: the most probable mode and the "
                     "probability of every mode at each time step, state estimates, predicted "
                     "outputs and residuals. Data columns are bound to the spec's inputs and outputs "
-                    "by name; an optional 'mode' column with the true mode names adds the diagnosis "
-                    "error to the summary.")
+                    "by name. Every row also gets an alarm (0/1) from the alarm rule: P(not healthy) "
+                    "above --threshold for --persistence steps in a row. When the data carry the "
+                    "truth (a 'mode' column of true mode names, or 0/1 'anomaly' and 'changepoint' "
+                    "columns) the summary adds the diagnosis error, the confusion matrix and the "
+                    "detection metrics: detection rate, FAR, MAR, F1, detection delay, false alarms "
+                    "per hour and the NAB scores.")
     p.add_argument("spec", help="plant spec (.jmlg) or compiled model (.json/.npz)")
     p.add_argument("data", help="CSV data file, or - to read rows from standard input as they arrive")
     p.add_argument("--filter", default=DEFAULT_ALGORITHM, choices=list(ALGORITHMS),
@@ -35,16 +40,69 @@ def register(subparsers):
     p.add_argument("--plot", metavar="FILE.png",
                    help="draw the mode posterior over time, the MAP and true modes, and measured vs "
                         "predicted outputs with residuals")
+    alarm = p.add_argument_group("alarm rule")
+    alarm.add_argument("--healthy", metavar="MODE[,MODE...]",
+                       help="the modes that raise no alarm (default: the first mode of the spec)")
+    alarm.add_argument("--threshold", type=float, default=0.5,
+                       help="alarm when P(not healthy) is above this (default 0.5)")
+    alarm.add_argument("--persistence", type=int, default=1, metavar="K",
+                       help="... at K consecutive steps; the alarm starts on the K-th (default 1)")
     p.add_argument("--prefilter", metavar="ma:K",
                    help="causal moving average over the last K readings before filtering, for very noisy "
                         "signals (the filter then predicts the averaged signal)")
     p.set_defaults(func=main)
 
 
+def alarm_rule(args, model):
+    """The alarm rule the options describe; the first mode is the healthy one unless named."""
+    from ..alarms import AlarmRule
+
+    healthy = [m.strip() for m in args.healthy.split(",")] if args.healthy else [model.modes[0]]
+    rule = AlarmRule(tuple(healthy), args.threshold, args.persistence)
+    rule.faulty_modes(model.modes)  # unknown names are an error before any data are read
+    return rule
+
+
+class Labelled:
+    """What the detection metrics need, kept row by row at a few bytes a row: the alarms, the 0/1
+    truth (from an 'anomaly' column, else from the true mode), the true change points and the time."""
+
+    def __init__(self, rule, model):
+        self.rule, self.model = rule, model
+        self.alarm, self.anomaly, self.changepoint = bytearray(), bytearray(), bytearray()
+        self.time = array("d")
+        self.has_anomaly = self.has_changepoint = True
+
+    def add(self, row, alarm, t):
+        self.alarm.append(alarm)
+        self.time.append(row.time if row.time is not None else t * self.model.dt)
+        anomaly = row.anomaly
+        if anomaly is None and row.mode is not None:
+            anomaly = int(self.rule.truth([row.mode], self.model.modes)[0])
+        self.has_anomaly &= anomaly is not None
+        self.has_changepoint &= row.changepoint is not None
+        self.anomaly.append(anomaly or 0)
+        self.changepoint.append(row.changepoint or 0)
+
+    def scores(self):
+        """The detection scores, or None when the data carry no truth."""
+        import numpy as np
+
+        from .. import metrics
+
+        if not self.has_anomaly or not self.alarm:
+            return None
+        anomaly = np.frombuffer(self.anomaly, dtype=np.uint8)
+        changepoint = (np.frombuffer(self.changepoint, dtype=np.uint8) if self.has_changepoint
+                       else metrics.changepoints(anomaly))
+        return metrics.score(np.frombuffer(self.alarm, dtype=np.uint8), anomaly, np.array(self.time), changepoint)
+
+
 def diagnose(args, on_step=None):
     """Filter the data named in args row by row, writing the result table if asked.
 
-    Returns the Summary and the Filter; `on_step(step, row)` sees every step (to keep them for a figure).
+    Returns the Summary, the Filter, the alarm rule and the labels; `on_step(step, row)` sees every
+    step (to keep them for a figure).
     """
     import jmlgdsl
 
@@ -58,11 +116,12 @@ def diagnose(args, on_step=None):
     window = parse(args.prefilter)
     smooth = MovingAverage(window) if window else None
     model = jmlgdsl.load(args.spec)
+    rule = alarm_rule(args, model)
     streaming = args.data == "-"
     source = "<stdin>" if streaming else args.data
     f = Filter(model, algorithm=args.filter, particles=args.particles, seed=args.seed,
                resampling=args.resampling, ess_threshold=args.ess_threshold)
-    summary = Summary(max_segments=MAX_SEGMENTS)
+    summary, alarms, labelled = Summary(max_segments=MAX_SEGMENTS), rule.stream(model.modes), Labelled(rule, model)
     stream = open_source(args.data)
     out = writer = None
     try:
@@ -70,12 +129,14 @@ def diagnose(args, on_step=None):
             out = open_target(args.output)
         for row in iter_rows(stream, model, source):
             step = f.step(row.y if smooth is None else smooth(row.y), row.u)
+            alarm = alarms.step(step.mode_posterior)
             summary.add(step, row.mode)
+            labelled.add(row, alarm, step.t)
             if on_step is not None:
                 on_step(step, row)
             if out is not None:
                 writer = writer or TableWriter(out, model, row.time is not None, flush=streaming)
-                writer.write(step, row.time)
+                writer.write(step, row.time, alarm)
     finally:
         if stream is not sys.stdin:
             stream.close()
@@ -83,11 +144,12 @@ def diagnose(args, on_step=None):
             out.close()
     if not summary.T:
         raise DataError(f"{source}: no data rows")
-    return summary, f
+    return summary, f, rule, labelled
 
 
-def report(summary, f) -> str:
-    """The terminal report: mode segments, the diagnosis error when the truth is known, fit and speed."""
+def report(summary, f, rule=None, labelled=None) -> str:
+    """The terminal report: mode segments, the diagnosis error when the truth is known, the alarms and
+    their detection metrics, fit and speed."""
     model = f.model
     who = f"{f.algorithm}" + (f" with {f.particles} particles" if f.particles else "")
     lines = [f"{model.name}: {summary.T} steps, filter {who}", "mode segments (most probable mode):"]
@@ -98,19 +160,54 @@ def report(summary, f) -> str:
         lines.append(f"  \u2026 {summary.more_segments} more segments (see the output CSV)")
     if summary.labelled:
         lines.append(f"diagnosis error: {summary.diagnosis_error:.2f} % ({summary.wrong} of {summary.labelled} steps)")
+        lines += confusion_report(model.modes, summary.confusion)
+    if rule is not None:
+        lines += alarm_report(rule, labelled)
     lines.append(f"log-likelihood: {summary.loglik:.2f}")
     lines.append(f"time per step: {1e3 * f.seconds / summary.T:.3f} ms")
     return "\n".join(lines)
+
+
+def confusion_report(modes, confusion) -> list[str]:
+    """The confusion matrix as text: a row per true mode, a column per diagnosed mode (steps)."""
+    width = max(6, *(len(m) for m in modes), len(str(int(confusion.max()))))
+    lines = ["confusion (rows: true mode, columns: diagnosed mode, steps):",
+             "  " + " " * width + " " + " ".join(f"{m:>{width}}" for m in modes)]
+    lines += [f"  {m:>{width}} " + " ".join(f"{int(c):>{width}}" for c in row) for m, row in zip(modes, confusion)]
+    return lines
+
+
+def alarm_report(rule, labelled) -> list[str]:
+    """Lines on the alarms raised and, against the truth in the data, how well they detect."""
+    import numpy as np
+
+    from ..metrics import runs
+
+    raised = runs(np.frombuffer(labelled.alarm, dtype=np.uint8))
+    lines = [f"alarms (healthy: {', '.join(rule.healthy)}; P(not healthy) > {rule.threshold:g} for "
+             f"{rule.persistence} step{'s' if rule.persistence > 1 else ''}): {len(raised)} raised"]
+    scores = labelled.scores()
+    if scores is None:
+        return lines
+    o, e, nab = scores.outlier, scores.events, scores.nab
+    lines += [
+        f"detection: {e.detected} of {e.episodes} anomaly episodes ({e.detection_rate:.1f} %), delay mean "
+        f"{e.mean_delay:.1f} s, median {e.median_delay:.1f} s; {e.false_alarms} false alarms "
+        f"({e.false_alarms_per_hour:.2f} per hour)",
+        f"rows: F1 {o.f1:.3f}, false-alarm rate {o.far:.2f} %, missed-alarm rate {o.mar:.2f} %",
+        f"NAB ({nab.windows} change points): standard {nab.score('standard'):.2f}, low FP "
+        f"{nab.score('lowfp'):.2f}, low FN {nab.score('lowfn'):.2f}"]
+    return lines
 
 
 def main(args) -> int:
     import numpy as np
 
     steps, truth = [], []
-    summary, f = diagnose(args, (lambda step, row: (steps.append(step), truth.append(row.mode)))
-                          if args.plot else None)
+    summary, f, rule, labelled = diagnose(args, (lambda step, row: (steps.append(step), truth.append(row.mode)))
+                                          if args.plot else None)
     out = sys.stderr if args.output == "-" else sys.stdout
-    print(report(summary, f), file=out)
+    print(report(summary, f, rule, labelled), file=out)
     if args.plot:
         from ..infer import Result
         from ..plots import result_figure

@@ -85,8 +85,8 @@ class Result:
 @dataclass
 class Summary:
     """A run's figures, gathered one step at a time in constant memory: the segments of one MAP mode
-    (the first `max_segments` kept, the rest counted), the number of wrongly diagnosed steps where
-    the true mode is known, the log-likelihood and the time spent."""
+    (the first `max_segments` kept, the rest counted), where the true mode is known the wrongly
+    diagnosed steps and the confusion matrix, and the log-likelihood."""
 
     max_segments: int = 30
     T: int = 0
@@ -96,6 +96,7 @@ class Summary:
     labelled: int = 0  # steps with a known true mode
     wrong: int = 0  # of those, steps whose MAP mode is not the true one
     current: int = -1  # the MAP mode of the last step
+    confusion: np.ndarray | None = None  # (K, K) steps with true mode i diagnosed as j, once labelled
 
     def add(self, step: Step, true_mode: int | None = None):
         """Count one step (and its true mode index, when known)."""
@@ -103,6 +104,10 @@ class Summary:
         self.T = step.t
         self.loglik += step.loglik
         if true_mode is not None:
+            if self.confusion is None:
+                K = len(step.mode_posterior)
+                self.confusion = np.zeros((K, K), dtype=np.int64)
+            self.confusion[true_mode, k] += 1
             self.labelled += 1
             self.wrong += int(k != true_mode)
         if k != self.current:

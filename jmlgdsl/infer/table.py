@@ -1,7 +1,8 @@
 """The result table: the one CSV layout for per-step results, written by `run -o`, read by `plot`.
 
 Columns, in order: `t`, `time` (when the data had one), `map_mode`, `p_<mode>` for every mode,
-`<state>_mean`, `<output>_pred`, `<output>_resid`, `ess`. Rows are written as they are computed, so
+`<state>_mean`, `<output>_pred`, `<output>_resid`, `ess`, and `alarm` (0/1) when an alarm rule
+was applied. Rows are written as they are computed, so
 a stream is written on-line.
 """
 
@@ -19,36 +20,37 @@ from ..model import Model
 from .result import Result, Step
 
 
-def columns(model: Model, with_time: bool) -> list[str]:
+def columns(model: Model, with_time: bool, with_alarm: bool = True) -> list[str]:
     """The header of the result table."""
     return (["t"] + (["time"] if with_time else []) + ["map_mode"] + [f"p_{m}" for m in model.modes]
             + [f"{s}_mean" for s in model.states] + [f"{o}_pred" for o in model.outputs]
-            + [f"{o}_resid" for o in model.outputs] + ["ess"])
+            + [f"{o}_resid" for o in model.outputs] + ["ess"] + (["alarm"] if with_alarm else []))
 
 
 class TableWriter:
     """Writes result rows to a text stream; with flush=True each row reaches the reader at once."""
 
-    def __init__(self, stream, model: Model, with_time: bool, flush: bool = False):
-        self.model, self.with_time = model, with_time
-        self._writer = CsvWriter(stream, columns(model, with_time), flush)
+    def __init__(self, stream, model: Model, with_time: bool, flush: bool = False, with_alarm: bool = True):
+        self.model, self.with_time, self.with_alarm = model, with_time, with_alarm
+        self._writer = CsvWriter(stream, columns(model, with_time, with_alarm), flush)
 
-    def write(self, step: Step, time: float | None = None):
-        """One row: a filter step and, when the table has a time column, the data row's time."""
+    def write(self, step: Step, time: float | None = None, alarm: int | None = None):
+        """One row: a filter step and, when the table has those columns, the data row's time and the alarm."""
         self._writer.write([step.t] + ([time] if self.with_time else []) + [self.model.modes[step.map_mode]]
                            + list(step.mode_posterior) + list(step.state_mean) + list(step.y_pred)
-                           + list(step.residual) + [step.ess])
+                           + list(step.residual) + [step.ess] + ([alarm] if self.with_alarm else []))
 
 
-def write_result(path, result: Result, time=None):
-    """Write a whole Result as a result table ('-' = standard output); `time` (T,) adds the time column."""
+def write_result(path, result: Result, time=None, alarm=None):
+    """Write a whole Result as a result table ('-' = standard output); `time` (T,) adds the time
+    column and `alarm` (T,) 0/1 the alarm column."""
     stream = open_target(path)
     try:
-        writer = TableWriter(stream, result.model, time is not None)
+        writer = TableWriter(stream, result.model, time is not None, with_alarm=alarm is not None)
         for i in range(result.T):
             step = Step(i + 1, result.mode_posterior[i], result.state_mean[i], result.state_cov[i],
                         result.y_pred[i], result.residuals[i], result.loglik_steps[i], result.ess[i])
-            writer.write(step, None if time is None else time[i])
+            writer.write(step, None if time is None else time[i], None if alarm is None else int(alarm[i]))
     finally:
         if stream is not sys.stdout:
             stream.close()
