@@ -10,7 +10,10 @@ p(z_t | y_1:min(T, t+L)), with the matching mixture moments of x_t.
   filter: that one starts from a diffuse prior in information form and runs the dynamics
   backwards, which is awkward with the inputs, singular A and singular noise of compiled specs.
   Kim's pass is a few batched K x K small-matrix operations per step, the fixed-lag form
-  batches every window into one pass, and lag 0 is the filter itself.
+  batches every window into one pass, and lag 0 is the filter itself. Its approximation takes
+  p(z_t | z_t+1, y_1:T) to be p(z_t | z_t+1, y_1:t): what later outputs say, through the state,
+  about when a switch happened is lost. On the published plants that costs little (see the
+  tests); on plants whose modes differ only in hidden dynamics it can cost much.
 
 Inputs are arrays: y (T, ny) with NaN for unmeasured entries, u (T, nu) already resolved. Row t
 (0-based) is time t+1; a missing output is left out of the update, never out of the prediction.
