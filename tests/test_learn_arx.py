@@ -1,4 +1,7 @@
-"""ARX least squares: exact coefficients, the covariance formula, order selection, state-space form."""
+"""ARX least squares: exact coefficients, the covariance formula, several outputs, order
+selection, and the lagged form it hands to EM."""
+
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -6,8 +9,8 @@ import pytest
 from jmlgdsl.errors import DataError
 from jmlgdsl.learn import arx
 
-A_TRUE = np.array([-1.2, 0.5])          # y_t - 1.2 y_{t-1} + 0.5 y_{t-2}
-B_TRUE = np.array([[0.8], [0.3]])       # 0.8 u_{t-1} + 0.3 u_{t-2}  (nk = 1)
+PHI_TRUE = np.array([1.2, -0.5])        # y_t = 1.2 y_{t-1} - 0.5 y_{t-2}
+PSI_TRUE = np.array([0.8, 0.3])         #     + 0.8 u_{t-1} + 0.3 u_{t-2}  (nk = 1)
 C_TRUE = 0.4
 
 
@@ -16,17 +19,14 @@ def arx_data(T=800, noise=0.0, seed=0):
     u = rng.choice([-1.0, 1.0], size=(T, 1))
     y = np.zeros(T)
     for t in range(2, T):
-        y[t] = (-A_TRUE @ y[t - 2:t][::-1] + B_TRUE[:, 0] @ u[t - 2:t, 0][::-1] + C_TRUE
-                + noise * rng.standard_normal())
+        y[t] = PHI_TRUE @ y[t - 2:t][::-1] + PSI_TRUE @ u[t - 2:t, 0][::-1] + C_TRUE + noise * rng.standard_normal()
     return y, u
 
 
 def test_noise_free_coefficients_are_exact():
     y, u = arx_data()
     fit = arx.fit(y, u, 2, 2, 1)
-    assert np.allclose(fit.a, A_TRUE, atol=1e-10)
-    assert np.allclose(fit.b, B_TRUE, atol=1e-10)
-    assert fit.c == pytest.approx(C_TRUE, abs=1e-10)
+    assert np.allclose(fit.theta[:, 0], np.r_[PHI_TRUE, PSI_TRUE, C_TRUE], atol=1e-10)
     assert fit.order == (2, 2, 1)
 
 
@@ -34,12 +34,36 @@ def test_covariance_is_sigma2_times_inverse_gram_and_errors_are_within_it():
     y, u = arx_data(noise=0.1, seed=1)
     fit = arx.fit(y, u, 2, 2, 1)
     rows = np.arange(2, len(y))
-    X = np.column_stack([-y[rows - 1], -y[rows - 2], u[rows - 1, 0], u[rows - 2, 0], np.ones(len(rows))])
-    assert np.allclose(fit.cov, fit.sigma2 * np.linalg.inv(X.T @ X), rtol=1e-8)
-    theta = np.r_[fit.a, fit.b.ravel(), fit.c]
-    z = (theta - np.r_[A_TRUE, B_TRUE.ravel(), C_TRUE]) / np.sqrt(np.diag(fit.cov))
+    X = np.column_stack([y[rows - 1], y[rows - 2], u[rows - 1, 0], u[rows - 2, 0], np.ones(len(rows))])
+    assert np.allclose(fit.cov, fit.noise[0, 0] * np.linalg.inv(X.T @ X), rtol=1e-8)
+    z = (fit.theta[:, 0] - np.r_[PHI_TRUE, PSI_TRUE, C_TRUE]) / np.sqrt(np.diag(fit.cov))
     assert np.abs(z).max() < 4  # five estimates, each N(0,1) in large samples
-    assert fit.sigma2 == pytest.approx(0.01, rel=4 * np.sqrt(2 / fit.n))
+    assert fit.noise[0, 0] == pytest.approx(0.01, rel=4 * np.sqrt(2 / fit.n))
+
+
+def test_several_outputs_share_one_factor_and_fit_a_var():
+    """A two-output VAR(1) with cross-coupling, correlated noise and one input: the coefficients
+    within 4 standard errors (from the Kronecker covariance) and the noise covariance within 4 of
+    its own (each entry's standard error is about sqrt((s_ii s_jj + s_ij^2) / N))."""
+    rng = np.random.default_rng(5)
+    Phi = np.array([[0.7, 0.2], [-0.1, 0.5]])
+    Psi = np.array([[1.0], [0.3]])
+    c = np.array([0.5, -1.0])
+    L = np.linalg.cholesky(np.array([[0.04, 0.015], [0.015, 0.09]]))
+    T = 3000
+    u = rng.choice([-1.0, 1.0], size=(T, 1))
+    y = np.zeros((T, 2))
+    for t in range(1, T):
+        y[t] = Phi @ y[t - 1] + Psi @ u[t] + c + L @ rng.standard_normal(2)
+    fit = arx.fit(y, u, 1, 1, 0)
+    truth = np.vstack([Phi.T, Psi.T, c])
+    z = (fit.theta.T.ravel() - truth.T.ravel()) / np.sqrt(np.diag(fit.cov))
+    assert np.abs(z).max() < 4
+    S = L @ L.T
+    se = np.sqrt((np.outer(np.diag(S), np.diag(S)) + S ** 2) / fit.n)
+    assert np.all(np.abs(fit.noise - S) < 4 * se)
+    mode = fit.lagged()
+    assert np.allclose(mode.Phi, Phi, atol=0.05) and np.allclose(mode.Q + mode.R, fit.noise)
 
 
 def test_bic_finds_the_true_order():
@@ -49,20 +73,25 @@ def test_bic_finds_the_true_order():
         arx.select_order([(y, u)], criterion="r2")
 
 
-def test_observer_form_has_the_arx_impulse_response():
+def test_lagged_form_has_the_arx_impulse_response():
+    """In the lagged basis of order max(na, nk + nb) = 3 the state holds 3 output lags and 2 input
+    lags, and the noise-free realisation has the difference equation's impulse response."""
     y, u = arx_data(noise=0.05, seed=4)
     fit = arx.fit(y, u, 2, 2, 1)
-    ss = fit.to_statespace(u0=[0.0], y0=0.0)
-    assert np.allclose(ss.C, [[1, 0, 0]]) and ss.nx == 3
+    mode = fit.lagged()
+    assert mode.n == 3 and np.array_equal(mode.Psi[0, :1], [0.0])
+    ss = replace(mode, c=np.zeros(1), mu0=np.zeros(3), Sigma0=np.zeros((3, 3))).statespace([0.0])
+    assert np.array_equal(ss.C, [[1, 0, 0, 0, 0]])
     impulse = np.zeros((12, 1))
     impulse[0] = 1.0
-    h = ss.replace(f=np.zeros(3), mu0=np.zeros(3)).free_run(impulse)[:, 0]
+    h = ss.free_run(impulse)[:, 0]
+    phi, psi = fit.theta[:2, 0], fit.theta[2:4, 0]
     g = np.zeros(12)  # the same impulse response from the difference equation
     for t in range(12):
-        g[t] = (-sum(fit.a[i] * g[t - 1 - i] for i in range(2) if t - 1 - i >= 0)
-                + sum(fit.b[j, 0] * impulse[t - 1 - j, 0] for j in range(2) if t - 1 - j >= 0))
+        g[t] = (sum(phi[i] * g[t - 1 - i] for i in range(2) if t - 1 - i >= 0)
+                + sum(psi[j] * impulse[t - 1 - j, 0] for j in range(2) if t - 1 - j >= 0))
     assert np.allclose(h, g, atol=1e-12)
-    assert ss.gain()[0, 0] == pytest.approx(fit.b.sum() / (1 + fit.a.sum()))
+    assert ss.gain()[0, 0] == pytest.approx(psi.sum() / (1 - phi.sum()))
 
 
 def test_equations_with_missing_values_are_left_out():
@@ -70,7 +99,7 @@ def test_equations_with_missing_values_are_left_out():
     y[[10, 300]] = np.nan  # each missing output spoils the three equations it appears in
     fit = arx.fit(y, u, 2, 2, 1)
     assert fit.n == len(y) - 2 - 6
-    assert np.allclose(fit.a, A_TRUE, atol=1e-10) and np.allclose(fit.b, B_TRUE, atol=1e-10)
+    assert np.allclose(fit.theta[:, 0], np.r_[PHI_TRUE, PSI_TRUE, C_TRUE], atol=1e-10)
 
 
 def test_too_little_data_is_a_data_error():

@@ -1,6 +1,7 @@
 """Spec -> simulate each mode under a PRBS -> learn -> the learned bank matches the truth within
 its standard errors and diagnoses nearly as well as the true bank; the `jmlgdsl learn` command."""
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -111,15 +112,15 @@ def test_learned_bank_diagnoses_nearly_as_well_as_the_true_bank(dryer, learned):
 
 def test_assembled_modes_start_at_their_steady_state_unless_they_integrate(learned):
     stable = learned[0]
-    integrating = bank.LearnedMode("tank", stable.experiment, "ARX(1,1,0)", stable.start,
-                                   bank.EMResult(stable.model.replace(A=np.eye(1)), stable.em.loglik, True), None)
+    integrating = replace(stable, name="tank", mode=replace(stable.mode, Phi=np.ones((1, 1))))
     model = bank.assemble([stable, integrating], P=np.eye(2), p0=[0.5, 0.5], operating_input=[15.0])
     assert model.mu0[0] == pytest.approx(stable.model.steady_state([15.0]))
-    assert model.mu0[1] == stable.model.mu0
+    assert model.mu0[1] == stable.mode.mu0
     m = stable.model
     stationary = m.Q[0, 0] / (1 - m.A[0, 0] ** 2)
     assert model.Sigma0[0, 0] == pytest.approx(stationary)  # the stable mode's spread is the wider
     assert np.allclose(model.B[:, 0, 0], np.sqrt(m.Q[0, 0])) and np.allclose(model.D[:, 0, 0], np.sqrt(m.R[0, 0]))
+    assert model.states == ("y1_lag1",)
 
 
 def test_default_transitions_stay_and_share_the_rest():
@@ -231,8 +232,10 @@ def test_cli_learn_without_template_writes_the_spec_to_standard_output(dryer, ex
     spec.write_text(captured.out)
     model = jmlgdsl.load(spec)
     assert model.nx == 1  # first order, as the plant is
-    assert model.name == "dryer2" and model.modes == tuple(paths)
-    assert np.allclose(model.P, [[0.95, 0.05], [0.05, 0.95]]) and np.allclose(model.p0, 0.5)
+    assert model.name == "dryer2" and model.modes == tuple(paths) and model.states == ("temp_lag1",)
+    assert np.allclose(model.P, [[0.95, 0.05], [0.05, 0.95]])
+    assert np.allclose(model.p0, [0.99, 0.01])  # the first mode is the healthy one
+    assert "initial     normal 0.99, otherwise uniform" in captured.out
 
 
 @pytest.mark.parametrize("argv, message", [

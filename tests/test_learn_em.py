@@ -1,7 +1,6 @@
 """EM for linear-Gaussian state space: the E-step against the joint Gaussian, the whole algorithm
 against pykalman, monotone log-likelihood, the safeguard, missing outputs, invariances."""
 
-import warnings
 
 import numpy as np
 import pytest
@@ -158,33 +157,3 @@ def test_a_falling_likelihood_keeps_the_last_good_parameters(monkeypatch):
     assert result.iterations == 2 and not result.converged
     assert_non_decreasing(result.loglik)
     assert result.loglik[-1] == pytest.approx(forward(result.model, y, u).loglik, rel=1e-12)
-
-
-def test_observer_form_changes_basis_not_likelihood():
-    rng = np.random.default_rng(RNG_SEED + 4)
-    truth = two_state_model()
-    one_output = truth.replace(C=truth.C[:1], G=truth.G[:1], g=truth.g[:1], R=truth.R[:1, :1])
-    u = rng.standard_normal((100, 1))
-    y = simulate(one_output, u, rng)
-    canonical = one_output.observer_form()
-    assert np.array_equal(canonical.C, [[1.0, 0.0]])
-    assert np.array_equal(canonical.A[:, 1], [1.0, 0.0])
-    assert np.allclose(np.sort_complex(canonical.poles()), np.sort_complex(one_output.poles()))
-    assert np.allclose(canonical.gain(), one_output.gain())
-    assert forward(canonical, y, u).loglik == pytest.approx(forward(one_output, y, u).loglik, rel=1e-10)
-    with warnings.catch_warnings():
-        warnings.simplefilter("error")
-        assert np.allclose(canonical.free_run(u), one_output.free_run(u))
-
-
-def test_a_state_the_output_cannot_see_keeps_its_basis():
-    """With A diagonal and C = [1 0] the second state never reaches the output: no observer form
-    exists, and the bank keeps the model as it is."""
-    from jmlgdsl.learn.bank import readable
-
-    hidden = two_state_model()
-    hidden = hidden.replace(A=np.diag([0.5, 0.8]), C=np.array([[1.0, 0.0]]), G=hidden.G[:1], g=hidden.g[:1],
-                            R=hidden.R[:1, :1])
-    with pytest.raises(np.linalg.LinAlgError, match="does not observe every state"):
-        hidden.observer_form()
-    assert readable(hidden) is hidden

@@ -1,4 +1,6 @@
-"""FOPDT step-test fit: exact recovery without noise, tolerance with noise, state-space form, errors."""
+"""FOPDT step-test fit: exact recovery without noise, tolerance with noise, lagged form, errors."""
+
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -40,20 +42,17 @@ def test_noisy_step_within_its_standard_errors():
     assert abs(fit.tau - 30.45) / 30.45 < 0.03
 
 
-def test_statespace_reproduces_the_fitted_response():
+def test_lagged_form_reproduces_the_fitted_response():
+    """The fit in the lagged basis is the FOPDT itself: one output lag and the input at the dead
+    time, order delay + 1, with the same response, gain and pole (and nothing else free for EM)."""
     y, u = step_data(delay=2, noise=0.02)
     fit = steptest.fit(y, u, max_delay=6)
-    ss = fit.to_statespace()
-    assert ss.nx == fit.delay + 1
+    mode = fit.lagged()
+    assert mode.n == fit.delay + 1 and mode.lags.free(1, 1).sum() == 3
+    ss = replace(mode, mu0=np.full(mode.n, fit.y0), Sigma0=np.zeros((mode.n, mode.n))).statespace([u[0]])
     assert np.allclose(ss.free_run(u[:, None])[:, 0], fit.response(len(y)), atol=1e-9)
     assert ss.gain()[0, 0] == pytest.approx(fit.gain)
-    assert ss.poles()[0] == pytest.approx(np.exp(-1.0 / fit.tau))
-
-
-def test_padding_to_more_states_keeps_the_response():
-    y, u = step_data(delay=0)
-    fit = steptest.fit(y, u, max_delay=3)
-    assert np.allclose(fit.to_statespace(4).free_run(u[:, None]), fit.to_statespace().free_run(u[:, None]))
+    assert mode.poles()[0] == pytest.approx(np.exp(-1.0 / fit.tau))
 
 
 def test_input_must_change_exactly_once():

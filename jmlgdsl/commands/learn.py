@@ -2,15 +2,41 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Columns:
+    """The names a bank being learned binds CSV columns by: what `data.read_csv` asks of a model."""
+
+    inputs: tuple[str, ...]
+    outputs: tuple[str, ...]
+    input_defaults: np.ndarray
+    modes: tuple[str, ...]
+
+    @property
+    def nu(self) -> int:
+        return len(self.inputs)
+
+    @property
+    def ny(self) -> int:
+        return len(self.outputs)
+
 
 def register(subparsers):
     p = subparsers.add_parser(
         "learn", help="learn a mode bank from one experiment per mode and write a .jmlg spec",
         description="Fit one linear-Gaussian model per mode: an ARX least-squares fit (or an FOPDT "
                     "fit of a step test) gives the structure and the start for EM, which learns the "
-                    "matrices and both noise levels. Every mode is validated (residual whiteness and "
-                    "input-residual correlation up to lag 25 with 99 % bands, free-run fit) and the "
-                    "bank is written as a readable, commented spec that 'jmlgdsl run' accepts.")
+                    "coefficients and both noise levels. Every mode is written over one shared state "
+                    "basis, the recent noise-free outputs and inputs, so the bank stays right when the "
+                    "plant switches. Every mode is validated (residual whiteness and input-residual "
+                    "correlation up to lag 25 with 99 % bands, free-run fit) and the bank is written as "
+                    "a readable, commented spec that 'jmlgdsl run' accepts. Without --template the "
+                    "first --mode is the healthy one: the prior is 'initial FIRST 0.99, otherwise "
+                    "uniform' (--initial) and the transitions 'stay 0.99, otherwise uniform' (--stay).")
     p.add_argument("--mode", action="append", required=True, metavar="NAME=CSV",
                    help="a mode's experiment (repeat for every mode)")
     p.add_argument("--template", metavar="SPEC",
@@ -29,6 +55,9 @@ def register(subparsers):
     p.add_argument("--name", default="plant", help="plant name (without --template)")
     p.add_argument("--stay", type=float, default=0.99,
                    help="probability of staying in a mode, the rest uniform (without --template)")
+    p.add_argument("--initial", type=float, default=0.99, metavar="P",
+                   help="prior probability of the first --mode, taken as the healthy one; the rest is "
+                        "shared uniformly (without --template; default 0.99)")
     p.add_argument("--max-iter", type=int, default=100, help="EM iteration cap (default 100)")
     p.add_argument("--tol", type=float, default=1e-5, help="EM relative log-likelihood tolerance (default 1e-5)")
     p.add_argument("--figures", metavar="DIR", help="write validation (and step-fit) figures here")
@@ -82,8 +111,6 @@ def parse_modes(items):
 
 def plant_frame(args, names):
     """(Model fields other than the matrices, mode order) from the template or the options."""
-    import numpy as np
-
     import jmlgdsl
 
     from ..errors import JmlgError
@@ -98,13 +125,22 @@ def plant_frame(args, names):
                     input_defaults=t.input_defaults, descriptions=t.descriptions, P=t.P, p0=t.p0), t.modes
     if not args.outputs:
         raise JmlgError("name the output column with --output (or give a --template)")
-    if not 0 <= args.stay <= 1:
-        raise JmlgError(f"--stay must be a probability, not {args.stay}")
+    for option, value in (("--stay", args.stay), ("--initial", args.initial)):
+        if not 0 <= value <= 1:
+            raise JmlgError(f"{option} must be a probability, not {value}")
     inputs = tuple(n.strip() for n in args.input.split(",") if n.strip())
     K = len(names)
     return dict(name=args.name, dt=args.dt, inputs=inputs, outputs=(args.outputs,), units={},
                 input_defaults=np.full(len(inputs), np.nan), descriptions={}, P=default_transitions(K, args.stay),
-                p0=np.full(K, 1.0 / K)), tuple(names)
+                p0=healthy_prior(K, args.initial)), tuple(names)
+
+
+def healthy_prior(K: int, p: float) -> np.ndarray:
+    """The first mode (the healthy one) with probability p, the rest shared evenly: written back as
+    `initial NAME p, otherwise uniform`, so the first rows of a run do not alarm."""
+    if K == 1:
+        return np.ones(1)
+    return np.r_[p, np.full(K - 1, (1 - p) / (K - 1))]
 
 
 def header(args, paths, learned) -> str:
@@ -116,9 +152,11 @@ def header(args, paths, learned) -> str:
            else f"ARX order {args.order}")
     lines = [f"Learned by jmlgdsl learn from {', '.join(paths.values())}",
              f"Structure: {how}; EM up to {args.max_iter} iterations, relative tolerance {args.tol:g}.",
-             "State 1 is the noise-free output (observer canonical form); B, D are Cholesky factors",
-             "of the learned process and measurement noise covariances. Each mode starts at its steady",
-             "state under the operating input (a mode that is not stable, where its experiment began).",
+             "Every mode shares one state basis: the noise-free outputs of the last steps (NAME_lag1, ...)",
+             "and the inputs before this step (NAME_lag1, ...); a mode's coefficients and offset are its",
+             "first rows. B, D are Cholesky factors of the learned process and measurement noise",
+             "covariances. Each mode starts at its steady state under the operating input (a mode that is",
+             "not stable, where its experiment began).",
              f"Validation: residual autocorrelation (lags 1-{validate.MAX_LAG}) and input-residual "
              f"cross-correlation (lags 0-{validate.MAX_LAG}) pass when at most {validate.ALLOWED_OUTSIDE} "
              "lag of each lies outside the 99 % band.",
@@ -147,10 +185,7 @@ def write_figures(folder, learned, frame, report):
 def main(args) -> int:
     """Run the command on parsed arguments; returns the exit status."""
     import sys
-    import types
     from pathlib import Path
-
-    import numpy as np
 
     from ..data import read_csv
     from ..learn import bank
@@ -160,9 +195,7 @@ def main(args) -> int:
     order = parse_order(args.order)
     check_numbers(args)
     frame, modes = plant_frame(args, list(paths))
-    # read_csv binds columns through these names only.
-    names = types.SimpleNamespace(inputs=frame["inputs"], outputs=frame["outputs"], nu=len(frame["inputs"]),
-                                  ny=len(frame["outputs"]), input_defaults=frame["input_defaults"], modes=modes)
+    names = Columns(frame["inputs"], frame["outputs"], frame["input_defaults"], modes)
     experiments = {}
     for mode in modes:
         data = read_csv(paths[mode], names)

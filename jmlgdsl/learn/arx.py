@@ -1,8 +1,11 @@
-"""ARX least squares: y_t + a1 y_{t-1} + ... + a_na y_{t-na} = sum_j b_j u_{t-nk-j} + c + e_t.
+"""ARX / VAR least squares for any number of outputs and inputs, in the lagged basis's terms:
 
-The b0 term (nk = 0) lets u_t act on y_t in the same step, as in the model's x_t = A x_{t-1} + F u_t.
-Solved by a QR-based least-squares solve (never the normal equations), with the parameter
-covariance; orders chosen by AIC or BIC over a grid; converted to observer canonical state space.
+    y_t = Phi_1 y_{t-1} + ... + Phi_na y_{t-na} + Psi_nk u_{t-nk} + ... + Psi_{nk+nb-1} u_{t-nk-nb+1} + c + e_t
+
+with e_t ~ N(0, Sigma) across outputs. Lag 0 on the input (nk = 0) lets u_t act on y_t in the same
+step, as in the model's x_t = A x_{t-1} + F u_t. All outputs share the regressors, so one QR factor
+(`scipy.linalg.qr`, then triangular solves; never the normal equations) fits them all; the parameter
+covariance is Sigma kron (X'X)^-1 from the same factor. Orders are chosen by AIC or BIC over a grid.
 """
 
 from __future__ import annotations
@@ -14,20 +17,19 @@ import numpy as np
 from scipy.linalg import qr, solve_triangular
 
 from ..errors import DataError
-from .statespace import StateSpace, companion
+from .lagged import LaggedMode, Lags, lag_inputs
 
 
 @dataclass(frozen=True)
 class ArxFit:
-    """Fitted coefficients a (na,), b (nb, nu) for lags nk..nk+nb-1, offset c, their covariance
-    (in the order a, b row by row, c), residual variance, and the information criteria."""
+    """Coefficients theta (p, ny), one column per output, rows in regressor order (output lags
+    1..na, each an ny-vector; input lags nk..nk+nb-1, each an nu-vector; the offset); the residual
+    covariance (unbiased), (X'X)^-1, the number of equations and the information criteria."""
 
-    a: np.ndarray
-    b: np.ndarray
-    nk: int
-    c: float
-    cov: np.ndarray
-    sigma2: float
+    lags: Lags
+    theta: np.ndarray
+    noise: np.ndarray
+    gram_inv: np.ndarray
     n: int
     aic: float
     bic: float
@@ -35,68 +37,65 @@ class ArxFit:
     @property
     def order(self) -> tuple[int, int, int]:
         """(na, nb, nk)."""
-        return len(self.a), len(self.b), self.nk
+        return self.lags.na, self.lags.nb, self.lags.nk
 
-    def to_statespace(self, u0, y0, n=None) -> StateSpace:
-        """This model in observer canonical form (see `observer_form`), starting at output y0 under u0."""
-        return observer_form(self.a, self.b, self.nk, self.c, self.sigma2, u0, y0, n)
+    @property
+    def cov(self) -> np.ndarray:
+        """Covariance of theta stacked output by output (theta.T.ravel()): Sigma kron (X'X)^-1."""
+        return np.kron(self.noise, self.gram_inv)
+
+    def lagged(self) -> LaggedMode:
+        """This fit as a mode in the lagged basis of order lags.n: EM's starting point, with the
+        equation-error covariance split evenly between process and measurement noise."""
+        ny = self.theta.shape[1]
+        n, (na, nb, nk) = self.lags.n, self.order
+        nu = (len(self.theta) - 1 - na * ny) // nb if nb else 0
+        Phi = np.zeros((ny, n * ny))
+        Phi[:, :na * ny] = self.theta[:na * ny].T
+        Psi = np.zeros((ny, n * nu))
+        Psi[:, nk * nu:(nk + nb) * nu] = self.theta[na * ny:na * ny + nb * nu].T
+        return LaggedMode(self.lags, Phi, Psi, self.theta[-1].copy(), 0.5 * self.noise, 0.5 * self.noise)
 
 
-def observer_form(a, b, nk, c, noise_var, u0, y0, n=None) -> StateSpace:
-    """State space of y_t + a1 y_{t-1} + ... = sum_j b_j u_{t-nk-j} + c with n >= max(na, nk+nb) states.
-
-    Observer canonical form: C = [1 0 ...], so x1 is the noise-free output. The equation-error
-    variance is split evenly between process and measurement noise (EM's starting point), and the
-    initial state is the steady state at input u0 with x1 moved to the first output y0.
-    """
-    b = np.atleast_2d(np.asarray(b, float))
-    n = n or max(len(a), nk + len(b))
-    a_full = np.zeros(n)
-    a_full[:len(a)] = a
-    F = np.zeros((n, b.shape[1]))
-    F[nk:nk + len(b)] = b
-    f = np.eye(n)[0] * c
-    ss = StateSpace(A=companion(a_full), F=F, f=f, C=np.eye(1, n), G=np.zeros((1, b.shape[1])),
-                    g=np.zeros(1), Q=0.5 * noise_var * np.eye(n), R=np.array([[0.5 * noise_var]]),
-                    mu0=np.zeros(n), Sigma0=noise_var * np.eye(n))
-    x0 = ss.steady_state(u0)
-    x0[0] = y0
-    return ss.replace(mu0=x0)
+def regressors(y, u, lags: Lags, start: int) -> tuple[np.ndarray, np.ndarray]:
+    """(X, Y) for the equations t = start..T-1 with every value measured (rows with NaN left out)."""
+    n = lags.n
+    rows = np.arange(start, len(y))
+    ylags = np.hstack([y[rows - i] for i in range(1, lags.na + 1)] or [np.empty((len(rows), 0))])
+    ulags = lag_inputs(u, n)[rows][:, lags.nk * u.shape[1]:(lags.nk + lags.nb) * u.shape[1]]
+    X = np.hstack([ylags, ulags, np.ones((len(rows), 1))])
+    Y = y[rows]
+    complete = np.isfinite(X).all(axis=1) & np.isfinite(Y).all(axis=1)
+    return X[complete], Y[complete]
 
 
 def fit(y, u, na, nb, nk=0, start=None) -> ArxFit:
-    """Least-squares ARX fit of one output y (T,) on inputs u (T, nu); `start` is the first equation's
-    time index (defaults to the largest lag, so that fits of different orders can share it).
+    """Least-squares ARX fit of outputs y (T, ny) or (T,) on inputs u (T, nu); `start` is the first
+    equation's time index (default: the largest lag, so that fits of different orders can share it).
     Equations touching a missing value (NaN) are left out."""
-    y = np.asarray(y, float).ravel()
+    y = np.asarray(y, float).reshape(len(y), -1)
     u = np.asarray(u, float).reshape(len(y), -1)
-    lag = max(na, nk + nb - 1)
-    start = lag if start is None else start
-    rows = np.arange(start, len(y))
-    cols = [-y[rows - i] for i in range(1, na + 1)]
-    cols += [u[rows - nk - j, m] for j in range(nb) for m in range(u.shape[1])]
-    X = np.column_stack(cols + [np.ones(len(rows))])
-    complete = np.isfinite(X).all(axis=1) & np.isfinite(y[rows])
-    X, rows = X[complete], rows[complete]
-    n, p = X.shape
-    if n <= p:
-        raise DataError(f"ARX({na},{nb},{nk}) has {p} parameters but only {n} complete equations")
+    lags = Lags(na, nb if u.shape[1] else 0, nk if u.shape[1] else 0)
+    start = max(na, nk + nb - 1) if start is None else start
+    X, Y = regressors(y, u, lags, start)
+    N, p = X.shape
+    if N <= p:
+        raise DataError(f"ARX({na},{nb},{nk}) has {p} parameters per output but only {N} complete equations")
     Qm, Rm = qr(X, mode="economic")
-    theta = solve_triangular(Rm, Qm.T @ y[rows])
-    rss = float(np.sum((y[rows] - X @ theta) ** 2))
-    sigma2 = rss / (n - p)
+    theta = solve_triangular(Rm, Qm.T @ Y)
+    E = Y - X @ theta
     Rinv = solve_triangular(Rm, np.eye(p))
-    nu = u.shape[1]
-    return ArxFit(a=theta[:na], b=theta[na:na + nb * nu].reshape(nb, nu), nk=nk, c=float(theta[-1]),
-                  cov=sigma2 * Rinv @ Rinv.T, sigma2=sigma2, n=n,
-                  aic=n * np.log(rss / n) + 2 * p, bic=n * np.log(rss / n) + p * np.log(n))
+    ny = Y.shape[1]
+    _, logdet = np.linalg.slogdet(E.T @ E / N)
+    k = p * ny
+    return ArxFit(lags=lags, theta=theta, noise=(E.T @ E) / (N - p), gram_inv=Rinv @ Rinv.T, n=N,
+                  aic=N * logdet + 2 * k, bic=N * logdet + k * np.log(N))
 
 
 def select_order(data, max_na=4, max_nb=4, max_nk=0, criterion="bic") -> tuple[int, int, int]:
     """The order (na >= 1, nb >= 1, nk) minimising AIC or BIC summed over experiments [(y, u), ...].
 
     Every order is fitted on the same equations of each experiment, so the criteria compare.
-    One order for all experiments keeps a mode bank's modes the same size.
     """
     if criterion not in ("aic", "bic"):
         raise ValueError(f"criterion must be 'aic' or 'bic', not {criterion!r}")

@@ -20,6 +20,8 @@ from .statespace import StateSpace
 
 #: Eigenvalues of fitted covariances are kept at least this fraction of the largest one.
 SPD_FLOOR = 1e-10
+#: Kalman covariances count as settled when a step changes them by less than this, relative.
+SETTLED = 1e-13
 
 
 @dataclass(frozen=True)
@@ -50,7 +52,8 @@ class EMResult:
 @dataclass(frozen=True)
 class Filtered:
     """Forward pass: predicted means/covariances of x_1..x_T, filtered ones of x_0..x_T, the
-    innovations y_t - E[y_t | y_1:t-1] (NaN where not measured) and the log-likelihood."""
+    innovations y_t - E[y_t | y_1:t-1] (NaN where not measured), the log-likelihood, and the steps
+    whose covariances were reused once settled."""
 
     mean_pred: np.ndarray
     cov_pred: np.ndarray
@@ -58,6 +61,7 @@ class Filtered:
     cov: np.ndarray
     innovation: np.ndarray
     loglik: float
+    settled: np.ndarray
 
 
 def columns(y, u=None) -> tuple[np.ndarray, np.ndarray]:
@@ -67,7 +71,12 @@ def columns(y, u=None) -> tuple[np.ndarray, np.ndarray]:
 
 
 def forward(ss: StateSpace, y, u) -> Filtered:
-    """Kalman filter with NaN-masked outputs over y (T, ny) with inputs u (T, nu)."""
+    """Kalman filter with NaN-masked outputs over y (T, ny) with inputs u (T, nu).
+
+    The covariances do not depend on the data, only on which outputs are measured: once a fully
+    measured step leaves the predicted covariance unchanged to SETTLED relative, the filter reuses
+    that step's covariances, gain and innovation factor until an output goes missing.
+    """
     y = np.asarray(y, float)
     T, nx = len(y), ss.nx
     b = u @ ss.F.T + ss.f
@@ -76,26 +85,68 @@ def forward(ss: StateSpace, y, u) -> Filtered:
     mu_f, Sig_f = np.empty((T + 1, nx)), np.empty((T + 1, nx, nx))
     mu_f[0], Sig_f[0] = ss.mu0, ss.Sigma0
     innov = np.full(y.shape, np.nan)
-    loglik = 0.0
+    measured = ~np.isnan(y)
+    full = measured.all(axis=1)
+    settled = np.zeros(T, bool)
+    steady = None
+    quad, loglik = 0.0, 0.0
     for t in range(T):
-        mu_p[t], Sig_p[t] = kalman.predict(mu_f[t], Sig_f[t], ss.A, b[t], ss.Q)
-        m = kalman.observed(y[t])
-        y_pred, S, CS = kalman.innovation(mu_p[t], Sig_p[t], ss.C[m], c[t, m], ss.R[np.ix_(m, m)])
-        innov[t, m] = y[t, m] - y_pred
-        loglik += float(kalman.log_normal(innov[t, m], S))
-        mu_f[t + 1], Sig_f[t + 1] = kalman.correct(mu_p[t], Sig_p[t], y_pred, S, CS, y[t, m])
-    return Filtered(mu_p, Sig_p, mu_f, Sig_f, innov, loglik)
+        m = measured[t]
+        if steady is not None and full[t]:
+            Sig_p[t], Sig_f[t + 1], gain_t, Linv, logdet = steady
+            settled[t] = True
+        else:
+            Sig_p[t] = kalman.predict_cov(Sig_f[t], ss.A, ss.Q)
+            S, CS = kalman.innovation_cov(Sig_p[t], ss.C[m], ss.R[np.ix_(m, m)])
+            gain_t, Linv, logdet = _gain(S, CS)
+            Sig_f[t + 1] = kalman.symmetrize(Sig_p[t] - CS.T @ gain_t)
+            loglik -= 0.5 * (logdet + m.sum() * kalman.LOG_2PI)
+            steady = None
+            if full[t] and t and full[t - 1] and (np.abs(Sig_p[t] - Sig_p[t - 1]).max()
+                                                  <= SETTLED * np.abs(Sig_p[t]).max()):
+                steady = Sig_p[t], Sig_f[t + 1], gain_t, Linv, logdet
+        if settled[t]:
+            loglik -= 0.5 * (logdet + m.sum() * kalman.LOG_2PI)
+        mu_p[t] = ss.A @ mu_f[t] + b[t]
+        r = y[t, m] - ss.C[m] @ mu_p[t] - c[t, m]
+        innov[t, m] = r
+        mu_f[t + 1] = mu_p[t] + gain_t.T @ r
+        z = Linv @ r
+        quad += z @ z
+    return Filtered(mu_p, Sig_p, mu_f, Sig_f, innov, loglik - 0.5 * quad, settled)
+
+
+def _gain(S, CS):
+    """gain' = S^-1 C Sig_p, the inverse Cholesky factor of S (to whiten innovations) and log det S,
+    all from one Cholesky factorisation of the innovation covariance S."""
+    if not len(S):
+        return CS, S, 0.0
+    Linv, logdet = kalman.inverse_cholesky(S)
+    return Linv.T @ (Linv @ CS), Linv, logdet
 
 
 def smooth(ss: StateSpace, y, u) -> Smoothed:
-    """Rauch-Tung-Striebel smoother over the forward pass for y (T, ny) and inputs u (T, nu)."""
+    """Rauch-Tung-Striebel smoother over the forward pass for y (T, ny) and inputs u (T, nu).
+
+    Where the forward covariances have settled, the smoothed covariance settles too (going back
+    from the end); once it stops changing it is reused like the forward ones.
+    """
     fw = forward(ss, y, u)
     # Smoother gains J_t = Sig_f[t] A' Sig_p[t]^-1, all at once (Sig_p symmetric).
     J = np.swapaxes(np.linalg.solve(fw.cov_pred, ss.A @ fw.cov[:-1]), 1, 2)
+    constant = fw.settled & np.r_[False, fw.settled[:-1]]  # Sig_f[t], Sig_p[t] and so J[t] as at t + 1
     mu_s, Sig_s = fw.mean.copy(), fw.cov.copy()
+    steady = None
     for t in range(len(J) - 1, -1, -1):
         mu_s[t] = fw.mean[t] + J[t] @ (mu_s[t + 1] - fw.mean_pred[t])
+        if steady is not None and constant[t]:
+            Sig_s[t] = steady
+            continue
         Sig_s[t] = kalman.symmetrize(fw.cov[t] + J[t] @ (Sig_s[t + 1] - fw.cov_pred[t]) @ J[t].T)
+        steady = None
+        if constant[t] and t + 1 < len(J) and constant[t + 1] and (
+                np.abs(Sig_s[t] - Sig_s[t + 1]).max() <= SETTLED * np.abs(Sig_s[t]).max()):
+            steady = Sig_s[t]
     cross = Sig_s[1:] @ np.swapaxes(J, 1, 2)
     return Smoothed(mu_s, Sig_s, cross, fw.loglik)
 
@@ -111,7 +162,7 @@ def m_step(ss: StateSpace, y, u, e: Smoothed, offset=True, feedthrough=True) -> 
     # State equation: x_t on z_t = [x_{t-1}, u_t, 1].
     Z = np.hstack([e.mean[:-1], u, ones])
     X = e.mean[1:] - (0 if offset else ss.f)
-    W, Q = _regress(X, Z, e.cov[1:].sum(0), e.cov[:-1].sum(0), e.cross.sum(0))
+    W, Q = regress(X, Z, e.cov[1:].sum(0), e.cov[:-1].sum(0), e.cross.sum(0))
     nx, nu = ss.nx, u.shape[1]
     A, F = W[:, :nx], W[:, nx:nx + nu]
     f = W[:, nx + nu] if offset else ss.f
@@ -119,16 +170,16 @@ def m_step(ss: StateSpace, y, u, e: Smoothed, offset=True, feedthrough=True) -> 
     o = ~np.isnan(y).any(axis=1)
     xs, Sx = e.mean[1:][o], e.cov[1:][o].sum(0)
     if feedthrough:
-        H, R = _regress(y[o] - (0 if offset else ss.g), np.hstack([xs, u[o], ones[o]]), None, Sx, None)
+        H, R = regress(y[o] - (0 if offset else ss.g), np.hstack([xs, u[o], ones[o]]), None, Sx, None)
         C, G = H[:, :nx], H[:, nx:nx + nu]
         g = H[:, nx + nu] if offset else ss.g
     else:
-        H, R = _regress(y[o] - u[o] @ ss.G.T - ss.g, xs, None, Sx, None)
+        H, R = regress(y[o] - u[o] @ ss.G.T - ss.g, xs, None, Sx, None)
         C, G, g = H, ss.G, ss.g
     return StateSpace(A=A, F=F, f=f, C=C, G=G, g=g, Q=Q, R=R, mu0=e.mean[0], Sigma0=spd(e.cov[0]))
 
 
-def _regress(X, Z, Sxx_cov, Szz_cov, Sxz_cov):
+def regress(X, Z, Sxx_cov, Szz_cov, Sxz_cov):
     """Expected least squares of X (n, p) on Z (n, q) whose first columns are latent states.
 
     The *_cov terms add the summed posterior covariances to the moment matrices: Sxx_cov to X'X
@@ -153,8 +204,11 @@ def spd(S) -> np.ndarray:
     return kalman.symmetrize((V * w) @ V.T)
 
 
-def em(ss: StateSpace, y, u=None, max_iter=100, tol=1e-5, offset=True, feedthrough=True) -> EMResult:
+def em(ss: StateSpace, y, u=None, max_iter=100, tol=1e-5, offset=True, feedthrough=True, update=None) -> EMResult:
     """Run EM from `ss` until the log-likelihood gains less than tol relative, or max_iter iterations.
+
+    `update(ss, y, u, smoothed)` replaces the free M-step (`m_step` with offset and feedthrough) by
+    one that keeps a structure, such as the lagged basis's.
 
     The log-likelihood cannot decrease in exact arithmetic; if it falls by more than rounding, the
     last good parameters are kept and a warning says so.
@@ -164,7 +218,7 @@ def em(ss: StateSpace, y, u=None, max_iter=100, tol=1e-5, offset=True, feedthrou
     history = [e.loglik]
     converged = False
     for _ in range(max_iter):
-        new = m_step(ss, y, u, e, offset, feedthrough)
+        new = m_step(ss, y, u, e, offset, feedthrough) if update is None else update(ss, y, u, e)
         e_new = smooth(new, y, u)
         gain = e_new.loglik - history[-1]
         if gain < -1e-9 * max(1.0, abs(history[-1])):

@@ -14,8 +14,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..infer.kalman import symmetrize
-
 
 @dataclass(frozen=True)
 class StateSpace:
@@ -62,38 +60,3 @@ class StateSpace:
             x = self.A @ x + self.F @ ut + self.f
             out[t] = self.C @ x + self.G @ ut + self.g
         return out
-
-    def observer_form(self) -> "StateSpace":
-        """For one output: the basis in which C = [1 0 ... 0] and A is in observer canonical form.
-
-        The first state is then the noise-free output itself, so the spec reads like the plant.
-        The new state is x' = T x with T mapping the observability matrix of (A, C) onto that of the
-        canonical pair; T A T^-1 and C T^-1 are then the canonical A and C, written exactly (zeros
-        and ones, not rounded ones) rather than computed through an inverse. Raises LinAlgError when
-        T is singular to working precision (a state the output does not see).
-        """
-        if self.C.shape[0] != 1:
-            return self
-        A_can, C_can = companion(np.poly(self.A)[1:]), np.eye(1, self.nx)
-        T = np.linalg.solve(_observability(A_can, C_can), _observability(self.A, self.C))
-        if not np.linalg.cond(T) < 1 / np.finfo(float).eps:
-            raise np.linalg.LinAlgError("the output does not observe every state")
-        return self.replace(A=A_can, F=T @ self.F, f=T @ self.f, C=C_can, Q=symmetrize(T @ self.Q @ T.T),
-                            mu0=T @ self.mu0, Sigma0=symmetrize(T @ self.Sigma0 @ T.T))
-
-
-def companion(a) -> np.ndarray:
-    """Observer canonical A for y_t + a1 y_{t-1} + ... + an y_{t-n}: first column -a, ones above the diagonal."""
-    a = np.real_if_close(np.asarray(a))
-    n = len(a)
-    A = np.eye(n, k=1)
-    A[:, 0] = -np.real(a)
-    return A
-
-
-def _observability(A, C):
-    """[C; CA; ...; CA^(n-1)]."""
-    rows = [C]
-    for _ in range(A.shape[0] - 1):
-        rows.append(rows[-1] @ A)
-    return np.vstack(rows)

@@ -15,8 +15,7 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 
 from ..errors import DataError
-from .arx import observer_form
-from .statespace import StateSpace
+from .lagged import LaggedMode, Lags
 
 
 @dataclass(frozen=True)
@@ -43,12 +42,14 @@ class FopdtFit:
         """The fitted step response at samples 0..T-1."""
         return _response(self.step, self.delay, self.dt, self.tau, T) * self.gain * self.du + self.y0
 
-    def to_statespace(self, n=None) -> StateSpace:
-        """The sampled FOPDT in observer canonical form (delay + 1 states, or n), started at its initial level."""
-        a = self.pole
-        c = (1 - a) * (self.y0 - self.gain * self.u0)
-        return observer_form([-a], [[self.gain * (1 - a)]], self.delay, c, self.sse / self.n,
-                             [self.u0], self.y0, n)
+    def lagged(self) -> LaggedMode:
+        """The sampled FOPDT in the lagged basis (output lag 1, the input at lag d): EM's start, with
+        the fit's residual variance split evenly between process and measurement noise."""
+        a, lags = self.pole, Lags(1, 1, self.delay)
+        Phi, Psi = np.zeros((1, lags.n)), np.zeros((1, lags.n))
+        Phi[0, 0], Psi[0, self.delay] = a, self.gain * (1 - a)
+        noise = np.array([[0.5 * self.sse / self.n]])
+        return LaggedMode(lags, Phi, Psi, np.array([(1 - a) * (self.y0 - self.gain * self.u0)]), noise, noise)
 
 
 def _response(step, delay, dt, tau, T):
