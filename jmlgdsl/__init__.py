@@ -24,8 +24,11 @@ def load(path) -> Model:
     """Load a plant: a .jmlg spec is parsed, checked and compiled; a .json/.npz model file is read.
 
     Raises SpecError (with every located diagnostic) for a bad spec; warnings are issued as SpecWarning.
+    A .mat file (written for Matlab) is refused by name rather than read as a spec.
     """
     path = Path(path)
+    if path.suffix.lower() == ".mat":
+        raise ModelError(f"{path}: .mat cannot be read back; use .json or .npz (jmlgdsl compile SPEC -o FILE.json)")
     if path.suffix.lower() in (".json", ".npz"):
         return Model.read(path)
     from .compile.lower import compile_file

@@ -22,6 +22,7 @@ import numpy as np
 from .errors import DataError
 from .infer import ALGORITHMS, filter as run_filter
 from .model import Model
+from .output import check_count
 from .prefilter import moving_average
 from .simulate import simulate
 
@@ -29,6 +30,14 @@ DEFAULT_PARTICLES = (1, 4, 10, 25, 50, 100, 200, 400, 800, 1600)
 DEFAULT_FILTERS = ("pf", "rbpf", "la-rbpf", "fc-rbpf", "imm")
 DETERMINISTIC = ("imm", "exact")
 RECORD_FIELDS = ("data", "filter", "particles", "run", "error", "ms_per_step", "loglik")
+JOB_BYTES = 4096  # a job, its seeds and its record, to refuse a sweep too large to list
+
+
+def particle_bytes(model: Model) -> int:
+    """Memory one particle takes in the largest filter (a Rao-Blackwellised particle keeps a Kalman
+    mean and covariance, and its predictions for every mode, with a copy made by resampling)."""
+    nx, ny = model.nx, model.ny
+    return 16 * model.K * (nx + nx * nx + ny + ny * ny + nx * ny + 2)
 
 
 @dataclass(frozen=True)
@@ -138,8 +147,11 @@ def make_jobs(model, sources, filters=DEFAULT_FILTERS, particles=DEFAULT_PARTICL
     bad = [n for n in particles if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1]
     if bad:
         raise DataError(f"particle counts must be positive whole numbers, got {bad[0]!r}")
+    if set(filters) - set(DETERMINISTIC):
+        check_count("particle count", max(particles, default=1), particle_bytes(model))
     cells = [(f, n) for f in filters for n in ((None,) if f in DETERMINISTIC else particles)]
     cells = list(dict.fromkeys(cells))  # a filter named twice runs once
+    check_count("--runs", runs, JOB_BYTES * len(cells) * len(sources))
     jobs = []
     for run in range(runs):
         data_seed = np.random.SeedSequence(seed, spawn_key=(run, 0))

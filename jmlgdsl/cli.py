@@ -1,7 +1,9 @@
 """The `jmlgdsl` command: a thin argparse shell over the Python API.
 
 Each subcommand is a module in jmlgdsl/commands/ with `register(subparsers)`, which adds its parser
-and sets `func(args) -> exit status`. User errors (JmlgError) print as located messages, exit 2.
+and sets `func(args) -> exit status`. User errors (JmlgError) print as located messages, exit 2;
+so does a request that runs out of memory after the up-front checks let it through. Warnings about
+the data (DataWarning) print as `warning: ...` lines.
 """
 
 from __future__ import annotations
@@ -49,6 +51,10 @@ def main(argv=None) -> int:
         return args.func(args) or 0
     except JmlgError as exc:
         print(str(exc) if isinstance(exc, SpecError) else f"error: {exc}", file=sys.stderr)
+        return 2
+    except MemoryError:
+        print("error: not enough memory for this request; ask for fewer steps, particles or runs",
+              file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         return 130

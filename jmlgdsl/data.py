@@ -5,15 +5,21 @@ Columns named after the model's outputs and inputs are used; `time` (seconds) or
 time stamps), `mode` (the true mode names) and 0/1 `anomaly` / `changepoint` labels are optional;
 any other column is ignored. Cells are separated by commas, or by semicolons when the header line
 has semicolons and no commas (as many loggers write). An empty cell (or NA / NaN) is a missing value:
-an output that was not measured, or an input that takes its default. Every problem is a DataError
-naming the file, the CSV line and the column.
+an output that was not measured, or an input that takes its default; a blank `mode` cell is a row
+without a label. Files are UTF-8 text. Every problem is a DataError naming the file, the CSV line and
+the column; a problem that leaves the data readable but probably not what was meant (an input column
+absent, a time column out of step, an output never measured) is a DataWarning naming the column.
 """
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import math
+import re
 import sys
+import warnings
+import weakref
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from typing import Iterator
@@ -22,8 +28,14 @@ import numpy as np
 
 from .errors import DataError
 from .names import suggest
+from .output import check_file, open_text
 
 MISSING = {"", "na", "nan", "n/a"}
+DECIMAL_COMMA = re.compile(r"[-+]?\d+,\d+")
+
+
+class DataWarning(UserWarning):
+    """Data that read but look wrong (the command line prints these as `warning: ...`)."""
 
 
 @dataclass(frozen=True)
@@ -37,6 +49,7 @@ class Columns:
     inputs: tuple[str, ...] = ()
     input_defaults: np.ndarray = field(default_factory=lambda: np.zeros(0))
     modes: tuple[str, ...] = ()
+    dt: float | None = None  # the sample time a `time` column should step by (None: not checked)
 
     @classmethod
     def of(cls, model) -> "Columns":
@@ -44,7 +57,7 @@ class Columns:
         if isinstance(model, Columns):
             return model
         return cls(tuple(model.outputs), tuple(model.inputs), np.asarray(model.input_defaults, float),
-                   tuple(model.modes))
+                   tuple(model.modes), getattr(model, "dt", None))
 
     @property
     def ny(self) -> int:
@@ -75,33 +88,87 @@ class Data:
     time: np.ndarray | None  # (T,)
     y: np.ndarray  # (T, ny)
     u: np.ndarray  # (T, nu), defaults filled in
-    modes: np.ndarray | None  # (T,) true mode indices
+    modes: np.ndarray | None  # (T,) true mode indices, -1 where a row has no label
     source: str
     anomaly: np.ndarray | None = None  # (T,) 0/1 labels
     changepoint: np.ndarray | None = None  # (T,) 0/1 labels
 
 
-def open_source(path):
-    """A text stream for a path, or standard input for '-'."""
-    if str(path) == "-":
-        return sys.stdin
-    try:
-        return open(path, newline="")
-    except OSError as exc:
-        raise DataError(f"cannot read {path}: {exc.strerror}") from None
+class Source:
+    """The lines of a data file or of standard input ('-'), decoded one at a time, so that a byte that
+    is not UTF-8, a binary or UTF-16 file, or a closed standard input is a DataError naming the file
+    and line (and a pipe is still read line by line, as the rows arrive)."""
+
+    def __init__(self, path):
+        self.name, self.line = ("<stdin>" if str(path) == "-" else str(path)), 0
+        if str(path) == "-":
+            if sys.stdin is None:
+                raise DataError("<stdin>: standard input is closed")
+            self._stream, self._owned = getattr(sys.stdin, "buffer", sys.stdin), False
+            return
+        try:
+            self._stream, self._owned = open(path, "rb"), True
+        except OSError as exc:
+            raise DataError(f"cannot read {path}: {exc.strerror}") from None
+        _READING.add(self)
+
+    def readline(self) -> str:
+        """The next line as text ('' at the end)."""
+        try:
+            raw = self._stream.readline()
+        except (OSError, ValueError) as exc:
+            raise DataError(f"{self.name}: cannot read: {getattr(exc, 'strerror', None) or exc}") from None
+        if not raw:
+            return ""
+        self.line += 1
+        return raw if isinstance(raw, str) else self._decode(raw)
+
+    def _decode(self, raw: bytes) -> str:
+        where = f"{self.name}:{self.line}"
+        if self.line == 1 and raw[:2] in (b"\xff\xfe", b"\xfe\xff"):
+            raise DataError(f"{where}: the file is UTF-16 text; save it as UTF-8 CSV")
+        if b"\0" in raw:
+            raise DataError(f"{where}: binary data (a NUL byte), not CSV text")
+        try:
+            text = raw.decode("utf-8")
+        except UnicodeDecodeError as exc:
+            column = len(raw[:exc.start].decode("utf-8", "replace")) + 1
+            raise DataError(f"{where}:{column}: byte 0x{raw[exc.start]:02x} is not UTF-8 text; save the "
+                            "file as UTF-8 (it may be Latin-1 or a binary file)") from None
+        return text.lstrip("\ufeff") if self.line == 1 else text
+
+    def __iter__(self):
+        return iter(self.readline, "")
+
+    def close(self):
+        if self._owned:
+            self._stream.close()
+            _READING.discard(self)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+def open_source(path) -> Source:
+    """The lines of a data file, or of standard input for '-'."""
+    return Source(path)
+
+
+_READING = weakref.WeakSet()  # the files open for reading, which no table may be written over
 
 
 def open_target(path):
-    """A text stream to write a table to: the file (created or replaced), or standard output for '-'."""
-    if str(path) == "-":
-        return sys.stdout
-    try:
-        return open(path, "w", newline="")
-    except OSError as exc:
-        raise DataError(f"cannot write {path}: {exc.strerror}") from None
+    """A text stream to write a table to, or standard output for '-': the file appears (or replaces
+    the old one) only when the stream is closed, so an interrupted write never leaves half a table;
+    a file this process is reading is refused."""
+    check_file(path, inputs=[source.name for source in _READING])
+    return open_text(path)
 
 
-def _records(stream):
+def _records(stream, source):
     """(line number, cells) for each line that is neither blank nor a # comment, read one at a time;
     the separator is chosen on the first such line (the header)."""
     delimiter = None
@@ -109,14 +176,20 @@ def _records(stream):
         if line.strip() and not line.lstrip().startswith("#"):
             if delimiter is None:
                 delimiter = ";" if ";" in line and "," not in line else ","
-            yield number, next(csv.reader([line], delimiter=delimiter))
+            try:
+                yield number, next(csv.reader([line], delimiter=delimiter))
+            except csv.Error as exc:
+                limit = csv.field_size_limit()
+                reason = (f"a cell longer than {limit:,} characters" if "field limit" in str(exc)
+                          else f"not CSV ({exc})")
+                raise DataError(f"{source}:{number}: {reason}") from None
 
 
 def _timestamp(cells, col, where):
     """Seconds since 1970 (UTC) from an ISO time stamp cell; None when the column is absent."""
     if col is None:
         return None
-    text = cells[col].strip() if col < len(cells) else ""
+    text = cells[col].strip()
     try:
         stamp = datetime.fromisoformat(text)
     except ValueError:
@@ -141,16 +214,44 @@ def _number(cells, col, name, where):
     """The number in cell `col` (NaN when the column is absent or the cell is missing)."""
     if col is None:
         return math.nan
-    text = cells[col].strip() if col < len(cells) else ""
+    text = cells[col].strip()
     if text.lower() in MISSING:
         return math.nan
     try:
         value = float(text)
     except ValueError:
-        raise DataError(f"{where}: column {name!r}: {text!r} is not a number") from None
+        hint = "; write decimal points, not commas" if DECIMAL_COMMA.fullmatch(text) else ""
+        raise DataError(f"{where}: column {name!r}: {text!r} is not a number{hint}") from None
     if math.isinf(value):
         raise DataError(f"{where}: column {name!r}: {text!r} is not a finite number")
     return value
+
+
+def _warn(message):
+    warnings.warn(message, DataWarning, stacklevel=3)
+
+
+class _TimeCheck:
+    """Warns (once each) when a time column runs backwards, repeats a time, or steps by other than
+    the model's sample time."""
+
+    def __init__(self, dt):
+        self.dt, self.last, self.said = dt, None, set()
+
+    def __call__(self, time, where):
+        last, self.last = self.last, time
+        if last is None or time is None or math.isnan(time) or math.isnan(last):
+            return
+        step = time - last
+        kind = ("backwards" if step < 0 else "repeat" if step == 0 else
+                "step" if self.dt and abs(step - self.dt) > 1e-3 * self.dt + 1e-9 * abs(time) else None)
+        if kind is None or kind in self.said:
+            return
+        self.said.add(kind)
+        _warn({"backwards": f"{where}: column 'time' runs backwards ({last:g} then {time:g})",
+               "repeat": f"{where}: column 'time' repeats {time:g}",
+               "step": f"{where}: column 'time' steps by {step:g} s but the model's sample time is "
+                       f"{self.dt:g} s"}[kind])
 
 
 def iter_rows(stream, model, source="<data>", outputs=True) -> Iterator[Row]:
@@ -160,7 +261,7 @@ def iter_rows(stream, model, source="<data>", outputs=True) -> Iterator[Row]:
     absent (input-only files, for simulation).
     """
     model = Columns.of(model)
-    records = _records(stream)
+    records = _records(stream, source)
     _, header = next(records, (0, None))
     if header is None:
         raise DataError(f"{source}: no header line (expected columns {', '.join(model.outputs)})")
@@ -183,9 +284,13 @@ def iter_rows(stream, model, source="<data>", outputs=True) -> Iterator[Row]:
     t_col, stamp_col, mode_col = column("time", False), column("datetime", False), column("mode", False)
     anomaly_col, change_col = column("anomaly", False), column("changepoint", False)
     defaults = model.input_defaults
+    check_time, measured = _TimeCheck(model.dt), np.zeros(model.ny, bool)
 
     for line, cells in records:
         where = f"{source}:{line}"
+        if len(cells) < len(names) or any(c.strip() for c in cells[len(names):]):
+            hint = "; decimal commas (1,5) split numbers in two: write 1.5" if len(cells) > len(names) else ""
+            raise DataError(f"{where}: {len(cells)} cells, but the header has {len(names)} columns{hint}")
         y = np.array([_number(cells, c, n, where) for c, n in zip(y_cols, model.outputs)])
         u = np.array([_number(cells, c, n, where) for c, n in zip(u_cols, model.inputs)])
         lacking = np.isnan(u) & np.isnan(defaults)
@@ -193,37 +298,47 @@ def iter_rows(stream, model, source="<data>", outputs=True) -> Iterator[Row]:
             name = model.inputs[int(np.argmax(lacking))]
             raise DataError(f"{where}: column {name!r}: missing value and the input has no default")
         time = _timestamp(cells, stamp_col, where) if t_col is None else _number(cells, t_col, "time", where)
-        mode = None
-        if mode_col is not None:
-            name = cells[mode_col].strip() if mode_col < len(cells) else ""
-            if name not in model.modes:
-                raise DataError(f"{where}: column 'mode': unknown mode {name!r}; modes are "
-                                f"{', '.join(model.modes)}{suggest(name, model.modes)}")
-            mode = model.modes.index(name)
-        yield Row(line, time, y, np.where(np.isnan(u), defaults, u), mode,
+        check_time(time, where)
+        measured |= ~np.isnan(y)
+        yield Row(line, time, y, np.where(np.isnan(u), defaults, u), _mode(cells, mode_col, model.modes, where),
                   _label(cells, anomaly_col, "anomaly", where), _label(cells, change_col, "changepoint", where))
+    for name, col, default in zip(model.inputs, u_cols, defaults):
+        if col is None:
+            _warn(f"{source}: no column {name!r}: input {name} took its default {default:g} throughout")
+    for name, col, seen in zip(model.outputs, y_cols, measured):
+        if col is not None and not seen:
+            _warn(f"{source}: column {name!r} has no values: output {name} was never measured")
+
+
+def _mode(cells, col, modes, where):
+    """The true mode index in cell `col`; None when the column is absent or the cell is blank."""
+    name = "" if col is None else cells[col].strip()
+    if not name:
+        return None
+    if name not in modes:
+        raise DataError(f"{where}: column 'mode': unknown mode {name!r}; modes are "
+                        f"{', '.join(modes)}{suggest(name, modes)}")
+    return modes.index(name)
 
 
 def read_csv(path, model, outputs=True) -> Data:
     """Read a whole data file ('-' = standard input) into arrays bound to the names of `model`, a
     Model or the Columns to read by."""
     model = Columns.of(model)
-    source = "<stdin>" if str(path) == "-" else str(path)
-    stream = open_source(path)
-    try:
-        rows = list(iter_rows(stream, model, source, outputs))
-    finally:
-        if stream is not sys.stdin:
-            stream.close()
+    with open_source(path) as stream:
+        rows = list(iter_rows(stream, model, stream.name, outputs))
     if not rows:
-        raise DataError(f"{source}: no data rows")
+        raise DataError(f"{stream.name}: no data rows")
+
     def labels(name):
         values = [getattr(r, name) for r in rows]
         return None if values[0] is None else np.array(values)
 
+    modes = [r.mode for r in rows]
     return Data(time=labels("time"), y=np.array([r.y for r in rows]).reshape(len(rows), model.ny),
-                u=np.array([r.u for r in rows]).reshape(len(rows), model.nu), modes=labels("mode"),
-                source=source, anomaly=labels("anomaly"), changepoint=labels("changepoint"))
+                u=np.array([r.u for r in rows]).reshape(len(rows), model.nu),
+                modes=None if modes.count(None) == len(modes) else np.array([-1 if m is None else m for m in modes]),
+                source=stream.name, anomaly=labels("anomaly"), changepoint=labels("changepoint"))
 
 
 def format_cell(value) -> str:
@@ -250,12 +365,8 @@ class CsvWriter:
 
 def write_columns(path, columns: dict):
     """Write equal-length columns (name -> array of numbers or strings) to a CSV file ('-' = stdout)."""
-    names = list(columns)
     stream = open_target(path)
-    try:
-        writer = CsvWriter(stream, names)
+    with stream if stream is not sys.stdout else contextlib.nullcontext():
+        writer = CsvWriter(stream, list(columns))
         for row in zip(*columns.values()):
             writer.write(row)
-    finally:
-        if stream is not sys.stdout:
-            stream.close()

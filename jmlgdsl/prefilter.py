@@ -15,6 +15,7 @@ import numpy as np
 from .errors import DataError
 
 _MA = re.compile(r"^\s*ma\s*:\s*(\d+)\s*$")
+MAX_WINDOW = 10_000  # readings; each row averages over the whole window
 
 
 class MovingAverage:
@@ -52,6 +53,9 @@ def parse(text: str | None) -> int | None:
     if text is None or text.strip().lower() in ("", "none"):
         return None
     match = _MA.match(text)
-    if not match or int(match[1]) < 1:
+    digits = match[1].lstrip("0") if match else ""
+    if not digits:
         raise DataError(f"pre-filter {text!r}: write ma:K for a moving average over K readings, e.g. ma:5")
-    return int(match[1])
+    if len(digits) > len(str(MAX_WINDOW)) or int(digits) > MAX_WINDOW:  # no int() of a huge digit string
+        raise DataError(f"pre-filter {text!r}: the window is at most {MAX_WINDOW:,} readings")
+    return int(digits)

@@ -54,14 +54,16 @@ def sources(args, model):
     from ..bench import Sequence, Simulated, nonlinear_plant
     from ..data import read_csv
     from ..errors import DataError
+    from ..output import check_count
+    from .simulate import step_bytes
 
     if args.data and (args.simulate or args.modes or args.nonlinear):
         raise DataError("give data files or --simulate, not both")
     if not args.data:
         if args.simulate is None and args.modes is None:
             raise DataError("give data files with a 'mode' column, or --simulate T for simulated sequences")
-        if args.simulate is not None and args.simulate < 1:
-            raise DataError(f"--simulate must be a positive number of steps, got {args.simulate}")
+        if args.simulate is not None:
+            check_count("--simulate", args.simulate, step_bytes(model), "steps")
         if args.nonlinear:
             if Path(args.spec).suffix.lower() != ".jmlg":
                 raise DataError("--nonlinear needs a .jmlg spec with an 'ode' block")
@@ -75,6 +77,9 @@ def sources(args, model):
         data = read_csv(path, model)
         if data.modes is None:
             raise DataError(f"{path}: no 'mode' column, so the diagnosis error cannot be measured")
+        if (data.modes < 0).any():
+            raise DataError(f"{path}: data row {int((data.modes < 0).argmax()) + 1} has no true mode, so "
+                            "the diagnosis error cannot be measured on it")
         found.append(Sequence(Path(path).stem, data.y, data.u, data.modes))
     return found
 
@@ -85,16 +90,21 @@ def write_outputs(folder, model, records, by_source, figures=True) -> list:
     from pathlib import Path
 
     from .. import bench, plots
+    from ..output import replacing
 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    written = [folder / "runs.csv"]
-    bench.write_records_csv(written[0], records)
+
+    def put(file, write):
+        """Write one table through a temporary file, so an interrupted sweep leaves the old one."""
+        with replacing(folder / file) as temporary:
+            write(temporary)
+        return folder / file
+
+    written = [put("runs.csv", lambda path: bench.write_records_csv(path, records))]
     for name, (mine, summary) in by_source.items():
-        table = folder / f"{name}-table.md"
-        table.write_text(bench.report(summary))
-        bench.write_table_csv(folder / f"{name}-table.csv", summary)
-        written += [table, folder / f"{name}-table.csv"]
+        written += [put(f"{name}-table.md", lambda path: path.write_text(bench.report(summary))),
+                    put(f"{name}-table.csv", lambda path: bench.write_table_csv(path, summary))]
         if figures:
             written += plots.study_figures(folder, name, f"{model.name}, {name}", model.dt, summary, mine)
     return written
@@ -102,10 +112,16 @@ def write_outputs(folder, model, records, by_source, figures=True) -> list:
 
 def main(args) -> int:
     """Run the command on parsed arguments; returns the exit status."""
+    from pathlib import Path
+
     import jmlgdsl
 
     from .. import bench, prefilter
+    from ..output import check_folder
 
+    stems = [Path(p).stem for p in args.data] or ["simulated"]
+    check_folder(args.output, ["runs.csv"] + [f"{s}-table.{x}" for s in stems for x in ("md", "csv")],
+                 inputs=[args.spec, *args.data])
     model = jmlgdsl.load(args.spec)
     window = prefilter.parse(args.prefilter)
     records = bench.sweep(model, sources(args, model), args.filters, args.particles, args.runs, args.seed,

@@ -20,15 +20,18 @@ def run(args) -> int:
     import numpy as np
 
     from .. import load
+    from ..output import MODEL, check_file, replacing
 
+    check_file(args.output, inputs=[args.spec], suffixes=MODEL)
     model = load(args.spec)
     if args.show_jacobian:
         from ..compile.ode import jacobian_report
 
         print(jacobian_report(args.spec))
     if args.output:
-        path = model.save(args.output)
-        print(f"wrote {path} ({model.K} modes, nx={model.nx}, ny={model.ny}, nu={model.nu})")
+        with replacing(args.output) as temporary:
+            model.save(temporary)
+        print(f"wrote {args.output} ({model.K} modes, nx={model.nx}, ny={model.ny}, nu={model.nu})")
     elif not args.show_jacobian:
         with np.printoptions(precision=6, suppress=True, linewidth=110):
             for k, mode in enumerate(model.modes):

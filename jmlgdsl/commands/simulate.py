@@ -22,13 +22,57 @@ def register(subparsers):
     p.set_defaults(func=main)
 
 
+def step_bytes(model) -> int:
+    """Memory one simulated step takes: states, outputs, inputs, both noises, the mode, the time, and
+    the table built from them (an estimate, to refuse a run that cannot fit before it starts)."""
+    return 16 * (model.nx + model.ny + model.nu + model.B.shape[2] + model.D.shape[2] + 3)
+
+
+def requested_steps(args, rows) -> int | None:
+    """The steps a command line asks for: --steps, else the end of --modes (read from its numbers,
+    before a schedule is spelled out step by step), else the rows of --inputs."""
+    import re
+
+    if args.steps is not None:
+        return args.steps
+    if args.modes:
+        return max((int(n) for n in re.findall(r"(\d{1,18})\s*:", args.modes)), default=None)
+    return rows
+
+
+def inputs(args, model):
+    """The --inputs CSV's input rows (None without one), cut to --steps; a spec or model file given
+    here, or a row count that does not match, is an error naming the file."""
+    import warnings
+    from pathlib import Path
+
+    from ..data import DataWarning, read_csv
+    from ..errors import DataError
+
+    if args.inputs is None:
+        return None
+    if Path(args.inputs).suffix.lower() in (".jmlg", ".json", ".npz", ".mat"):
+        raise DataError(f"--inputs {args.inputs}: a spec or model file, not a CSV of inputs")
+    u = read_csv(args.inputs, model, outputs=False).u
+    if args.steps is not None and len(u) > args.steps:
+        warnings.warn(f"{args.inputs}: {len(u)} rows; the first {args.steps} are used (--steps {args.steps})",
+                      DataWarning, stacklevel=2)
+        return u[:args.steps]
+    wanted = requested_steps(args, len(u))
+    if len(u) != wanted:
+        given = f"--steps {args.steps}" if args.steps is not None else f"the {wanted} steps of --modes"
+        raise DataError(f"{args.inputs} has {len(u)} rows, {'fewer' if len(u) < wanted else 'more'} than {given}")
+    return u
+
+
 def main(args) -> int:
     import jmlgdsl
 
-    from ..data import read_csv, write_columns
-    from ..errors import DataError
+    from ..data import write_columns
+    from ..output import check_count, check_file
     from ..simulate import simulate
 
+    check_file(args.output, inputs=[args.spec, args.inputs])
     if args.nonlinear:
         from ..nonlinear import load_nonlinear, simulate_nonlinear
 
@@ -36,13 +80,10 @@ def main(args) -> int:
         model = plant.model
     else:
         model = jmlgdsl.load(args.spec)
-    u = None if args.inputs is None else read_csv(args.inputs, model, outputs=False).u
-    if args.steps is not None and args.steps < 1:
-        raise DataError(f"--steps must be a positive number, got {args.steps}")
-    if u is not None and args.steps is not None:
-        if len(u) < args.steps:
-            raise DataError(f"{args.inputs} has {len(u)} rows, fewer than --steps {args.steps}")
-        u = u[:args.steps]
+    steps = requested_steps(args, None)
+    if steps is not None:
+        check_count("--steps" if args.steps is not None else "--modes", steps, step_bytes(model))
+    u = inputs(args, model)
     if args.nonlinear:
         sim = simulate_nonlinear(plant, args.steps, seed=args.seed, modes=args.modes, u=u)
     else:

@@ -1,0 +1,176 @@
+"""Outputs that never cost data: every file is written under a temporary name in its own folder and
+renamed into place only when complete, and a target is checked before any work starts (not one of
+the inputs, its folder there and writable, its suffix one the format can take). '-' is standard output.
+A request too large for memory is refused up front too, saying how much it would need.
+"""
+
+from __future__ import annotations
+
+import errno
+import io
+import os
+import sys
+import tempfile
+from contextlib import contextmanager
+from pathlib import Path
+
+from .errors import JmlgError
+
+FIGURE = (".png", ".pdf", ".svg", ".eps", ".ps")
+MODEL = (".json", ".npz", ".mat")
+
+
+def _same(a: Path, b: Path) -> bool:
+    """Whether two paths name one file (the same inode when both exist, else the same resolved path)."""
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return a.resolve() == b.resolve()
+
+
+def _writable_folder(folder: Path, path):
+    """Refuse a folder that is missing, is not a folder, or cannot be written to, in the words the
+    system would use when the write failed."""
+    for failed, code, why in ((not folder.exists(), errno.ENOENT, f"no folder {folder}"),
+                              (not folder.is_dir(), errno.ENOTDIR, f"{folder} is a file"),
+                              (not os.access(folder, os.W_OK | os.X_OK), errno.EACCES,
+                               f"folder {folder} is not writable")):
+        if failed:
+            raise JmlgError(f"cannot write {path}: {os.strerror(code)} ({why})")
+
+
+def _not_an_input(path: Path, inputs, what: str):
+    """Refuse an output that is one of the inputs: writing it would destroy the data it is made from."""
+    for given in inputs:
+        if given is not None and str(given) != "-" and _same(path, Path(given)):
+            raise JmlgError(f"{what}: {path} is also an input ({given}); writing it would destroy it, "
+                            "so choose another file")
+
+
+def check_file(path, inputs=(), suffixes=None, option="-o") -> None:
+    """Refuse, before any work, an output file that cannot or must not be written: one of `inputs`,
+    a folder, a read-only file, one in a missing or unwritable folder, or a suffix not in `suffixes`."""
+    if path is None or str(path) == "-":
+        if path is not None and sys.stdout is None:
+            raise JmlgError(f"{option} -: standard output is closed")
+        return
+    path, what = Path(path), f"{option} {path}"
+    if suffixes and path.suffix.lower() not in suffixes:
+        raise JmlgError(f"{what}: the file name must end in {', '.join(suffixes)}")
+    if path.is_dir():
+        raise JmlgError(f"{what}: {path} is a folder; give a file name")
+    _writable_folder(path.parent, path)
+    if path.exists() and not os.access(path, os.W_OK):
+        raise JmlgError(f"cannot write {path}: {os.strerror(errno.EACCES)} (the file is read-only)")
+    _not_an_input(path, inputs, what)
+
+
+def check_folder(path, names=(), inputs=(), option="-o") -> None:
+    """Refuse, before any work, an output folder that is a file or cannot be made or written, or
+    where a file the command writes (`names`) would be one of `inputs`."""
+    path, what = Path(path), f"{option} {path}"
+    if path.exists() and not path.is_dir():
+        raise JmlgError(f"{what}: {path} is a file, not a folder")
+    _writable_folder(next(p for p in (path, *path.absolute().parents) if p.exists()), path)
+    for name in names:
+        _not_an_input(path / name, inputs, what)
+
+
+def physical_memory() -> int:
+    """Bytes of memory this machine has (8 GiB where the system does not say)."""
+    try:
+        return os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (AttributeError, ValueError, OSError):
+        return 8 << 30
+
+
+def _size(nbytes: float) -> str:
+    """A byte count for people: '37.3 GiB'."""
+    for unit, shift in (("TiB", 40), ("GiB", 30), ("MiB", 20)):
+        if nbytes >= 1 << shift:
+            return f"{nbytes / (1 << shift):.1f} {unit}"
+    return f"{nbytes / 1024:.1f} KiB"
+
+
+def check_count(option, count, bytes_each, unit="") -> None:
+    """Refuse a count (of steps, particles, runs) that is not positive, or whose arrays, `bytes_each`
+    per unit, would need more memory than this machine has; the message says how much it would need."""
+    if count < 1:
+        raise JmlgError(f"{option} must be a positive number{' of ' + unit if unit else ''}, got {count}")
+    need, have = count * bytes_each, physical_memory()
+    if need > have:
+        raise JmlgError(f"{option} {count:,} would need about {_size(need)} of memory; this machine has "
+                        f"{_size(have)}")
+
+
+def _temporary(target: Path) -> tuple[int, Path]:
+    """A new file beside `target` (same folder, same suffix, so a writer that reads the format from
+    the suffix still can): its descriptor and path."""
+    fd, name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=target.suffix, dir=target.parent)
+    return fd, Path(name)
+
+
+def _commit(temporary: Path, target: Path):
+    """Rename a finished temporary file into place, with the permissions a new file would get."""
+    umask = os.umask(0)
+    os.umask(umask)
+    mode = target.stat().st_mode & 0o7777 if target.exists() else 0o666 & ~umask
+    os.chmod(temporary, mode)
+    os.replace(temporary, target)
+
+
+@contextmanager
+def replacing(path):
+    """A temporary path to write `path` through: renamed onto `path` when the block completes, removed
+    if it raises, so `path` holds either its old content or the whole new one."""
+    target = Path(path)
+    try:
+        fd, temporary = _temporary(target)
+    except OSError as exc:
+        raise JmlgError(f"cannot write {path}: {exc.strerror or exc}") from None
+    os.close(fd)
+    try:
+        yield temporary
+    except BaseException:
+        temporary.unlink(missing_ok=True)
+        raise
+    _commit(temporary, target)
+
+
+class Pending(io.TextIOWrapper):
+    """A text file written under a temporary name: close() renames it into place, discard() (or an
+    exception leaving a `with` block) removes it and leaves the target as it was."""
+
+    def __init__(self, path):
+        self.target = Path(path)
+        try:
+            fd, self.temporary = _temporary(self.target)
+        except OSError as exc:
+            raise JmlgError(f"cannot write {path}: {exc.strerror or exc}") from None
+        super().__init__(os.fdopen(fd, "wb"), encoding="utf-8", newline="")
+
+    def close(self):
+        if not self.closed:
+            super().close()
+            _commit(self.temporary, self.target)
+
+    def discard(self):
+        if not self.closed:
+            super().close()
+            self.temporary.unlink(missing_ok=True)
+
+    def __exit__(self, kind, value, traceback):
+        if kind is None:
+            self.close()
+        else:
+            self.discard()
+
+
+def open_text(path):
+    """A text stream for a table: a Pending file, or standard output for '-' (the caller closes the
+    file, never standard output)."""
+    if str(path) == "-":
+        if sys.stdout is None:
+            raise JmlgError("cannot write to standard output: it is closed")
+        return sys.stdout
+    return Pending(path)
