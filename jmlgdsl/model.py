@@ -22,6 +22,9 @@ from .errors import JmlgError
 
 ARRAYS = ("A", "B", "C", "D", "F", "G", "f", "g", "P", "p0", "mu0", "Sigma0", "input_defaults")
 NAMES = ("modes", "states", "inputs", "outputs")
+# A reading farther than this many predicted standard deviations from what every mode hypothesis
+# expects is a gross error (a glitch, a dropout, a unit slip), not information about the mode.
+DEFAULT_GATE = 20.0
 
 
 class ModelError(JmlgError, ValueError):
@@ -53,6 +56,8 @@ class Model:
     name: str = "plant"
     descriptions: dict = field(default_factory=dict)  # mode name -> text
     units: dict = field(default_factory=dict)  # variable name -> unit text
+    # Per output: the gross-error gate in predicted standard deviations (inf: off); None = DEFAULT_GATE.
+    outlier_gate: np.ndarray | None = None
 
     def __post_init__(self):
         for key in ARRAYS:
@@ -61,6 +66,10 @@ class Model:
             object.__setattr__(self, key, arr)
         for key in NAMES:
             object.__setattr__(self, key, tuple(str(n) for n in getattr(self, key)))
+        gate = np.full(self.C.shape[1], DEFAULT_GATE) if self.outlier_gate is None else self.outlier_gate
+        gate = np.array(gate, dtype=float).reshape(-1)
+        gate.setflags(write=False)
+        object.__setattr__(self, "outlier_gate", gate)
         object.__setattr__(self, "dt", float(self.dt))
         object.__setattr__(self, "descriptions", dict(self.descriptions))
         object.__setattr__(self, "units", dict(self.units))
@@ -120,7 +129,10 @@ class Model:
         return u.reshape(T, self.nu)
 
     def replace(self, **changes) -> "Model":
-        """A copy with some fields changed (the model itself is immutable)."""
+        """A copy with some fields changed (the model itself is immutable); a change in the number of
+        outputs takes the default outlier gate unless it gives one."""
+        if "C" in changes and "outlier_gate" not in changes and np.shape(changes["C"])[1] != self.ny:
+            changes["outlier_gate"] = None
         return dataclasses.replace(self, **changes)
 
     # ----------------------------------------------------------------- construction
@@ -186,6 +198,8 @@ class Model:
             raise ModelError("p0 must be a probability vector")
         if nx and (not np.allclose(self.Sigma0, self.Sigma0.T) or np.linalg.eigvalsh(self.Sigma0).min() < 0):
             raise ModelError("Sigma0 must be symmetric positive semi-definite")
+        if self.outlier_gate.shape != (ny,) or not (self.outlier_gate > 0).all():
+            raise ModelError(f"outlier_gate must hold {ny} positive numbers of standard deviations (inf: off)")
         R = self.D @ np.swapaxes(self.D, 1, 2)
         if ny and np.linalg.eigvalsh(R).min() <= 0:
             raise ModelError("measurement noise D D' must be positive definite in every mode")
@@ -199,6 +213,7 @@ class Model:
         for k in ARRAYS:
             arr = getattr(self, k)
             out[k] = {"shape": list(arr.shape), "data": [None if np.isnan(v) else float(v) for v in arr.ravel()]}
+        out["outlier_gate"] = [None if np.isinf(v) else float(v) for v in self.outlier_gate]  # None: off
         return out
 
     @classmethod
@@ -208,8 +223,10 @@ class Model:
         kw = {k: np.array([np.nan if v is None else v for v in d[k]["data"]], float).reshape(d[k]["shape"])
               for k in ARRAYS}
         kw.update({k: tuple(d.get(k, ())) for k in NAMES})
+        gate = d.get("outlier_gate")
+        gate = None if gate is None else [np.inf if v is None else v for v in gate]
         return cls(dt=d["dt"], name=d["name"], descriptions=d.get("descriptions", {}),
-                   units=d.get("units", {}), **kw)
+                   units=d.get("units", {}), outlier_gate=gate, **kw)
 
     def save(self, path) -> Path:
         """Write to .json (readable, exact: floats round-trip), .npz, or .mat (export for Matlab);
@@ -227,9 +244,10 @@ class Model:
         if suffix == ".json":
             path.write_text(json.dumps(self.to_dict(), indent=1))
         elif suffix == ".npz":
-            meta = {k: v for k, v in self.to_dict().items() if k not in ARRAYS}
+            meta = {k: v for k, v in self.to_dict().items() if k not in ARRAYS + ("outlier_gate",)}
             with open(path, "wb") as fh:
-                np.savez(fh, meta=json.dumps(meta), **{k: getattr(self, k) for k in ARRAYS})
+                np.savez(fh, meta=json.dumps(meta), outlier_gate=self.outlier_gate,
+                         **{k: getattr(self, k) for k in ARRAYS})
         elif suffix == ".mat":
             from scipy.io import savemat
             mdict = {k: getattr(self, k) for k in ARRAYS}
@@ -274,7 +292,8 @@ class Model:
             if meta.get("format") != "jmlgdsl-model":
                 raise ModelError("not a jmlgdsl model file")
             fields = {k: tuple(v) if k in NAMES else v for k, v in meta.items() if k not in ("format", "version")}
-            return cls(**{k: z[k] for k in ARRAYS}, **fields)
+            gate = z["outlier_gate"] if "outlier_gate" in z.files else None
+            return cls(**{k: z[k] for k in ARRAYS}, **fields, outlier_gate=gate)
 
     def __repr__(self):
         return (f"Model({self.name!r}, K={self.K} modes {list(self.modes)}, nx={self.nx}, ny={self.ny}, "

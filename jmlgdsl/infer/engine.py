@@ -29,13 +29,60 @@ class Estimate(NamedTuple):
     y_pred: np.ndarray  # (ny,) one-step predictive mean E[y_t | y_1:t-1]
     loglik: float  # log p(y_t | y_1:t-1) (an estimate for particle filters)
     ess: float  # effective sample size of the particle weights (NaN for deterministic filters)
+    rejected: np.ndarray | None = None  # (ny,) readings left out as gross errors, None when none were
+    flagged: np.ndarray | None = None  # (ny,) readings beyond the gate, left out or not; None when none were
+
+
+class Gate(NamedTuple):
+    """The gross-error gate of one step: `limit` (ny,) in predicted standard deviations (inf: off),
+    `enforce` (ny,) whether a reading beyond it is left out (or only flagged), and `bound` =
+    min(limit)^2. A reading beyond its limit has a Mahalanobis distance beyond the limit too
+    (Cauchy-Schwarz), so a step whose smallest distance over the hypotheses is within `bound`
+    needs no closer look."""
+
+    limit: np.ndarray
+    enforce: np.ndarray
+    bound: float
+
+    @classmethod
+    def of(cls, limit, enforce=None) -> "Gate":
+        limit = np.asarray(limit, dtype=float)
+        enforce = np.ones(limit.shape, dtype=bool) if enforce is None else enforce
+        return cls(limit, enforce, float(limit.min()) ** 2 if limit.size else np.inf)
+
+
+OPEN = Gate(np.empty(0), np.empty(0, dtype=bool), np.inf)  # nothing is ever flagged
 
 
 class Engine(Protocol):
     """One algorithm's filtering state, advanced one observation at a time."""
 
-    def step(self, y: np.ndarray, mask: np.ndarray, u: np.ndarray) -> Estimate:
-        """Condition on y (ny,), of which the entries where mask (ny,) is True were measured, under input u (nu,)."""
+    def step(self, y: np.ndarray, mask: np.ndarray, u: np.ndarray, gate: Gate = OPEN) -> Estimate:
+        """Condition on y (ny,), of which the entries where mask (ny,) is True were measured, under
+        input u (nu,); a measured reading beyond `gate` under every hypothesis is left out (see
+        `gross_errors` and `without`)."""
+
+
+def gross_errors(r, sd, limit) -> np.ndarray:
+    """(m,) True for the readings whose residuals r (J, m) exceed limit (m,) times their predicted
+    standard deviations sd (J, m) under every one of the J hypotheses."""
+    return (np.abs(r) > limit * sd).all(axis=0)
+
+
+def screen(engine: Engine, y, mask, u, gate: Gate, r, sd):
+    """(the step's Estimate with the enforced gross errors left out, or None to go on; the flagged
+    readings (ny,), or None): the closer look at residuals r (J, m) with standard deviations sd."""
+    flags = gross_errors(r, sd, gate.limit[mask])
+    if not flags.any():
+        return None, None
+    flagged = np.zeros(len(mask), dtype=bool)
+    flagged[np.flatnonzero(mask)[flags]] = True
+    rejected = flagged & gate.enforce
+    if not rejected.any():
+        return None, flagged
+    keep = mask & ~rejected
+    estimate = engine.step(np.where(keep, y, np.nan), keep, u)
+    return estimate._replace(rejected=rejected, flagged=flagged), flagged
 
 
 def offsets(model, u):

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import kalman
-from .engine import Estimate, mixture_moments, offsets
+from .engine import OPEN, Estimate, mixture_moments, offsets, screen
 from .resample import normalize
 
 
@@ -23,7 +23,7 @@ class IMM:
         self.means = model.mu0.copy()
         self.covs = np.broadcast_to(model.Sigma0, (model.K,) + model.Sigma0.shape).copy()
 
-    def step(self, y, mask, u) -> Estimate:
+    def step(self, y, mask, u, gate=OPEN) -> Estimate:
         model = self.model
         b, c = offsets(model, u)
         # Mixing: mix[i, j] = p(z_{t-1} = i | z_t = j, y_1:t-1); log_pred[j] = log p(z_t = j | y_1:t-1).
@@ -34,11 +34,18 @@ class IMM:
         mixed = mix.T @ self.means
         d = self.means[None, :, :] - mixed[:, None, :]  # (j, i, nx)
         covs = np.einsum("ij,iab->jab", mix, self.covs) + np.einsum("ij,jia,jib->jab", mix, d, d)
-        # The mask handling lives in kalman.step: NaN outputs are left out of the update.
-        means, covs, ll, y_pred, _ = kalman.step(mixed, covs, model.A, b, model.Q, model.C, c, model.R, y)
+        mu_p, Sig_p = kalman.predict(mixed, covs, model.A, b, model.Q)
+        y_pred, S, CS = kalman.innovation(mu_p, Sig_p, model.C, c, model.R)
+        means, covs, ll, quad = kalman.update(mu_p, Sig_p, y_pred, S, CS, y, mask)
+        flagged = None
+        if quad.min() > gate.bound:
+            sd = np.sqrt(np.diagonal(S, axis1=1, axis2=2)[:, mask])
+            screened, flagged = screen(self, y, mask, u, gate, y[mask] - y_pred[:, mask], sd)
+            if screened is not None:
+                return screened
         post, loglik = normalize(log_pred + ll)
         with np.errstate(divide="ignore"):
             self.log_mu = np.log(post)
         self.means, self.covs = means, covs
         mean, cov = mixture_moments(post, means, np.einsum("j,jab->ab", post, covs))
-        return Estimate(post, mean, cov, np.exp(log_pred) @ y_pred, loglik, np.nan)
+        return Estimate(post, mean, cov, np.exp(log_pred) @ y_pred, loglik, np.nan, flagged=flagged)

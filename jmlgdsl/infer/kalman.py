@@ -62,24 +62,44 @@ def inverse_cholesky(S):
     return Linv, -2.0 * np.log(np.diagonal(Linv, axis1=-2, axis2=-1)).sum(-1)
 
 
+def quad_form(z):
+    """Squared length of whitened residuals z (..., n): the Mahalanobis distance r' S^-1 r."""
+    return np.einsum("...i,...i->...", z, z)
+
+
+def log_density(quad, logdet, n):
+    """log N(r; 0, S) from quad = r' S^-1 r, log det S and the dimension n."""
+    return -0.5 * (np.minimum(quad, MAX_QUAD) + logdet + n * LOG_2PI)
+
+
 def whitened_log_normal(z, logdet):
     """log N(r; 0, S) from the whitened residuals z = L^-1 r (..., n) and log det S."""
-    quad = np.minimum(np.einsum("...i,...i->...", z, z), MAX_QUAD)
-    return -0.5 * (quad + logdet + z.shape[-1] * LOG_2PI)
+    return log_density(quad_form(z), logdet, z.shape[-1])
 
 
-def update(mu_p, Sig_p, y_pred, S, CS, y):
+def standard_deviations(Linv):
+    """sqrt(diag S) (..., n) from the inverse Cholesky factor of S (rarely needed: for gating)."""
+    L = np.linalg.inv(Linv)
+    return np.sqrt(np.einsum("...ij,...ij->...i", L, L))
+
+
+def update(mu_p, Sig_p, y_pred, S, CS, y, mask):
     """Measurement update with the innovation pieces (mu_p (..., nx), Sig_p (..., nx, nx), y_pred
-    (..., m), S (..., m, m), CS = C Sig_p (..., m, nx), y (m,)): returns the filtered mean and
-    covariance and log N(y; y_pred, S), all from one Cholesky factorisation of S."""
+    (..., ny), S (..., ny, ny), CS = C Sig_p (..., ny, nx)) and the entries of y (ny,) where mask is
+    True. Returns the filtered mean and covariance, log N(y; y_pred, S) and the Mahalanobis distance
+    of the measured entries, all from one Cholesky factorisation of S."""
+    if not mask.all():
+        y_pred, S, CS, y = y_pred[..., mask], S[..., mask, :][..., :, mask], CS[..., mask, :], y[mask]
     if y.shape[-1] == 0:
-        return mu_p, Sig_p, np.zeros(np.broadcast_shapes(y_pred.shape[:-1], S.shape[:-2]))
+        zero = np.zeros(np.broadcast_shapes(y_pred.shape[:-1], S.shape[:-2]))
+        return mu_p, Sig_p, zero, zero
     Linv, logdet = inverse_cholesky(S)
     z = np.einsum("...ij,...j->...i", Linv, y - y_pred)  # whitened innovation
     W = Linv @ CS  # whitened C Sig_p: the gain is W' Linv, and C' S^-1 C = W' W
     mu = mu_p + np.einsum("...ji,...j->...i", W, z)
     Sig = symmetrize(Sig_p - _t(W) @ W)
-    return mu, Sig, whitened_log_normal(z, logdet)
+    quad = quad_form(z)
+    return mu, Sig, log_density(quad, logdet, y.shape[-1]), quad
 
 
 def observed(y):
@@ -94,9 +114,5 @@ def step(mu, Sig, A, b, Q, C, c, R, y):
     """
     mu_p, Sig_p = predict(mu, Sig, A, b, Q)
     y_pred, S, CS = innovation(mu_p, Sig_p, C, c, R)
-    m = observed(y)
-    if m.all():
-        mu_f, Sig_f, ll = update(mu_p, Sig_p, y_pred, S, CS, y)
-    else:
-        mu_f, Sig_f, ll = update(mu_p, Sig_p, y_pred[..., m], S[..., m, :][..., :, m], CS[..., m, :], y[m])
+    mu_f, Sig_f, ll, _ = update(mu_p, Sig_p, y_pred, S, CS, y, observed(y))
     return mu_f, Sig_f, ll, y_pred, S

@@ -14,13 +14,16 @@ from ..errors import DataError
 from ..model import Model
 from ..random import generator
 from .algorithms import ALGORITHMS, DEFAULT_ALGORITHM
-from .engine import FilterError, Resampler
+from .engine import FilterError, Gate, Resampler
 from .resample import SCHEMES
 from .result import Result, Step
 
 # Readings this large (or infinite) cannot be measurements: their squares would overflow the
 # Kalman arithmetic, so they are treated as not measured.
 MAX_READING = 1e100
+# A reading beyond the model's outlier gate under every hypothesis is left out as a gross error at
+# most this many steps in a row (docs/filters.md, "Gross errors").
+MAX_REJECTIONS = 2
 
 
 class Filter:
@@ -49,6 +52,8 @@ class Filter:
         self.t = 0
         self.loglik = 0.0
         self.seconds = 0.0  # time spent inside step()
+        self._gate = Gate.of(model.outlier_gate)
+        self._flagged = np.zeros(model.ny, dtype=np.int64)  # consecutive steps beyond the gate, per output
 
     def step(self, y, u=None) -> Step:
         """Advance one time step with outputs y (ny,) and inputs u (nu,).
@@ -68,13 +73,22 @@ class Filter:
             if not np.isfinite(u).all():
                 bad = [n for n, v in zip(model.inputs, u) if not np.isfinite(v)]
                 raise DataError(f"t={t}: no value and no default for input {', '.join(bad)}")
-        est = self.engine.step(y, mask, u)
+        est = self.engine.step(y, mask, u, self._gate)
+        if est.flagged is not None or self._flagged.any():
+            self._count_flagged(est.flagged)
         self.t = t
         self.loglik += est.loglik
         record = Step(t, est.mode_posterior, est.state_mean, est.state_cov, est.y_pred, y - est.y_pred,
-                      est.loglik, est.ess)
+                      est.loglik, est.ess, est.rejected)
         self.seconds += time.perf_counter() - start
         return record
+
+    def _count_flagged(self, flagged):
+        """Count the steps in a row each output's reading was beyond the gate. After MAX_REJECTIONS
+        such steps its readings are taken whatever they say, until one is within the gate again:
+        a change that lasts is the plant, not a glitch."""
+        self._flagged = np.zeros_like(self._flagged) if flagged is None else np.where(flagged, self._flagged + 1, 0)
+        self._gate = Gate.of(self.model.outlier_gate, self._flagged < MAX_REJECTIONS)
 
 
 def _vector(values, names, what, t):

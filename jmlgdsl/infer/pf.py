@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .engine import Estimate, Resampler, mixture_moments, offsets, sample_rows
 from ..gaussian import psd_sqrt
-from .kalman import inverse_cholesky, whitened_log_normal
+from .engine import OPEN, Estimate, Resampler, mixture_moments, offsets, sample_rows, screen
+from .kalman import inverse_cholesky, log_density, quad_form
 from .resample import normalize
 
 
@@ -27,7 +27,16 @@ class BootstrapPF:
             self._noise[key] = inverse_cholesky(self.model.R[:, mask][:, :, mask])
         return self._noise[key]
 
-    def step(self, y, mask, u) -> Estimate:
+    def _every_mode(self, y, mask, b, c):
+        """Residuals and their one-step predictive spreads sqrt diag(C Q C' + R) of the measured
+        readings under every mode from every particle's previous state (for the gate's closer look)."""
+        model = self.model
+        y_pred = np.einsum("kij,nj->nki", model.C @ model.A, self.x) + np.einsum("kij,kj->ki", model.C, b) + c
+        var = np.diagonal(model.C @ model.Q @ np.swapaxes(model.C, 1, 2) + model.R, axis1=1, axis2=2)
+        r = (y - y_pred)[:, :, mask].reshape(-1, int(mask.sum()))
+        return r, np.broadcast_to(np.sqrt(var[:, mask]), y_pred[:, :, mask].shape).reshape(r.shape)
+
+    def step(self, y, mask, u, gate=OPEN) -> Estimate:
         model, z = self.model, self.z
         b, c = offsets(model, u)
         log_prior = self.logw
@@ -36,11 +45,18 @@ class BootstrapPF:
         x = np.einsum("nij,nj->ni", model.A[z], self.x) + b[z] + np.einsum("nij,nj->ni", model.B[z], w)
         y_pred = np.einsum("nij,nj->ni", model.C[z], x) + c[z]
         Linv, logdet = self._measurement_noise(mask)
-        white = np.einsum("nab,nb->na", Linv[z], y[mask] - y_pred[:, mask])
-        q, loglik = normalize(log_prior + whitened_log_normal(white, logdet[z]))
+        r = y[mask] - y_pred[:, mask]
+        white = np.einsum("nab,nb->na", Linv[z], r)
+        quad = quad_form(white)
+        flagged = None
+        if quad.min() > gate.bound:
+            screened, flagged = screen(self, y, mask, u, gate, *self._every_mode(y, mask, b, c))
+            if screened is not None:
+                return screened
+        q, loglik = normalize(log_prior + log_density(quad, logdet[z], r.shape[1]))
         mean, cov = mixture_moments(q, x, np.zeros((model.nx, model.nx)))
         posterior = np.bincount(z, weights=q, minlength=model.K)
         ancestors, self.logw, size = self.resampler(q)
         self.z, self.x = z[ancestors], x[ancestors]
         prior = np.exp(log_prior - log_prior.max())
-        return Estimate(posterior, mean, cov, prior @ y_pred / prior.sum(), loglik, size)
+        return Estimate(posterior, mean, cov, prior @ y_pred / prior.sum(), loglik, size, flagged=flagged)

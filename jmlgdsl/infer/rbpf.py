@@ -20,8 +20,8 @@ from __future__ import annotations
 import numpy as np
 
 from .covariances import CovarianceGraph
-from .engine import Estimate, FilterError, Resampler, mixture_moments, offsets, sample_rows
-from .kalman import whitened_log_normal
+from . import kalman
+from .engine import OPEN, Estimate, FilterError, Resampler, mixture_moments, offsets, sample_rows, screen
 from .resample import ess, fearnhead_clifford, normalize
 
 
@@ -73,14 +73,15 @@ class RaoBlackwellised:
         A candidate chosen several times becomes one particle with that many copies."""
         raise NotImplementedError
 
-    def step(self, y, mask, u) -> Estimate:
+    def step(self, y, mask, u, gate=OPEN) -> Estimate:
         model, K, nx, ny = self.model, self.model.K, self.model.nx, self.model.ny
         rows = self.graph.rows(mask)
         parent, mode, log_prop = self.candidates()
         n = len(self.z)
         pred = (self.mu @ self._map).reshape(n, K, nx + ny) + self._offsets(u)
-        if log_prop is None:  # every (particle, mode) pair, in order: rows of every mode of each node
-            pred = pred.reshape(n * K, nx + ny)
+        every = pred.reshape(n * K, nx + ny)  # every (particle, mode) pair, in order
+        if log_prop is None:  # the candidates are every pair: rows of every mode of each node
+            pred = every
             at = self.node
             log_prior = (self.logw[:, None] + model.logP[self.z]).reshape(n * K)
         else:
@@ -91,7 +92,15 @@ class RaoBlackwellised:
         Linv, logdet, gain_t, Sig_f = rows.at(at)
         r = y - y_pred if rows.complete else y[mask] - y_pred[:, mask]
         z = (Linv @ r[:, :, None])[:, :, 0]
-        ll = whitened_log_normal(z, logdet)
+        quad = kalman.quad_form(z)
+        flagged = None
+        if quad.min() > gate.bound:  # a closer look, under every mode of every particle
+            Linv_every = Linv if log_prop is None else rows.at(self.node)[0]
+            screened, flagged = screen(self, y, mask, u, gate, y[mask] - every[:, nx:][:, mask],
+                                       kalman.standard_deviations(Linv_every))
+            if screened is not None:
+                return screened
+        ll = kalman.log_density(quad, logdet, r.shape[1])
         mu_f = mu_p + (r[:, None, :] @ gain_t)[:, 0]
 
         top = log_prior.max()
@@ -109,7 +118,7 @@ class RaoBlackwellised:
         self.node = self.graph.children(rows, self.node[parent[chosen]], self.z)
         if self.graph.size > 4 * len(self.node) + self.spare_nodes:
             self.node = self.graph.compact(self.node)
-        return Estimate(posterior, mean, cov, yp, loglik, size)
+        return Estimate(posterior, mean, cov, yp, loglik, size, flagged=flagged)
 
 
 def merge_copies(key, chosen, logw, size):

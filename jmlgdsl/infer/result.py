@@ -27,6 +27,7 @@ class Step:
     residual: np.ndarray  # (ny,) y_t - y_pred, NaN where not measured
     loglik: float  # log p(y_t | y_1:t-1)
     ess: float
+    rejected: np.ndarray | None = None  # (ny,) readings left out as gross errors (None: none were)
 
     @property
     def map_mode(self) -> int:
