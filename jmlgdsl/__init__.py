@@ -14,6 +14,7 @@ __version__ = "0.1.0"
 # Heavier parts load on first use, so `import jmlgdsl` and `jmlgdsl check` stay quick.
 _LAZY = {
     "filter": "jmlgdsl.infer",
+    "smooth": "jmlgdsl.infer",
     "Filter": "jmlgdsl.infer",
     "Result": "jmlgdsl.infer",
     "simulate_nonlinear": "jmlgdsl.nonlinear",

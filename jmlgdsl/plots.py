@@ -148,12 +148,13 @@ def _mode_colors(K):
 
 
 def diagnosis_figure(path, mode_names, posterior, time, y, y_pred, output_names, true_modes=None,
-                     time_label="time (s)", output_units=None, title=""):
+                     time_label="time (s)", output_units=None, title="", given="the data so far"):
     """One run at a glance: MAP (and true) mode over time, the mode posterior as a heat map, then for
     each output the measured and predicted values, and the residuals.
 
     posterior (T, K); time (T,); y, y_pred (T, ny) with NaN where not measured; true_modes (T,) indices
-    or None; output_units maps output names to unit text.
+    or None; output_units maps output names to unit text; `given` says what the posterior is
+    conditioned on (the filter's data so far, or a smoother's).
     """
     posterior = np.asarray(posterior, dtype=float)
     y, y_pred = np.atleast_2d(np.asarray(y, float).T).T, np.atleast_2d(np.asarray(y_pred, float).T).T
@@ -179,7 +180,7 @@ def diagnosis_figure(path, mode_names, posterior, time, y, y_pred, output_names,
     ax = axes[1]
     image = ax.pcolormesh(edges, np.arange(K + 1) - 0.5, posterior.T, cmap="Greys", vmin=0, vmax=1,
                           shading="flat", rasterized=True)
-    ax.set_ylabel("p(mode | data\nso far)")
+    ax.set_ylabel("p(mode | " + given.replace("the data ", "data\n") + ")", fontsize="small")
     fig.colorbar(image, ax=ax, pad=0.01, aspect=10).set_label("probability", fontsize="small")
     for ax in axes[:2]:
         ax.set_yticks(np.arange(K), mode_names, fontsize="small" if K <= 10 else "x-small")
@@ -235,10 +236,13 @@ def _shade_true_modes(ax, edges, true_modes, colors):
 def result_figure(result, path, true_modes=None, title=""):
     """The diagnosis figure of a filter Result; the outputs drawn are those it filtered (prediction +
     residual), so a pre-filtered run shows the pre-filtered signal."""
+    from .infer.table import given
+
     model = result.model
     time = model.dt * np.arange(1, result.T + 1)
     who = result.algorithm + (f", {result.particles} particles" if result.particles else "")
+    who += "" if result.lag == 0 else ", smoothed"
     return diagnosis_figure(path, model.modes, result.mode_posterior, time, result.y_pred + result.residuals,
-                     result.y_pred, model.outputs,
-                     true_modes=true_modes, output_units=model.units,
-                     title=title or f"{model.name}: mode diagnosis ({who})")
+                            result.y_pred, model.outputs, true_modes=true_modes, output_units=model.units,
+                            title=title or f"{model.name}: mode diagnosis ({who})",
+                            given=given(result.lag))

@@ -53,6 +53,7 @@ def main(args) -> int:
     with replacing(args.output) as temporary:
         diagnosis_figure(temporary, table.modes, table.mode_posterior, table.time if timed else table.t,
                          table.y_pred + table.residuals, table.y_pred, table.outputs, true_modes=truth,
-                         time_label="time (as in the data)" if timed else "time step t", title=args.title)
+                         time_label="time (as in the data)" if timed else "time step t", title=args.title,
+                     given=table.given)
     print(f"wrote {args.output}")
     return 0

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import sys
 from array import array
+from collections import deque
 
 MAX_SEGMENTS = 30
 
@@ -47,6 +48,13 @@ def register(subparsers):
                        help="alarm when P(not healthy) is above this (default 0.5)")
     alarm.add_argument("--persistence", type=int, default=1, metavar="K",
                        help="... at K consecutive steps; the alarm starts on the K-th (default 1)")
+    when = p.add_mutually_exclusive_group()
+    when.add_argument("--lag", type=int, metavar="L",
+                      help="fixed-lag smoothing: report each row once L more rows have arrived, with "
+                           "p(mode | data up to L rows later); fewer false alarms and errors around "
+                           "switches, L samples late (also on a stream)")
+    when.add_argument("--smooth", action="store_true",
+                      help="off-line smoothing: every row with p(mode | all the data), written at the end")
     p.add_argument("--prefilter", metavar="ma:K",
                    help="causal moving average over the last K readings before filtering, for very noisy "
                         "signals (the filter then predicts the averaged signal)")
@@ -120,23 +128,36 @@ def diagnose(args, on_step=None):
     streaming = args.data == "-"
     source = "<stdin>" if streaming else args.data
     f = Filter(model, algorithm=args.filter, particles=args.particles, seed=args.seed,
-               resampling=args.resampling, ess_threshold=args.ess_threshold)
+               resampling=args.resampling, ess_threshold=args.ess_threshold, lag=None if args.smooth else args.lag or 0)
     summary, alarms, labelled = Summary(max_segments=MAX_SEGMENTS), rule.stream(model.modes), Labelled(rule, model)
     stream = open_source(args.data)
     out = writer = None
+    rows = deque()  # data rows whose records the filter still holds back (with a lag)
+
+    def record(step):
+        """Everything that happens to one finished record: alarm, summary, labels, table row."""
+        nonlocal writer
+        row = rows.popleft()
+        alarm = alarms.step(step.mode_posterior)
+        summary.add(step, row.mode)
+        labelled.add(row, alarm, step.t)
+        if on_step is not None:
+            on_step(step, row)
+        if out is not None:
+            if writer is None:
+                writer = TableWriter(out, model, row.time is not None, flush=streaming, lag=f.lag)
+            writer.write(step, row.time, alarm)
+
     try:
         if args.output is not None:
             out = open_target(args.output)
         for row in iter_rows(stream, model, source):
+            rows.append(row)
             step = f.step(row.y if smooth is None else smooth(row.y), row.u)
-            alarm = alarms.step(step.mode_posterior)
-            summary.add(step, row.mode)
-            labelled.add(row, alarm, step.t)
-            if on_step is not None:
-                on_step(step, row)
-            if out is not None:
-                writer = writer or TableWriter(out, model, row.time is not None, flush=streaming)
-                writer.write(step, row.time, alarm)
+            if step is not None:
+                record(step)
+        for step in f.flush():
+            record(step)
     finally:
         if stream is not sys.stdin:
             stream.close()
@@ -147,12 +168,18 @@ def diagnose(args, on_step=None):
     return summary, f, rule, labelled
 
 
+def smoothing(lag) -> str:
+    """How the reported posteriors were conditioned, for the summary's first line."""
+    return "" if lag == 0 else ", smoothed off-line" if lag is None else f", smoothed with a lag of {lag} steps"
+
+
 def report(summary, f, rule=None, labelled=None) -> str:
     """The terminal report: mode segments, the diagnosis error when the truth is known, the alarms and
     their detection metrics, fit and speed."""
     model = f.model
     who = f"{f.algorithm}" + (f" with {f.particles} particles" if f.particles else "")
-    lines = [f"{model.name}: {summary.T} steps, filter {who}", "mode segments (most probable mode):"]
+    lines = [f"{model.name}: {summary.T} steps, filter {who}" + smoothing(f.lag),
+             "mode segments (most probable mode):"]
     for a, b, k, total in summary.segments:
         span = f"{a}" if a == b else f"{a}\u2013{b}"
         lines.append(f"  t {span}: {model.modes[k]} (p\u0304 {total / (b - a + 1):.2f})")
@@ -162,7 +189,7 @@ def report(summary, f, rule=None, labelled=None) -> str:
         lines.append(f"diagnosis error: {summary.diagnosis_error:.2f} % ({summary.wrong} of {summary.labelled} steps)")
         lines += confusion_report(model.modes, summary.confusion)
     if rule is not None:
-        lines += alarm_report(rule, labelled)
+        lines += alarm_report(rule, labelled, f.lag)
     lines.append(f"log-likelihood: {summary.loglik:.2f}")
     lines.append(f"time per step: {1e3 * f.seconds / summary.T:.3f} ms")
     return "\n".join(lines)
@@ -177,7 +204,7 @@ def confusion_report(modes, confusion) -> list[str]:
     return lines
 
 
-def alarm_report(rule, labelled) -> list[str]:
+def alarm_report(rule, labelled, lag=0) -> list[str]:
     """Lines on the alarms raised and, against the truth in the data, how well they detect."""
     import numpy as np
 
@@ -186,6 +213,8 @@ def alarm_report(rule, labelled) -> list[str]:
     raised = runs(np.frombuffer(labelled.alarm, dtype=np.uint8))
     lines = [f"alarms (healthy: {', '.join(rule.healthy)}; P(not healthy) > {rule.threshold:g} for "
              f"{rule.persistence} step{'s' if rule.persistence > 1 else ''}): {len(raised)} raised"]
+    if lag:
+        lines[0] += f"; each is known {lag} steps after its row, later than the delays below"
     scores = labelled.scores()
     if scores is None:
         return lines
@@ -201,6 +230,8 @@ def alarm_report(rule, labelled) -> list[str]:
 
 
 def main(args) -> int:
+    import dataclasses
+
     import numpy as np
 
     steps, truth = [], []
@@ -212,7 +243,7 @@ def main(args) -> int:
         from ..infer import Result
         from ..plots import result_figure
 
-        result = Result.from_steps(f.model, f.algorithm, f.particles, steps, f.seconds)
+        result = dataclasses.replace(Result.from_steps(f.model, f.algorithm, f.particles, steps, f.seconds), lag=f.lag)
         result_figure(result, args.plot, true_modes=None if truth[0] is None else np.array(truth))
         print(f"figure: {args.plot}", file=out)
     return 0

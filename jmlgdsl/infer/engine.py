@@ -33,6 +33,17 @@ class Estimate(NamedTuple):
     flagged: np.ndarray | None = None  # (ny,) readings beyond the gate, left out or not; None when none were
 
 
+class Genealogy(NamedTuple):
+    """How a particle engine's last step went from its particles to the next ones, for smoothing:
+    candidate j descends from particle parent[j] with mode[j] at this step and weight q[j], and the
+    next particle i is candidate kept[i]."""
+
+    parent: np.ndarray
+    mode: np.ndarray
+    q: np.ndarray
+    kept: np.ndarray
+
+
 class Gate(NamedTuple):
     """The gross-error gate of one step: `limit` (ny,) in predicted standard deviations (inf: off),
     `enforce` (ny,) whether a reading beyond it is left out (or only flagged), and `bound` =

@@ -6,7 +6,9 @@ This is the one filtering loop: the batch call, `jmlgdsl run` and a live stream 
 
 from __future__ import annotations
 
+import dataclasses
 import time
+from collections import deque
 
 import numpy as np
 
@@ -15,8 +17,10 @@ from ..model import Model
 from ..random import generator
 from .algorithms import ALGORITHMS, DEFAULT_ALGORITHM
 from .engine import FilterError, Gate, Resampler
+from .lagged import Genealogies, ImmWindow
 from .resample import SCHEMES
 from .result import Result, Step
+from .smooth import smooth_exact, smooth_imm
 
 # Readings this large (or infinite) cannot be measurements: their squares would overflow the
 # Kalman arithmetic, so they are treated as not measured.
@@ -32,10 +36,15 @@ class Filter:
     `particles=None` takes the algorithm's default; `seed` (a number, or a numpy Generator to draw
     from) makes runs reproducible bit for bit. Resampling happens when the effective sample size
     falls below `ess_threshold` times the particle count (1, the default, resamples at every step).
+
+    With `lag=L` > 0 the filter smooths on-line: `step` returns nothing for the first L rows, then
+    the record of row t-L with its mode posterior (and, for imm, state moments) given the data up to
+    row t; `flush()` returns the last L rows smoothed with what arrived. `lag=None` holds every row
+    back for `flush()`: off-line smoothing. The one-step predictions and residuals stay the filter's.
     """
 
     def __init__(self, model: Model, algorithm: str = DEFAULT_ALGORITHM, particles: int | None = None,
-                 seed=None, resampling: str = "systematic", ess_threshold: float = 1.0):
+                 seed=None, resampling: str = "systematic", ess_threshold: float = 1.0, lag: int | None = 0):
         if algorithm not in ALGORITHMS:
             raise FilterError(f"unknown filter {algorithm!r}; choose from {', '.join(ALGORITHMS)}")
         if resampling not in SCHEMES:
@@ -52,11 +61,18 @@ class Filter:
         self.t = 0
         self.loglik = 0.0
         self.seconds = 0.0  # time spent inside step()
+        if lag is not None and (isinstance(lag, bool) or not isinstance(lag, (int, np.integer)) or lag < 0):
+            raise FilterError(f"the lag must be a whole number of steps >= 0 (or None: off-line), got {lag!r}")
+        self.lag = lag
+        self._pending = deque()  # records held back until the rows after them have arrived
+        self._smoother = (None if lag == 0 else ImmWindow(model, lag) if algorithm == "imm"
+                          else Genealogies(model, lag, self.engine.z))
         self._gate = Gate.of(model.outlier_gate)
         self._flagged = np.zeros(model.ny, dtype=np.int64)  # consecutive steps beyond the gate, per output
 
-    def step(self, y, u=None) -> Step:
-        """Advance one time step with outputs y (ny,) and inputs u (nu,).
+    def step(self, y, u=None) -> Step | None:
+        """Advance one time step with outputs y (ny,) and inputs u (nu,); the record of this row, or
+        with a lag the smoothed record of the row `lag` steps back (None while there is none yet).
 
         NaN outputs are not measured (as are infinite ones or any beyond MAX_READING in size);
         NaN inputs (all of them with u=None) take the spec's defaults.
@@ -80,8 +96,34 @@ class Filter:
         self.loglik += est.loglik
         record = Step(t, est.mode_posterior, est.state_mean, est.state_cov, est.y_pred, y - est.y_pred,
                       est.loglik, est.ess, est.rejected)
+        if self._smoother is not None:
+            record = self._hold(record, u)
         self.seconds += time.perf_counter() - start
         return record
+
+    def _hold(self, record, u):
+        """Keep the new record back; give out the oldest one, smoothed, once `lag` rows follow it."""
+        if isinstance(self._smoother, ImmWindow):
+            self._smoother.update(self.engine, self.model.F @ u + self.model.f)
+        else:
+            self._smoother.update(self.engine.genealogy)
+        self._pending.append(record)
+        if self.lag is None or len(self._pending) <= self.lag:
+            return None
+        return self._release(1)[0]
+
+    def _release(self, count):
+        """The oldest `count` held records with their smoothed estimates, taken off the queue."""
+        post, mean, cov = self._smoother.rows(len(self._pending))
+        return [dataclasses.replace(self._pending.popleft(), mode_posterior=post[i], state_mean=mean[i],
+                                    state_cov=cov[i]) for i in range(count)]
+
+    def flush(self) -> list[Step]:
+        """The records still held back, smoothed with the data that arrived (none without a lag)."""
+        start = time.perf_counter()
+        records = self._release(len(self._pending)) if self._pending else []
+        self.seconds += time.perf_counter() - start
+        return records
 
     def _count_flagged(self, flagged):
         """Count the steps in a row each output's reading was beyond the gate. After MAX_REJECTIONS
@@ -101,15 +143,49 @@ def _vector(values, names, what, t):
     return v.reshape(len(names))
 
 
-def filter(model: Model, y, u=None, *, algorithm: str = DEFAULT_ALGORITHM, particles: int | None = None,
-           seed=None, resampling: str = "systematic", ess_threshold: float = 1.0) -> Result:
-    """Filter a whole sequence: y (T, ny) with NaN for unmeasured entries, u (T, nu) or None for defaults."""
+def _arrays(model: Model, y, u):
+    """y as (T, ny) and u as (T, nu), checked against the model."""
     y = np.asarray(y, dtype=float)
     if y.ndim == 1:
         y = y[:, None] if model.ny == 1 else y[None]
     if y.ndim != 2 or y.shape[1] != model.ny:
         raise DataError(f"y must have shape (T, {model.ny}) for outputs {', '.join(model.outputs)}; got {y.shape}")
-    u = model.resolve_inputs(u, len(y))
+    return y, model.resolve_inputs(u, len(y))
+
+
+def filter(model: Model, y, u=None, *, algorithm: str = DEFAULT_ALGORITHM, particles: int | None = None,
+           seed=None, resampling: str = "systematic", ess_threshold: float = 1.0) -> Result:
+    """Filter a whole sequence: y (T, ny) with NaN for unmeasured entries, u (T, nu) or None for defaults.
+    Row t of the result is p(z_t | y_1:t) and the matching state moments."""
+    y, u = _arrays(model, y, u)
     f = Filter(model, algorithm, particles, seed, resampling, ess_threshold)
     steps = [f.step(y_t, u_t) for y_t, u_t in zip(y, u)]
     return Result.from_steps(model, algorithm, f.particles, steps, f.seconds)
+
+
+def smooth(model: Model, y, u=None, *, algorithm: str = DEFAULT_ALGORITHM, lag: int | None = None,
+           particles: int | None = None, seed=None, resampling: str = "systematic",
+           ess_threshold: float = 1.0) -> Result:
+    """Smooth a whole sequence: row t of the result is p(z_t | y_1:min(T, t+lag)) (lag=None: all the
+    data) with the matching state moments where the algorithm gives them (exact and imm; NaN for
+    the particle filters); predictions, residuals and the log-likelihood are the filter's.
+
+    Lag 0 is `filter` itself. `exact` and `imm` smooth the whole sequence at once (every mode
+    history; Kim's backward pass) over the readings the filter used; the particle filters trace
+    their candidates' ancestral lines back (see jmlgdsl.infer.lagged).
+    """
+    if lag == 0:
+        return filter(model, y, u, algorithm=algorithm, particles=particles, seed=seed, resampling=resampling,
+                      ess_threshold=ess_threshold)
+    y, u = _arrays(model, y, u)
+    if algorithm in ("exact", "imm"):
+        result = filter(model, y, u, algorithm=algorithm, seed=seed)
+        start = time.perf_counter()
+        used = np.where(result.rejected, np.nan, y)  # readings rejected as gross errors stay out
+        smoothed = (smooth_exact if algorithm == "exact" else smooth_imm)(model, used, u, lag)
+        return dataclasses.replace(result, mode_posterior=smoothed.mode_posterior, state_mean=smoothed.state_mean,
+                                   state_cov=smoothed.state_cov, lag=lag,
+                                   seconds=result.seconds + time.perf_counter() - start)
+    f = Filter(model, algorithm, particles, seed, resampling, ess_threshold, lag=lag)
+    steps = [s for y_t, u_t in zip(y, u) if (s := f.step(y_t, u_t)) is not None] + f.flush()
+    return dataclasses.replace(Result.from_steps(model, algorithm, f.particles, steps, f.seconds), lag=lag)

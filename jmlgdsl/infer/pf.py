@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..gaussian import psd_sqrt
-from .engine import OPEN, Estimate, Resampler, mixture_moments, offsets, sample_rows, screen
+from .engine import OPEN, Estimate, Genealogy, Resampler, mixture_moments, offsets, sample_rows, screen
 from .kalman import inverse_cholesky, log_density, quad_form
 from .resample import normalize
 
@@ -57,6 +57,7 @@ class BootstrapPF:
         mean, cov = mixture_moments(q, x, np.zeros((model.nx, model.nx)))
         posterior = np.bincount(z, weights=q, minlength=model.K)
         ancestors, self.logw, size = self.resampler(q)
+        self.genealogy = Genealogy(np.arange(len(z)), z, q, ancestors)
         self.z, self.x = z[ancestors], x[ancestors]
         prior = np.exp(log_prior - log_prior.max())
         return Estimate(posterior, mean, cov, prior @ y_pred / prior.sum(), loglik, size, flagged=flagged)

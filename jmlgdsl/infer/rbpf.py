@@ -21,7 +21,7 @@ import numpy as np
 
 from .covariances import CovarianceGraph
 from . import kalman
-from .engine import OPEN, Estimate, FilterError, Resampler, mixture_moments, offsets, sample_rows, screen
+from .engine import OPEN, Estimate, FilterError, Genealogy, Resampler, mixture_moments, offsets, sample_rows, screen
 from .resample import ess, fearnhead_clifford, normalize
 
 
@@ -113,6 +113,7 @@ class RaoBlackwellised:
         chosen, logw, size = self.select(q, parent, mode)
         key = chosen if log_prop is None else parent[chosen] * K + mode[chosen]  # (parent, mode) as one number
         chosen, self.logw, self.copies = merge_copies(key, chosen, logw, n * K)
+        self.genealogy = Genealogy(parent, mode, q, chosen)
         self.z = mode[chosen]
         self.mu = mu_f[chosen]
         self.node = self.graph.children(rows, self.node[parent[chosen]], self.z)

@@ -49,8 +49,9 @@ class Result:
     residuals: np.ndarray  # (T, ny)
     loglik_steps: np.ndarray  # (T,) log p(y_t | y_1:t-1)
     ess: np.ndarray  # (T,)
-    seconds: float  # wall-clock time spent filtering
-
+    seconds: float  # wall-clock time spent filtering (and smoothing)
+    rejected: np.ndarray | None = None  # (T, ny) readings left out as gross errors
+    lag: int | None = 0  # row t is p(z_t | y_1:t+lag): 0 filtered, None smoothed off-line
     @classmethod
     def from_steps(cls, model: Model, algorithm: str, particles: int | None, steps, seconds: float) -> "Result":
         """Stack on-line step records into arrays."""
@@ -59,9 +60,13 @@ class Result:
         def stack(name, shape):
             return np.array([getattr(s, name) for s in steps]).reshape((T,) + shape)
 
+        rejected = np.zeros((T, ny), dtype=bool)
+        for i, s in enumerate(steps):
+            if s.rejected is not None:
+                rejected[i] = s.rejected
         return cls(model, algorithm, particles, stack("mode_posterior", (K,)), stack("state_mean", (nx,)),
                    stack("state_cov", (nx, nx)), stack("y_pred", (ny,)), stack("residual", (ny,)),
-                   stack("loglik", ()), stack("ess", ()), seconds)
+                   stack("loglik", ()), stack("ess", ()), seconds, rejected)
 
     @property
     def map_modes(self) -> np.ndarray:

@@ -223,6 +223,16 @@ def smooth_imm(model, y, u, lag=None) -> Smoothed:
     return Smoothed(post, mean, cov)
 
 
+def kim(model, log_w, mean, cov, b) -> Smoothed:
+    """Kim's fixed-interval pass over IMM filter outputs already at hand: per-mode log-probabilities
+    log_w (n, K), moments mean (n, K, nx) and cov (n, K, nx, nx), and the state offsets b (n, K, nx)
+    of those n steps; smoothed given the data up to the last of them (the on-line fixed-lag form)."""
+    fwd = _ModeGaussians(log_w, mean, cov)
+    smoothed = _kim_offline(model.logP, fwd, _kim_pairs(model, fwd, b), 0)
+    post = np.exp(_log_normalize(smoothed.log_w))
+    return Smoothed(post, *_mixture(post, smoothed.mean, smoothed.cov))
+
+
 def _imm_forward(model, y, b, c) -> _ModeGaussians:
     """The IMM filter's per-mode output at every step: log p(z_t | y_1:t) and filtered moments."""
     T, K = len(y), model.K

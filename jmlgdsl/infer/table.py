@@ -2,8 +2,8 @@
 
 Columns, in order: `t`, `time` (when the data had one), `map_mode`, `p_<mode>` for every mode,
 `<state>_mean`, `<output>_pred`, `<output>_resid`, `ess`, and `alarm` (0/1) when an alarm rule
-was applied. Rows are written as they are computed, so
-a stream is written on-line.
+was applied. A smoothed table starts with a `#` comment line that says what its probabilities are
+conditioned on. Rows are written as they are computed, so a stream is written on-line.
 """
 
 from __future__ import annotations
@@ -20,6 +20,14 @@ from ..model import Model
 from .result import Result, Step
 
 
+SMOOTHED = "smoothed"
+
+
+def given(lag: int | None) -> str:
+    """What a table's probabilities are conditioned on, in words."""
+    return "the data so far" if lag == 0 else "all the data" if lag is None else f"the data up to {lag} rows later"
+
+
 def columns(model: Model, with_time: bool, with_alarm: bool = True) -> list[str]:
     """The header of the result table."""
     return (["t"] + (["time"] if with_time else []) + ["map_mode"] + [f"p_{m}" for m in model.modes]
@@ -30,8 +38,12 @@ def columns(model: Model, with_time: bool, with_alarm: bool = True) -> list[str]
 class TableWriter:
     """Writes result rows to a text stream; with flush=True each row reaches the reader at once."""
 
-    def __init__(self, stream, model: Model, with_time: bool, flush: bool = False, with_alarm: bool = True):
+    def __init__(self, stream, model: Model, with_time: bool, flush: bool = False, with_alarm: bool = True,
+                 lag: int | None = 0):
         self.model, self.with_time, self.with_alarm = model, with_time, with_alarm
+        if lag != 0:
+            stream.write(f"# {SMOOTHED}: p_<mode>, <state>_mean given {given(lag)}; <output>_pred, "
+                         "<output>_resid: one-step predictions of the filter\n")
         self._writer = CsvWriter(stream, columns(model, with_time, with_alarm), flush)
 
     def write(self, step: Step, time: float | None = None, alarm: int | None = None):
@@ -46,7 +58,7 @@ def write_result(path, result: Result, time=None, alarm=None):
     column and `alarm` (T,) 0/1 the alarm column."""
     stream = open_target(path)
     try:
-        writer = TableWriter(stream, result.model, time is not None, with_alarm=alarm is not None)
+        writer = TableWriter(stream, result.model, time is not None, with_alarm=alarm is not None, lag=result.lag)
         for i in range(result.T):
             step = Step(i + 1, result.mode_posterior[i], result.state_mean[i], result.state_cov[i],
                         result.y_pred[i], result.residuals[i], result.loglik_steps[i], result.ess[i])
@@ -62,6 +74,7 @@ class Table:
 
     modes: list[str]
     outputs: list[str]
+    given: str  # what the probabilities are conditioned on, in words
     t: np.ndarray  # (T,)
     time: np.ndarray | None  # (T,) the data's time column, when it had one
     mode_posterior: np.ndarray  # (T, K)
@@ -76,7 +89,9 @@ class Table:
 def read_table(path) -> Table:
     """Read a result table; a DataError naming the file (and line) when it is not one."""
     with open_source(path) as stream:
-        rows = [row for row in csv.reader(stream) if row]
+        lines = list(stream)
+    comment = next((line for line in lines if line.startswith(f"# {SMOOTHED}: ")), None)
+    rows = [row for row in csv.reader(line for line in lines if not line.startswith("#")) if row]
     if len(rows) < 2:
         raise DataError(f"{path}: no data rows")
     header, rows = [h.strip() for h in rows[0]], rows[1:]
@@ -103,6 +118,7 @@ def read_table(path) -> Table:
     def block(names):
         return np.column_stack([column(n) for n in names])
 
-    return Table(modes, outputs, column("t"), column("time") if "time" in header else None,
+    conditioned = comment.split(" given ")[1].split(";")[0] if comment else given(0)
+    return Table(modes, outputs, conditioned, column("t"), column("time") if "time" in header else None,
                  block([f"p_{m}" for m in modes]), block([f"{o}_pred" for o in outputs]),
                  block([f"{o}_resid" for o in outputs]))
