@@ -159,14 +159,46 @@ def m_step(ss: StateSpace, y, v, e, free) -> StateSpace:
                       Sigma0=spd(e.cov[0]))
 
 
+def transformed(mode: LaggedMode, dy, my, du, mu) -> LaggedMode:
+    """The same mode for outputs dy * y + my and inputs du * u + mu (dy, du > 0, one per channel).
+
+    Exact in both directions, so the data can be standardised for fitting and the fitted mode
+    mapped back: Phi_i -> D Phi_i D^-1, Psi_j -> D Psi_j E^-1, Q -> D Q D, R -> D R D, with the
+    offset absorbing the shifts.
+    """
+    dy, my, du, mu = (np.asarray(v, float) for v in (dy, my, du, mu))
+    n = mode.n
+    ky = np.tile(dy, n)
+    Phi = dy[:, None] * mode.Phi / ky
+    Psi = dy[:, None] * mode.Psi / np.tile(du, n)
+    c = dy * mode.c + my - Phi @ np.tile(my, n) - Psi @ np.tile(mu, n)
+    scale = np.outer(dy, dy)
+    mu0 = None if mode.mu0 is None else ky * mode.mu0 + np.tile(my, n)
+    Sigma0 = None if mode.Sigma0 is None else np.outer(ky, ky) * mode.Sigma0
+    return LaggedMode(mode.lags, Phi, Psi, c, scale * mode.Q, scale * mode.R, mu0, Sigma0)
+
+
+def _spread(x) -> tuple[np.ndarray, np.ndarray]:
+    """Mean and standard deviation of each column over its measured values (sd 1 for a constant one)."""
+    mean, sd = np.nanmean(x, axis=0), np.nanstd(x, axis=0)
+    return mean, np.where(sd > 0, sd, 1.0)
+
+
 def fit(start: LaggedMode, y, u, max_iter=100, tol=1e-5) -> tuple[LaggedMode, EMResult]:
-    """EM from `start` inside its structure. Without initial lags, they start at the first
-    measured output with the noise's spread at every lag."""
+    """EM from `start` inside its structure, on standardised data so that sensors in very different
+    units are fitted alike (the SPD floor of the covariances is relative to their largest
+    eigenvalue); the result is mapped back exactly, and the log-likelihood with it. Without initial
+    lags, they start at the first measured output with the noise's spread at every lag."""
     y, u = columns(y, u)
+    (my, sy), (mu, su) = _spread(y), _spread(u)
     if start.mu0 is None:
         first = np.array([column[np.isfinite(column)][0] for column in y.T])
         start = LaggedMode(start.lags, start.Phi, start.Psi, start.c, start.Q, start.R, np.tile(first, start.n),
                            np.kron(np.eye(start.n), start.Q + start.R))
+    scaled = transformed(start, 1 / sy, -my / sy, 1 / su, -mu / su)
     free = start.lags.free(start.ny, u.shape[1])
-    result = em(start.reduced(), y, lag_inputs(u, start.n), max_iter, tol, update=partial(m_step, free=free))
-    return start.from_reduced(result.model), result
+    result = em(scaled.reduced(), (y - my) / sy, lag_inputs((u - mu) / su, start.n), max_iter, tol,
+                update=partial(m_step, free=free))
+    fitted = transformed(scaled.from_reduced(result.model), sy, my, su, mu)
+    jacobian = float(np.log(sy) @ (~np.isnan(y)).sum(axis=0))  # log |dy_scaled / dy| over the data
+    return fitted, EMResult(fitted.reduced(), result.loglik - jacobian, result.converged)
