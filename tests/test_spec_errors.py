@@ -85,7 +85,7 @@ CASES = [
      8, 20, "'let k' depends on itself through k -> j -> k"),
     ("let cycle in a matrix", replace("noise process", "let k = k\nnoise process").replace(
         "{ x[t] ~ Normal(0.8 * x[t-1] + u, 0.1) }", "{ A = [k] }"), 8, 9, "'let k' depends on itself through k -> k"),
-    ("division by zero", replace("0.8 * x[t-1] + u", "x[t-1] / 0 + u"), 10, 40, "this is not a finite real number"),
+    ("division by zero", replace("0.8 * x[t-1] + u", "x[t-1] / 0 + u"), 10, 40, "division by zero"),
     ("log of zero", replace("0.8 * x[t-1] + u", "log(0) * x[t-1] + u"), 10, 40, "this is not a finite real number"),
     ("overflow", replace("process 0.1,", "process 10^400,"), 8, 15, "this is not a finite real number (an overflow"),
     ("root of a negative parameter", replace("transitions", "param a = (-8)^(1/3)\ntransitions"), 7, 11,

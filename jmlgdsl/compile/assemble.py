@@ -8,6 +8,7 @@ import numpy as np
 
 from ..lang.check import ModeInfo, Plant, noise_values
 from ..lang.evaluate import evaluate_number
+from ..lang.limits import MAX_STACKED, MAX_VARIABLES, check_sd
 from ..lang.report import Report
 from ..model import Model
 from .blocks import MATRIX_NAMES, Layout, ModeArrays
@@ -27,6 +28,20 @@ def declared_values(plant: Plant, decls, report: Report) -> np.ndarray:
     return np.array([np.nan if d.value is None else
                      evaluate_number(d.value, plant.nominal, report, what=f"the value of {d.name.text}")
                      for d in decls], dtype=float)
+
+
+def check_size(plant: Plant, layout: Layout, report: Report):
+    """Raise, before any array is made, when the compiled plant would be too large: at most
+    MAX_VARIABLES states (declared and block-internal) and MAX_STACKED numbers in one stacked matrix."""
+    K, n = len(plant.modes), max(layout.nx, len(layout.outputs))
+    where = plant.modes[0].pos if plant.modes else None
+    if layout.nx > MAX_VARIABLES:
+        report.error(f"the plant has {layout.nx:,} states with the blocks' internal ones, at most "
+                     f"{MAX_VARIABLES:,} are allowed", where)
+    elif K * n * n > MAX_STACKED:
+        report.error(f"the plant is too large: {K:,} modes of {n:,} x {n:,} matrices make {K * n * n:,} numbers "
+                     f"per stacked matrix, at most {MAX_STACKED:,} are allowed", where)
+    report.raise_errors()
 
 
 def steady_state(A: np.ndarray, F: np.ndarray, f: np.ndarray, u: np.ndarray) -> np.ndarray:
@@ -63,7 +78,6 @@ def stack(plant: Plant, layout: Layout, modes: list[ModeArrays], report: Report)
         eig = np.abs(np.linalg.eigvals(m.A)) if m.A.size else np.zeros(0)
         if eig.size and eig.max() > 1 + 1e-9:
             report.warn(f"mode {mode.name!r} is unstable: eigenvalue of modulus {eig.max():.6g} > 1", mode.pos)
-    report.raise_errors()
     sd0 = np.zeros(layout.nx)
     lookup = {d.name.text: d for d in plant.states}
     for i, s in enumerate(layout.states):
@@ -72,6 +86,8 @@ def stack(plant: Plant, layout: Layout, modes: list[ModeArrays], report: Report)
             sd0[i] = evaluate_number(d.sd, plant.nominal, report, what=f"the initial sd of {s}")
             if sd0[i] < 0:
                 report.error("a standard deviation cannot be negative", d.sd.pos)
+            check_sd(sd0[i], d.sd.pos, report)
+    report.raise_errors()
     units = {d.name.text: d.unit for d in [*plant.inputs, *plant.outputs, *plant.states] if d.unit}
     return Model(
         A=np.stack([m.A for m in modes]), B=np.stack([pad(m.B, nw) for m in modes]),

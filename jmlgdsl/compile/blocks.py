@@ -12,7 +12,9 @@ from dataclasses import dataclass, field
 import numpy as np
 import sympy as sp
 
-from ..lang.evaluate import NOT_FINITE, EvalError, LetExpander, finite_numeric, finite_real, show, symbolic
+from ..lang.evaluate import (NOT_FINITE, EvalError, LetExpander, UnknownName, finite_numeric,
+                                finite_real, show, symbolic)
+from ..lang.limits import MAX_ORDER, check_sd
 from ..lang.report import Report
 from ..lang.syntax import Dist, Expr, Name, Statement
 from ..lang.units import time_in_seconds
@@ -85,7 +87,7 @@ class Lowering:
             return self.expand_let(node, lambda e: finite_numeric(e, self._numeric_lookup))
         if name in self.layout.states or name in self.layout.inputs or name in self.layout.outputs:
             raise EvalError(f"{name!r} is a variable, but a number is needed here", node)
-        raise EvalError(self._unknown(name), node)
+        raise UnknownName(self._unknown(name), node)
 
     def _unknown(self, name):
         known = [*self.params, *self.lets, *self.layout.states, *self.layout.inputs]
@@ -138,7 +140,7 @@ class Lowering:
                 return self.expand_let(node, lambda e: symbolic(e, lookup))
             if name in lay.outputs:
                 raise EvalError(f"{name!r} is an output; a mean may use states and inputs only", node)
-            raise EvalError(self._unknown(name), node)
+            raise UnknownName(self._unknown(name), node)
 
         try:
             e = sp.expand(symbolic(expr, lookup))
@@ -164,11 +166,18 @@ class Lowering:
 
     # ------------------------------------------------------------- statements
     def lower(self, arrays: ModeArrays, statements: list[Statement]):
+        """Write the mode's statements into its arrays, in order. A statement with an error still
+        accounts for the variable it defines, so the root cause is not followed by 'has no equation'."""
         for st in statements:
+            errors = self.report.error_count
             if st.kind == "sample":
                 self._sample(arrays, st)
             elif st.kind == "assign":
                 self._assign(arrays, st)
+            if self.report.error_count > errors and st.target is not None:
+                name = st.target.name.text
+                (arrays.states_defined if name in self.layout.states else arrays.outputs_defined).add(name)
+                arrays.states_defined.update(self.layout.block_states.get(name, ()))
 
     def _sample(self, m: ModeArrays, st: Statement):
         lay, name = self.layout, st.target.name.text
@@ -208,6 +217,7 @@ class Lowering:
         if sd < 0:
             self.report.error(f"a standard deviation cannot be negative (got {sd:g}); Normal takes (mean, sd)",
                               d.positional[1].pos)
+        check_sd(sd, d.positional[1].pos, self.report)
         self._equation(m, d.positional[0], sd, state, output)
 
     def _equation(self, m: ModeArrays, mean: Expr, sd: float, state: int | None, output: int | None):
@@ -270,6 +280,7 @@ class Lowering:
                               st.expr.pos)
             return
         if name in ("B", "D"):
+            check_sd(np.abs(value).max(initial=0.0), st.expr.pos, self.report)
             setattr(m, name, value)
         elif name == "x0":
             m.x0 = value
@@ -391,10 +402,20 @@ class Lowering:
         return tau, delay
 
     def arx_coefficients(self, kw) -> tuple[np.ndarray, np.ndarray] | None:
-        """The a (a1..a_na) and b (b0..b_nb) coefficient vectors of an arx block."""
+        """The a (a1..a_na) and b (b0..b_nb) coefficient vectors of an arx block, each of at most
+        MAX_ORDER coefficients; None, reported, otherwise."""
         a, b = self.matrix(kw["a"][0]), self.matrix(kw["b"][0])
         if a is None or b is None:
             return None
+        for key, vec, first in (("a", a, "a1"), ("b", b, "b0")):
+            if vec.size == 0:
+                hint = "; without output feedback write 'a [0]'" if key == "a" else ""
+                self.report.error(f"arx needs at least {first} in '{key} [...]'{hint}", kw[key][0].pos)
+                return None
+            if vec.size > MAX_ORDER:
+                self.report.error(f"{vec.size} coefficients in '{key}' are too many: at most {MAX_ORDER}",
+                                  kw[key][0].pos)
+                return None
         return a.ravel(), b.ravel()
 
     def _arx(self, m: ModeArrays, d: Dist, j: int):
@@ -415,9 +436,6 @@ class Lowering:
                     self.report.error(f"{key} = {order:g} but {len(vec)} coefficients are given "
                                       f"({'a1..a_na' if key == 'na' else 'b0..b_nb'})", kw[key][0].pos)
                     return
-        if len(b) == 0:
-            self.report.error("arx needs at least b0 in 'b [...]'", kw["b"][0].pos)
-            return
         u_ss, y_ss = self._operating_point(d, k)
         out = self.layout.outputs[j]
         idx = self._block_rows(m, j, k, u_ss, y_ss)

@@ -6,15 +6,13 @@ from __future__ import annotations
 import numpy as np
 
 from ..lang.check import Plant, check
+from ..lang.limits import MAX_DELAY_SAMPLES
 from ..lang.parse import parse_file, parse_text
 from ..lang.report import Report
 from ..lang.syntax import Pos, Spec
 from ..model import Model
-from .assemble import declared_values, mode_noise, stack, steady_mean
+from .assemble import check_size, declared_values, mode_noise, stack, steady_mean
 from .blocks import Layout, Lowering, ModeArrays, arx_states, fopdt_states
-
-
-MAX_DELAY_SAMPLES = 1000  # a fopdt dead time becomes one state per sample: more is almost surely a unit slip
 
 
 def compile_file(path) -> Model:
@@ -50,9 +48,10 @@ def lower_linear(plant: Plant, report: Report) -> Model:
                     outputs=[d.name.text for d in plant.outputs],
                     input_defaults=declared_values(plant, plant.inputs, report))
     _add_block_states(plant, layout, params, report)
+    check_size(plant, layout, report)
     if not layout.outputs:
         report.error("a plant needs at least one output: declare it with 'output NAME'", Pos(1, 1))
-    if not layout.states:
+    if not layout.states and not report.error_count:  # a block with an error reserves no states
         report.error("a plant needs at least one state: declare it with 'state NAME' (or give an output a "
                      "fopdt or arx block)", Pos(1, 1))
     report.raise_errors()

@@ -21,12 +21,13 @@ from ..errors import Diagnostic, SpecError
 from ..lang import syntax as S
 from ..lang.check import Plant, check
 from ..lang.parse import parse_file
-from ..lang.evaluate import NOT_FINITE, EvalError, LetExpander, evaluate_number, finite_real, show, symbolic
+from ..lang.evaluate import (NOT_FINITE, EvalError, LetExpander, UnknownName, evaluate_number,
+                                finite_real, show, symbolic)
 from ..lang.report import Report
 from ..lang.units import time_in_seconds
 from ..model import Model
 from ..names import suggest
-from .assemble import declared_values, mode_noise, stack, steady_mean
+from .assemble import check_size, declared_values, mode_noise, stack, steady_mean
 from .blocks import Layout, ModeArrays
 
 STEADY_TOLERANCE = 1e-8  # largest accepted |der(x)| at a steady state, relative to 1 + |x|
@@ -119,7 +120,7 @@ def _resolver(plant: Plant, xs: dict, us: dict, ps: dict):
             return expand_let(node, lambda e: symbolic(e, lookup))
         if name in outputs:
             raise EvalError(f"{name!r} is an output; equations use states, inputs and parameters", node)
-        raise EvalError(f"unknown name {name!r}{suggest(name, known)}", node)
+        raise UnknownName(f"unknown name {name!r}{suggest(name, known)}", node)
 
     return lookup
 
@@ -194,6 +195,8 @@ def _check_mode_statements(plant: Plant, report: Report):
 def linearise(plant: Plant, system: OdeSystem, report: Report) -> Model:
     """Linearise every mode of the plant at its operating point and discretise with a zero-order hold."""
     params, pvecs = mode_parameters(plant, system, report)
+    for mode, env in zip(plant.modes, params):
+        _check_divisors(plant, mode.name, env, report)
     u_bar = declared_values(plant, plant.inputs, report)
     for d, value in zip(plant.inputs, u_bar):
         if np.isnan(value):
@@ -204,6 +207,7 @@ def linearise(plant: Plant, system: OdeSystem, report: Report) -> Model:
     report.raise_errors()
     layout = Layout(states=list(system.states), inputs=list(system.inputs), outputs=list(system.outputs),
                     input_defaults=u_bar)
+    check_size(plant, layout, report)
     dt = plant.dt / system.seconds_per_unit
     modes = []
     for mode, env, p, x_bar in zip(plant.modes, params, pvecs, points):
@@ -218,6 +222,19 @@ def linearise(plant: Plant, system: OdeSystem, report: Report) -> Model:
         m.x0 = x_bar if settled is None else settled
         modes.append(m)
     return stack(plant, layout, modes, report)
+
+
+def _check_divisors(plant: Plant, mode: str, env: dict, report: Report):
+    """The equations with one mode's parameter values: a divisor that is zero there (`x / a` with
+    `a = 0` in the mode) is reported where it is written, as in a linear plant."""
+    states, inputs = ({d.name.text: sp.Symbol(d.name.text, real=True) for d in decls}
+                      for decls in (plant.states, plant.inputs))
+    lookup = _resolver(plant, states, inputs, {name: sp.Float(value) for name, value in env.items()})
+    for expr in [eq.expr for eq in plant.spec.ode] + [d.value for d in plant.outputs if d.value is not None]:
+        try:
+            symbolic(expr, lookup)
+        except EvalError as exc:
+            report.error(f"{exc} in mode {mode!r}", exc.node.pos)
 
 
 def mode_parameters(plant: Plant, system: OdeSystem, report: Report) -> tuple[list[dict], np.ndarray]:

@@ -12,6 +12,7 @@ import numpy as np
 from ..names import suggest
 from . import syntax as S
 from .evaluate import evaluate_number
+from .limits import MAX_MODES, MAX_VARIABLES, check_sd
 from .probabilities import initial_distribution, transition_matrix
 from .report import Report
 from .units import time_in_seconds
@@ -70,8 +71,11 @@ def evaluate_params(params: list[S.Assign], report: Report) -> dict[str, float]:
 
 
 def check(spec: S.Spec) -> tuple[Plant, Report]:
-    """Resolve a parsed spec into a Plant; problems go to the returned Report (not raised here)."""
+    """Resolve a parsed spec into a Plant; problems go to the returned Report (not raised here), except
+    a plant beyond the size limits, raised at once, before anything is built for it."""
     report = Report(spec.path, spec.lines)
+    _check_counts(spec, report)
+    report.raise_errors()
     for what, pos in spec.repeated:
         report.error(f"'{what}' is given more than once", pos)
     _check_declarations(spec, report)
@@ -91,6 +95,18 @@ def check(spec: S.Spec) -> tuple[Plant, Report]:
         inputs=decls["input"], outputs=decls["output"], states=decls["state"], params=params, nominal=nominal,
         lets={a.name.text: a for a in spec.lets}, modes=modes, P=P, p0=p0, noise=noise, spec=spec)
     return plant, report
+
+
+def _check_counts(spec: S.Spec, report: Report):
+    """At most MAX_MODES modes and MAX_VARIABLES inputs, outputs or states; the first one over is named."""
+    modes = [m.name for m in spec.modes] or list({b.name.text: b.name for b in spec.blocks}.values())
+    if len(modes) > MAX_MODES:
+        report.error(f"too many modes: {len(modes):,}, at most {MAX_MODES:,} are allowed", modes[MAX_MODES].pos)
+    for kind in ("input", "output", "state"):
+        names = [d.name for d in spec.decls if d.kind == kind]
+        if len(names) > MAX_VARIABLES:
+            report.error(f"too many {kind}s: {len(names):,}, at most {MAX_VARIABLES:,} are allowed",
+                         names[MAX_VARIABLES].pos)
 
 
 def _check_declarations(spec: S.Spec, report: Report):
@@ -137,6 +153,9 @@ def _sample_time(spec: S.Spec, report: Report) -> tuple[float, str]:
         report.error("the sample time needs a unit: s, min or h (e.g. 'sample 0.1 min')", pos)
         return value, "s"
     seconds = time_in_seconds(value, unit, report)
+    if not np.isfinite(seconds):
+        report.error("the sample time is not a finite number of seconds", pos)
+        return 1.0, unit.text
     return seconds, unit.text
 
 
@@ -164,6 +183,11 @@ def _modes(spec: S.Spec, report: Report, params: set[str]) -> list[ModeInfo]:
         info = infos[name]
         info.like = b.like
         for st in b.statements:
+            if st.kind == "der":
+                report.error(f"der({st.target.name.text}) belongs in the 'ode' block: the equations are the "
+                             "same in every mode, which changes parameters (e.g. 'U = 1.1') or noise",
+                             st.target.name.pos)
+                continue
             is_override = (st.kind == "assign" and st.target.lag is None and st.target.index is None
                            and st.target.name.text in params)
             if is_override:
@@ -174,7 +198,7 @@ def _modes(spec: S.Spec, report: Report, params: set[str]) -> list[ModeInfo]:
         report.error("no modes: declare them with 'modes a, b, ...' or write 'mode NAME { ... }' blocks",
                      S.Pos(1, 1))
     for info in infos.values():
-        _resolve_like(info, infos, report, [])
+        _resolve_like(info, infos, report)
     return list(infos.values())
 
 
@@ -185,26 +209,27 @@ def _check_overrides(overrides, params: set[str], report: Report):
             report.error(f"{a.name.text!r} is not a parameter{suggest(a.name.text, params)}", a.name.pos)
 
 
-def _resolve_like(info: ModeInfo, infos: dict[str, ModeInfo], report: Report, chain: list[str]):
-    """Prepend the base mode's overrides and statements (recursively) to this mode's own."""
-    if info.like is None:
-        return
-    base_name = info.like.text
-    if base_name in chain or base_name == info.name:
-        report.error(f"mode {info.name!r} is 'like' itself through {' -> '.join(chain + [info.name, base_name])}",
-                     info.like.pos)
-        info.like = None
-        return
-    base = infos.get(base_name)
-    if base is None:
-        report.error(f"unknown mode {base_name!r}{suggest(base_name, infos)}", info.like.pos)
-        info.like = None
-        return
-    _resolve_like(base, infos, report, chain + [info.name])
-    info.overrides = base.overrides + info.overrides
-    info.statements = base.statements + info.statements
-    info.description = info.description or base.description
-    info.like = None
+def _resolve_like(info: ModeInfo, infos: dict[str, ModeInfo], report: Report):
+    """Prepend the base mode's overrides and statements, through the whole chain of bases, to this
+    mode's own. The chain is walked with a loop, so a long chain of `like`s needs no deep recursion."""
+    chain = [info]
+    while chain[-1].like is not None:
+        current, base_name = chain[-1], chain[-1].like.text
+        names = [m.name for m in chain]
+        if base_name in names:
+            report.error(f"mode {current.name!r} is 'like' itself through {' -> '.join(names + [base_name])}",
+                         current.like.pos)
+        elif base_name not in infos:
+            report.error(f"unknown mode {base_name!r}{suggest(base_name, infos)}", current.like.pos)
+        else:
+            chain.append(infos[base_name])
+            continue
+        current.like = None
+    for derived, base in reversed(list(zip(chain, chain[1:]))):
+        derived.overrides = base.overrides + derived.overrides
+        derived.statements = base.statements + derived.statements
+        derived.description = derived.description or base.description
+        derived.like = None
 
 
 def noise_values(stmts: list[S.Noise], env, report: Report, plant_level: bool) -> dict[str, float]:
@@ -219,6 +244,7 @@ def noise_values(stmts: list[S.Noise], env, report: Report, plant_level: bool) -
             value = evaluate_number(expr, env, report, what=f"{name.text} noise")
             if value < 0:
                 report.error(f"a noise standard deviation cannot be negative (got {value:g})", expr.pos)
+            check_sd(value, expr.pos, report)
             if name.text in out and plant_level:
                 report.error(f"{name.text} noise is given more than once", name.pos)
             out[name.text] = value

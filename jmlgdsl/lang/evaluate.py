@@ -7,6 +7,7 @@ import numpy as np
 import sympy as sp
 
 from ..names import suggest
+from .limits import MAX_SIZE
 from .report import Report
 from .syntax import Expr
 
@@ -17,6 +18,14 @@ class EvalError(Exception):
     def __init__(self, message: str, node: Expr):
         super().__init__(message)
         self.node = node
+
+
+class UnknownName(EvalError):
+    """A name the spec does not declare: `pi` and `e` then stand for their constants."""
+
+
+CONSTANTS = {"pi": (np.pi, sp.pi), "e": (np.e, sp.E)}  # (numeric, symbolic); a declared name wins
+BINARY = ("add", "sub", "mul", "div")  # left-associative: a run of them is folded without recursion
 
 
 SCALAR_FUNCTIONS = {
@@ -53,13 +62,38 @@ def _check_arity(node: Expr, name: str, lo: int, hi: int):
         raise EvalError(f"{name}() takes {want} argument{'s' if hi > 1 else ''}, got {n}", node)
 
 
+def _name_value(node: Expr, lookup, kind: int):
+    """lookup(node), or the constant (numeric kind 0, symbolic kind 1) an undeclared `pi` or `e` means."""
+    try:
+        return lookup(node)
+    except UnknownName:
+        if node.op == "var" and node.args[0] in CONSTANTS:
+            return CONSTANTS[node.args[0]][kind]
+        raise
+
+
+def _fold(node: Expr, evaluate, combine):
+    """A left-leaning run of + - * / evaluated left to right: evaluate(operand) for each operand,
+    combine(link, left, right) for each operator node, with no recursion down the run."""
+    run = []
+    while node.op in BINARY:
+        run.append(node)
+        node = node.args[0]
+    value = evaluate(node)
+    for link in reversed(run):
+        value = combine(link, value, evaluate(link.args[1]))
+    return value
+
+
 def numeric(node: Expr, lookup):
     """Value of an expression as a float or a 2-D array. `lookup(node)` gives a name's value."""
     op, args = node.op, node.args
     if op == "number":
         return args[0]
     if op in ("var", "indexed"):
-        return lookup(node)
+        return _name_value(node, lookup, 0)
+    if op in BINARY:
+        return _fold(node, lambda e: numeric(e, lookup), _numeric_binary)
     if op == "matrix":
         rows = [[numeric(e, lookup) for e in row] for row in args]
         try:
@@ -74,6 +108,8 @@ def numeric(node: Expr, lookup):
             _check_arity(node, name, lo, hi)
             if name in SIZED and not all(np.ndim(v) == 0 and float(v).is_integer() and v >= 0 for v in values):
                 raise EvalError(f"{name}() takes sizes: whole numbers, 0 or more", node)
+            if name in SIZED and max(values) > MAX_SIZE:
+                raise EvalError(f"{name}() of size {max(values):.0f} is too large: at most {MAX_SIZE}", node)
             return fn(*values)
         if name in SCALAR_FUNCTIONS:
             lo, hi = ARITY.get(name, (1, 1))
@@ -83,7 +119,15 @@ def numeric(node: Expr, lookup):
     vals = [numeric(a, lookup) for a in args]
     if op == "neg":
         return -vals[0]
-    a, b = vals
+    a, b = vals  # a power: the grammar has no other operators
+    if np.ndim(a) or np.ndim(b):
+        raise EvalError("powers of matrices are not supported", node)
+    return np.power(float(a), float(b))  # real: NaN for a negative base and a fractional power
+
+
+def _numeric_binary(node: Expr, a, b):
+    """a + b, a - b, a * b (a matrix product between matrices) or a / b, as `node` says."""
+    op = node.op
     if op == "add" or op == "sub":
         try:
             return a + b if op == "add" else a - b
@@ -101,11 +145,6 @@ def numeric(node: Expr, lookup):
         if b == 0:
             raise EvalError("division by zero", node)
         return a / b
-    if op == "pow":
-        if np.ndim(a) or np.ndim(b):
-            raise EvalError("powers of matrices are not supported", node)
-        return np.power(float(a), float(b))  # real: NaN for a negative base and a fractional power
-    raise EvalError(f"unsupported expression {op}", node)  # pragma: no cover - grammar has no others
 
 
 def symbolic(node: Expr, lookup) -> sp.Expr:
@@ -114,7 +153,9 @@ def symbolic(node: Expr, lookup) -> sp.Expr:
     if op == "number":
         return sp.Integer(int(args[0])) if float(args[0]).is_integer() else sp.Float(args[0])
     if op in ("var", "indexed"):
-        return lookup(node)
+        return _name_value(node, lookup, 1)
+    if op in BINARY:
+        return _fold(node, lambda e: symbolic(e, lookup), _symbolic_binary)
     if op == "matrix":
         raise EvalError("a matrix is not allowed here", node)
     if op == "call":
@@ -128,9 +169,16 @@ def symbolic(node: Expr, lookup) -> sp.Expr:
     vals = [symbolic(a, lookup) for a in args]
     if op == "neg":
         return -vals[0]
-    a, b = vals
-    return {"add": lambda: a + b, "sub": lambda: a - b, "mul": lambda: a * b,
-            "div": lambda: a / b, "pow": lambda: a ** b}[op]()
+    return vals[0] ** vals[1]  # a power: the grammar has no other operators
+
+
+def _symbolic_binary(node: Expr, a: sp.Expr, b: sp.Expr) -> sp.Expr:
+    """a + b, a - b, a * b or a / b; a divisor that is zero (a parameter set to 0, say) is an error here."""
+    if node.op == "div":
+        if b.is_zero:
+            raise EvalError("division by zero", node)
+        return a / b
+    return a + b if node.op == "add" else a - b if node.op == "sub" else a * b
 
 
 class LetExpander:
@@ -200,7 +248,7 @@ def evaluate_number(expr: S.Expr, env: dict, report: Report, what: str) -> float
         if node.op == "indexed":
             raise EvalError(f"{what} cannot refer to a time-indexed value", node)
         if name not in env:
-            raise EvalError(f"unknown name {name!r} in {what}{suggest(name, env)}", node)
+            raise UnknownName(f"unknown name {name!r} in {what}{suggest(name, env)}", node)
         return env[name]
 
     try:

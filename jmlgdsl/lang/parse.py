@@ -12,6 +12,7 @@ from lark.exceptions import UnexpectedCharacters, UnexpectedEOF, UnexpectedInput
 
 from ..errors import Diagnostic, SpecError
 from . import syntax as S
+from .limits import MAX_NESTING
 
 # How the terminals that are not fixed text read in an error message; fixed text (keywords,
 # punctuation, '->') is shown as written.
@@ -29,13 +30,24 @@ def grammar() -> Lark:
     return Lark(text, parser="lalr", lexer="contextual", propagate_positions=True, maybe_placeholders=False)
 
 
+# Rules that nest one expression inside another: the depth MAX_NESTING counts.
+_NESTING_RULES = {"sum", "product", "plus", "minus", "times", "over", "neg", "pow", "call", "matrix", "row"}
+
+
 def parse_text(text: str, path: str = "<spec>") -> S.Spec:
-    """Parse a whole spec; raise SpecError with file:line:col and the expected tokens on bad syntax."""
+    """Parse a whole spec; raise SpecError with file:line:col and the expected tokens on bad syntax.
+    A byte-order mark at the start (as some editors write) is not part of the spec."""
+    text = text.removeprefix("\ufeff")
     lines = text.splitlines()
     try:
         tree = grammar().parse(text)
     except UnexpectedInput as exc:
         raise SpecError([_syntax_diagnostic(exc, path, lines)]) from None
+    too_deep = _too_deep(tree)
+    if too_deep is not None:
+        line, column = too_deep
+        raise SpecError([Diagnostic(f"expression nested too deeply: at most {MAX_NESTING} levels of operators, "
+                                    "calls and signs inside one another", path, line, column, lines[line - 1])])
     spec = S.Spec(path=path, lines=lines)
     builder = _Builder(spec)
     builder.transform(tree)
@@ -53,6 +65,20 @@ def parse_file(path) -> S.Spec:
     except UnicodeDecodeError:
         raise SpecError([Diagnostic("cannot read spec: not UTF-8 text", str(path))]) from None
     return parse_text(text, str(path))
+
+
+def _too_deep(tree: Tree) -> tuple[int, int] | None:
+    """Where an expression first nests more than MAX_NESTING levels deep (line, column), or None.
+    Walked with an explicit stack: the tree is checked before anything recurses into it."""
+    stack = [(tree, 0)]
+    while stack:
+        node, depth = stack.pop()
+        if node.data in _NESTING_RULES:
+            depth += 1
+            if depth > MAX_NESTING:
+                return node.meta.line, node.meta.column
+        stack.extend((child, depth) for child in node.children if isinstance(child, Tree))
+    return None
 
 
 def _expected(names) -> str:
@@ -103,6 +129,15 @@ def _pos(item) -> S.Pos:
     return S.Pos(getattr(meta, "line", 0), getattr(meta, "column", 0))
 
 
+def _statement(x) -> S.Statement:
+    """A mode-block statement; a `noise` line or a `der()` equation written in a block is wrapped in one."""
+    if isinstance(x, S.Noise):
+        return S.Statement("noise", x.pos, noise=x)
+    if isinstance(x, S.Derivative):
+        return S.Statement("der", x.state.pos, target=S.Target(x.state), expr=x.expr)
+    return x
+
+
 def _name(tok: Token) -> S.Name:
     return S.Name(str(tok).rstrip("["), S.Pos(tok.line, tok.column))
 
@@ -148,8 +183,26 @@ class _Builder(Transformer):
             return S.Expr(name, tuple(c), _pos(meta))
         return build
 
-    add, sub, mul, div, pow, neg = _op("add"), _op("sub"), _op("mul"), _op("div"), _op("pow"), _op("neg")
+    pow, neg = _op("pow"), _op("neg")
     del _op
+
+    def _operand(name):
+        def build(self, meta, c):
+            return name, c[0]
+        return build
+
+    plus, minus, times, over = _operand("add"), _operand("sub"), _operand("mul"), _operand("div")
+    del _operand
+
+    def sum(self, meta, c):
+        """A flat run `a + b - c ...` (or `a * b / c ...`) folded left to right into binary nodes, each
+        placed where the run starts, without recursion however long the run."""
+        expr = c[0]
+        for op, operand in c[1:]:
+            expr = S.Expr(op, (expr, operand), _pos(meta))
+        return expr
+
+    product = sum
 
     def row(self, meta, c):
         return tuple(c)
@@ -284,7 +337,7 @@ class _Builder(Transformer):
         return S.Statement("assign", _pos(meta), target=c[0], expr=c[1])
 
     def block(self, meta, c):
-        return tuple(S.Statement("noise", x.pos, noise=x) if isinstance(x, S.Noise) else x for x in c)
+        return tuple(map(_statement, c))
 
     def like(self, meta, c):
         return _name(c[0])
@@ -295,10 +348,8 @@ class _Builder(Transformer):
         for x in c[1:]:
             if isinstance(x, tuple):
                 body = x
-            elif isinstance(x, S.Statement):
-                body = (x,)
-            elif isinstance(x, S.Noise):
-                body = (S.Statement("noise", x.pos, noise=x),)
+            elif isinstance(x, (S.Statement, S.Noise, S.Derivative)):
+                body = (_statement(x),)
         self.spec.blocks.append(S.ModeBlock(_name(c[0]), like, body, _pos(meta)))
 
     # ---------------------------------------------------------------- nonlinear plants

@@ -7,7 +7,7 @@ import numpy as np
 
 from ..names import suggest
 from . import syntax as S
-from .evaluate import EvalError, evaluate_number, finite_numeric
+from .evaluate import EvalError, UnknownName, evaluate_number, finite_numeric
 from .report import Report
 
 ROW_TOLERANCE = 1e-3  # a row further than this from summing to 1 is an error; nearer, it is renormalised
@@ -151,7 +151,7 @@ def _matrix_value(expr: S.Expr, shape, what: str, env, report: Report) -> np.nda
     """A numeric vector/matrix of a required shape (a row or column is accepted for a vector)."""
     def lookup(node):
         if node.args[0] not in env:
-            raise EvalError(f"unknown name {node.args[0]!r}{suggest(node.args[0], env)}", node)
+            raise UnknownName(f"unknown name {node.args[0]!r}{suggest(node.args[0], env)}", node)
         return env[node.args[0]]
 
     try:

@@ -113,7 +113,7 @@ class Dist:
 class Statement:
     """A statement inside a mode: `target ~ dist`, `target = expr` or a mode-level `noise`."""
 
-    kind: str  # "sample" | "assign" | "noise"
+    kind: str  # "sample" | "assign" | "noise" | "der" (an ODE equation in a mode block: refused by the checker)
     pos: Pos
     target: Target | None = None
     dist: Dist | None = None
