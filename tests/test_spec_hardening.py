@@ -9,7 +9,8 @@ from conftest import assert_located, errors_of
 
 from jmlgdsl.cli import main
 from jmlgdsl.compile.lower import compile_text
-from jmlgdsl.lang.limits import MAX_ERRORS, MAX_MODES, MAX_NESTING, MAX_ORDER, MAX_SIZE, MAX_VARIABLES
+from jmlgdsl.lang.limits import (MAX_ERRORS, MAX_LET_CHAIN, MAX_MODES, MAX_NESTING, MAX_ORDER, MAX_SIZE,
+                                MAX_VARIABLES)
 from jmlgdsl.lang.parse import parse_file
 from jmlgdsl.lang.report import Report
 from jmlgdsl.lang.syntax import Pos
@@ -73,6 +74,24 @@ def test_deep_nesting_is_a_located_error(deep):
 def test_nesting_up_to_the_limit_compiles():
     text = spec(decls="param q = " + "abs(" * MAX_NESTING + "0.5" + ")" * MAX_NESTING, mean="q * x[t-1]")
     np.testing.assert_allclose(compile_text(text).A[0], [[0.5]])
+
+
+@pytest.mark.parametrize("length", [MAX_LET_CHAIN, 400])
+def test_a_long_chain_of_lets_is_limited(length):
+    """`length` lets, each using the one before it."""
+    lets = "let l1 = 0.5\n" + "".join(f"let l{i} = l{i - 1} + 0\n" for i in range(2, length + 1))
+    text = spec(decls=lets, mean=f"l{length} * x[t-1]")
+    if length <= MAX_LET_CHAIN:
+        np.testing.assert_allclose(compile_text(text).A[0], [[0.5]])
+    else:
+        located(text, f"l{length - MAX_LET_CHAIN} + 0", f"lets nested too deeply: at most {MAX_LET_CHAIN}")
+
+
+def test_deep_expressions_in_a_chain_of_lets_are_an_error():
+    deep = "abs(" * (MAX_NESTING - 1) + "{}" + ")" * (MAX_NESTING - 1)
+    lets = "let l0 = 0.5\n" + "".join(f"let l{i} = {deep.format(f'l{i - 1}')}\n" for i in range(1, 20))
+    diagnostics = errors_of(spec(decls=lets, mean="l19 * x[t-1]"), PATH)
+    assert len(diagnostics) == 1 and "nested too deeply" in diagnostics[0].message
 
 
 # ------------------------------------------------------------------ 2. sizes

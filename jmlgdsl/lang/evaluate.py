@@ -7,7 +7,7 @@ import numpy as np
 import sympy as sp
 
 from ..names import suggest
-from .limits import MAX_SIZE
+from .limits import MAX_LET_CHAIN, MAX_SIZE
 from .report import Report
 from .syntax import Expr
 
@@ -183,7 +183,8 @@ def _symbolic_binary(node: Expr, a: sp.Expr, b: sp.Expr) -> sp.Expr:
 
 class LetExpander:
     """Expands `let` names in expressions, one at a time, so that a let depending on itself (directly
-    or through other lets) is a located error instead of endless recursion."""
+    or through other lets), or a chain of more than MAX_LET_CHAIN lets, is a located error instead of
+    endless or too deep recursion."""
 
     def __init__(self, lets: dict):
         self.lets = lets  # name -> Assign
@@ -195,9 +196,14 @@ class LetExpander:
         if name in self.expanding:
             chain = " -> ".join(self.expanding[self.expanding.index(name):] + [name])
             raise EvalError(f"'let {name}' depends on itself through {chain}", node)
+        if len(self.expanding) >= MAX_LET_CHAIN:
+            raise EvalError(f"lets nested too deeply: at most {MAX_LET_CHAIN} lets may use one another in a chain "
+                            f"({' -> '.join(self.expanding[:3])} -> ...)", node)
         self.expanding.append(name)
         try:
             return evaluate(self.lets[name].expr)
+        except RecursionError:  # deep expressions inside each of the lets of a long chain
+            raise EvalError(f"'let {name}' is nested too deeply: write it with fewer levels", node) from None
         finally:
             self.expanding.pop()
 
