@@ -40,8 +40,15 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _printable(text: str) -> str:
+    """A message as it may reach a terminal: characters that are not printable (a control code from a
+    damaged file, a line separator) escaped, so a one-line message stays one line."""
+    return "".join(c if c.isprintable() or c == "\n" else repr(c)[1:-1] for c in text)
+
+
 def _show_warning(message, category, filename, lineno, file=None, line=None):
-    print(str(message) if issubclass(category, SpecWarning) else f"warning: {message}", file=sys.stderr)
+    text = str(message) if issubclass(category, SpecWarning) else f"warning: {message}"
+    print(_printable(text), file=sys.stderr)
 
 
 def main(argv=None) -> int:
@@ -50,7 +57,7 @@ def main(argv=None) -> int:
     try:
         return args.func(args) or 0
     except JmlgError as exc:
-        print(str(exc) if isinstance(exc, SpecError) else f"error: {exc}", file=sys.stderr)
+        print(_printable(str(exc) if isinstance(exc, SpecError) else f"error: {exc}"), file=sys.stderr)
         return 2
     except MemoryError:
         print("error: not enough memory for this request; ask for fewer steps, particles or runs",

@@ -5,7 +5,7 @@ from __future__ import annotations
 import sys
 import warnings
 
-from ..errors import JmlgError, SpecWarning
+from ..errors import JmlgError, SpecError, SpecWarning
 
 
 def register(sub):
@@ -43,8 +43,8 @@ def run(args) -> int:
             warnings.simplefilter("always", SpecWarning)
             try:
                 model = load(path)
-            except JmlgError as exc:
-                print(exc, file=sys.stderr)
+            except JmlgError as exc:  # a spec's errors are located lines; any other is one `error:` line
+                print(exc if isinstance(exc, SpecError) else f"error: {exc}", file=sys.stderr)
                 status = 2
                 continue
         for w in caught:
