@@ -17,7 +17,7 @@ STYLE = {"pf": ("tab:red", "v"), "rbpf": ("tab:orange", "s"), "la-rbpf": ("tab:b
 DPI = 100
 
 
-def _style(name):
+def style(name):
     """(colour, marker) of a filter; marker None for the filters without particles."""
     return STYLE.get(name, ("tab:gray", "x"))
 
@@ -48,7 +48,7 @@ def error_vs_particles(summary, path, title="", reference=None):
     fig = figure(figsize=(8.5, 4.5))
     ax = fig.subplots()
     for name, rows in _by_filter(summary).items():
-        color, marker = _style(name)
+        color, marker = style(name)
         if rows[0]["particles"] is None:
             ax.axhline(rows[0]["error_mean"], color=color, ls="--", label=f"{name} (no particles)")
             continue
@@ -56,7 +56,7 @@ def error_vs_particles(summary, path, title="", reference=None):
         ax.errorbar(n, [r["error_mean"] for r in rows], yerr=np.nan_to_num([r["error_sd"] for r in rows]),
                     color=color, marker=marker, capsize=3, label=name)
     for name, points in (reference or {}).items():
-        color, marker = _style(name)
+        color, marker = style(name)
         n, mean, sd = np.array(points, dtype=float).T
         ax.errorbar(n * 1.08, mean, yerr=sd, color=color, marker=marker or "o", mfc="none", ls=":", capsize=2,
                     alpha=0.8, label=f"{name}, published (real data)")
@@ -81,7 +81,7 @@ def error_vs_time(summary, path, sample_time, title=""):
     fig = figure(figsize=(8, 4.5))
     ax = fig.subplots()
     for name, rows in _by_filter(summary).items():
-        color, marker = _style(name)
+        color, marker = style(name)
         ax.errorbar([r["ms_per_step_mean"] for r in rows], [r["error_mean"] for r in rows],
                     yerr=np.nan_to_num([r["error_sd"] for r in rows]), color=color, marker=marker or "*",
                     ms=9 if marker is None else 6, capsize=3, label=name)
@@ -119,7 +119,7 @@ def error_boxplots(records, path, title=""):
         counts = sorted(by_n)
         ax.boxplot([by_n[n] for n in counts], tick_labels=[str(n) for n in counts], widths=0.6,
                    flierprops={"marker": "+", "markersize": 4})
-        ax.set_title(name, color=_style(name)[0])
+        ax.set_title(name, color=style(name)[0])
         ax.set_xlabel("particles N")
         ax.tick_params(axis="x", labelrotation=90, labelsize="small")
         ax.grid(True, axis="y", alpha=0.3)
