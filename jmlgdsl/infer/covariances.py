@@ -20,27 +20,22 @@ class _Growing:
     """An array that grows along its first axis with amortised doubling."""
 
     def __init__(self, shape, dtype=float, fill=0):
-        self._data = np.full((16,) + tuple(shape), fill, dtype=dtype)
+        self.buffer = np.full((16,) + tuple(shape), fill, dtype=dtype)  # the storage, valid up to `size`
         self._fill = fill
         self.size = 0
 
     def extend(self, block):
         n = self.size + len(block)
-        if n > len(self._data):
-            bigger = np.full((2 * n,) + self._data.shape[1:], self._fill, dtype=self._data.dtype)
-            bigger[:self.size] = self._data[:self.size]
-            self._data = bigger
-        self._data[self.size:n] = block
+        if n > len(self.buffer):
+            bigger = np.full((2 * n,) + self.buffer.shape[1:], self._fill, dtype=self.buffer.dtype)
+            bigger[:self.size] = self.buffer[:self.size]
+            self.buffer = bigger
+        self.buffer[self.size:n] = block
         self.size = n
 
     @property
     def data(self):
-        return self._data[:self.size]
-
-    @property
-    def buffer(self):
-        """The whole storage, valid up to `size` (indexing it skips the slice of `data`)."""
-        return self._data
+        return self.buffer[:self.size]
 
 
 class _Rows:

@@ -69,6 +69,7 @@ class Filter:
                           else Genealogies(model, lag, self.engine.z))
         self._gate = Gate.of(model.outlier_gate)
         self._flagged = np.zeros(model.ny, dtype=np.int64)  # consecutive steps beyond the gate, per output
+        self._watching = False  # some output was beyond the gate at the last step
 
     def step(self, y, u=None) -> Step | None:
         """Advance one time step with outputs y (ny,) and inputs u (nu,); the record of this row, or
@@ -90,7 +91,7 @@ class Filter:
                 bad = [n for n, v in zip(model.inputs, u) if not np.isfinite(v)]
                 raise DataError(f"t={t}: no value and no default for input {', '.join(bad)}")
         est = self.engine.step(y, mask, u, self._gate)
-        if est.flagged is not None or self._flagged.any():
+        if est.flagged is not None or self._watching:
             self._count_flagged(est.flagged)
         self.t = t
         self.loglik += est.loglik
@@ -130,6 +131,7 @@ class Filter:
         such steps its readings are taken whatever they say, until one is within the gate again:
         a change that lasts is the plant, not a glitch."""
         self._flagged = np.zeros_like(self._flagged) if flagged is None else np.where(flagged, self._flagged + 1, 0)
+        self._watching = flagged is not None
         self._gate = Gate.of(self.model.outlier_gate, self._flagged < MAX_REJECTIONS)
 
 

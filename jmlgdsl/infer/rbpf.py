@@ -35,7 +35,7 @@ class RaoBlackwellised:
 
     def __init__(self, model, particles=None, rng=None, resampler: Resampler | None = None):
         self.model, self.n, self.rng, self.resampler = model, particles, rng, resampler
-        K, nx, ny = model.K, model.nx, model.ny
+        self.K, self.nx, self.ny = K, nx, ny = model.K, model.nx, model.ny
         self.graph = CovarianceGraph(model)
         root = self.graph.add(model.Sigma0[None])[0]
         # One stacked map from a particle mean to every mode's predicted state and output, side by
@@ -63,7 +63,7 @@ class RaoBlackwellised:
     def candidates(self):
         """(parent, mode, log share) of the candidates to evaluate: a candidate carries its parent's
         weight times P[z, mode] / exp(log share); None means every (particle, mode) pair in order."""
-        n, K = len(self.z), self.model.K
+        n, K = len(self.z), self.K
         if n not in self._pairs:
             self._pairs[n] = np.repeat(np.arange(n), K), np.tile(np.arange(K), n)
         return (*self._pairs[n], None)
@@ -74,7 +74,7 @@ class RaoBlackwellised:
         raise NotImplementedError
 
     def step(self, y, mask, u, gate=OPEN) -> Estimate:
-        model, K, nx, ny = self.model, self.model.K, self.model.nx, self.model.ny
+        model, K, nx, ny = self.model, self.K, self.nx, self.ny
         rows = self.graph.rows(mask)
         parent, mode, log_prop = self.candidates()
         n = len(self.z)
@@ -166,7 +166,7 @@ class LookAheadRBPF(RaoBlackwellised):
     """Look-ahead RBPF: select particles on p(y_t | history), then draw modes from their exact posterior."""
 
     def select(self, q, parent, mode):
-        K = self.model.K
+        K = self.K
         q = q.reshape(-1, K)
         ancestors, logw, size = self.resampler(q.sum(axis=1), self.copies)
         return ancestors * K + sample_rows(q[ancestors], self.rng), logw, size
