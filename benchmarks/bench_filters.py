@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import platform
+import sys
 import time
 from pathlib import Path
 
@@ -26,7 +27,10 @@ from jmlgdsl.simulate import simulate
 
 ROOT = Path(__file__).resolve().parent.parent
 SPECS = ROOT / "specs"
-DRYER_SEQ1 = "1-70:normal,71-238:fan,239-365:grill,366-513:normal,514-705:grill,706-1000:fan"
+sys.path.insert(0, str(ROOT / "benchmarks" / "studies"))
+from studies import DRYER  # noqa: E402  (the published sequences, written once)
+
+DRYER_SEQ1 = DRYER["seq1"]
 SETTINGS = [("pf", 50), ("pf", 200), ("pf", 800), ("rbpf", 25), ("rbpf", 100), ("rbpf", 400),
             ("la-rbpf", 4), ("la-rbpf", 10), ("la-rbpf", 25), ("la-rbpf", 100),
             ("fc-rbpf", 1), ("fc-rbpf", 2), ("fc-rbpf", 4), ("fc-rbpf", 10), ("imm", None)]
