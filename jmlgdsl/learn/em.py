@@ -91,28 +91,26 @@ def forward(ss: StateSpace, y, u) -> Filtered:
     steady = None
     quad, loglik = 0.0, 0.0
     for t in range(T):
-        m = measured[t]
+        m = slice(None) if full[t] else measured[t]  # a view, not a copy, when every output is measured
         if steady is not None and full[t]:
             Sig_p[t], Sig_f[t + 1], gain_t, Linv, logdet = steady
             settled[t] = True
         else:
             Sig_p[t] = kalman.predict_cov(Sig_f[t], ss.A, ss.Q)
-            S, CS = kalman.innovation_cov(Sig_p[t], ss.C[m], ss.R[np.ix_(m, m)])
+            S, CS = kalman.innovation_cov(Sig_p[t], ss.C[m], ss.R if full[t] else ss.R[np.ix_(m, m)])
             gain_t, Linv, logdet = _gain(S, CS)
             Sig_f[t + 1] = kalman.symmetrize(Sig_p[t] - CS.T @ gain_t)
-            loglik -= 0.5 * (logdet + m.sum() * kalman.LOG_2PI)
             steady = None
             if full[t] and t and full[t - 1] and (np.abs(Sig_p[t] - Sig_p[t - 1]).max()
                                                   <= SETTLED * np.abs(Sig_p[t]).max()):
                 steady = Sig_p[t], Sig_f[t + 1], gain_t, Linv, logdet
-        if settled[t]:
-            loglik -= 0.5 * (logdet + m.sum() * kalman.LOG_2PI)
         mu_p[t] = ss.A @ mu_f[t] + b[t]
         r = y[t, m] - ss.C[m] @ mu_p[t] - c[t, m]
         innov[t, m] = r
         mu_f[t + 1] = mu_p[t] + gain_t.T @ r
         z = Linv @ r
         quad += z @ z
+        loglik -= 0.5 * (logdet + len(r) * kalman.LOG_2PI)
     return Filtered(mu_p, Sig_p, mu_f, Sig_f, innov, loglik - 0.5 * quad, settled)
 
 
@@ -132,9 +130,12 @@ def smooth(ss: StateSpace, y, u) -> Smoothed:
     from the end); once it stops changing it is reused like the forward ones.
     """
     fw = forward(ss, y, u)
-    # Smoother gains J_t = Sig_f[t] A' Sig_p[t]^-1, all at once (Sig_p symmetric).
-    J = np.swapaxes(np.linalg.solve(fw.cov_pred, ss.A @ fw.cov[:-1]), 1, 2)
-    constant = fw.settled & np.r_[False, fw.settled[:-1]]  # Sig_f[t], Sig_p[t] and so J[t] as at t + 1
+    constant = fw.settled & np.r_[False, fw.settled[:-1]]  # Sig_f[t], Sig_p[t] and so J[t] as at t - 1
+    # Smoother gains J_t = Sig_f[t] A' Sig_p[t]^-1 (Sig_p symmetric), solved at once where they change.
+    J = np.empty_like(fw.cov_pred)
+    solve = ~constant
+    J[solve] = np.swapaxes(np.linalg.solve(fw.cov_pred[solve], ss.A @ fw.cov[:-1][solve]), 1, 2)
+    J[constant] = J[np.maximum.accumulate(np.where(solve, np.arange(len(J)), 0))[constant]]
     mu_s, Sig_s = fw.mean.copy(), fw.cov.copy()
     steady = None
     for t in range(len(J) - 1, -1, -1):
