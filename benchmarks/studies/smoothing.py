@@ -4,6 +4,7 @@ docs/figures/smoothing.png.
 
     python benchmarks/studies/smoothing.py               # 25 runs a plant (about 10 minutes on 2 cores)
     python benchmarks/studies/smoothing.py --runs 5
+    python benchmarks/studies/smoothing.py --replot      # redraw the figure from the table only
 
 Each run simulates the plant through its study schedule (sequence No. 1 for the dryer) with its own
 seed; every filter and lag sees the same data. The error is the % of steps whose smoothed MAP mode
@@ -67,12 +68,74 @@ def lag_label(lag):
     return "off-line" if lag is None else str(lag)
 
 
+def filter_label(algorithm, n):
+    return f"{algorithm} N={n}" if n else algorithm
+
+
+TITLES = {"dryer": "dryer (sequence 1)", "level_tank4": "level tank, 4 modes", "level_tank5": "level tank, 5 modes",
+          "heat_exchanger": "heat exchanger", "robot_smooth": "robot, smooth floor", "robot8": "robot, 8 modes"}
+
+
+def read_table(path):
+    """{(plant, filter label, lag): (error %, delay)} and the number of runs, from a table.md."""
+    means, runs = {}, None
+    for line in path.read_text().splitlines():
+        if " runs a plant" in line:
+            runs = int(line.split(" runs a plant")[0].rsplit(" ", 1)[-1])
+        cells = [c.strip() for c in line.strip("|").split("|")]
+        if len(cells) == 2 + len(LAGS) and cells[0] in PLANTS:
+            for lag, cell in zip(LAGS, cells[2:]):
+                error, steps = cell.split(" / ")
+                means[cells[0], cells[1], lag] = (float(error), float(steps))
+    return means, runs
+
+
+def draw(means, runs, path):
+    """Error (top) and detection delay (bottom) against the lag, one column per plant. The off-line
+    point stands apart: its delay has no lag to count (the whole record is waited for)."""
+    fig = plots.figure(figsize=(13, 6.8), layout="constrained")
+    axes = fig.subplots(2, len(PLANTS), sharex=True, squeeze=False)
+    online = [lag for lag in LAGS if lag is not None]
+    positions = np.arange(len(LAGS))
+    for j, name in enumerate(PLANTS):
+        top, bottom = axes[0, j], axes[1, j]
+        bottom.plot(positions[:len(online)], online, color="0.6", ls="--", lw=1, label="the lag alone")
+        for algorithm, n in FILTERS:
+            label = filter_label(algorithm, n)
+            color, marker = plots.style(algorithm)
+            for ax, k in ((top, 0), (bottom, 1)):
+                values = [means[name, label, lag][k] for lag in LAGS]
+                ax.plot(positions[:len(online)], values[:len(online)], color=color, marker=marker or "*", ms=5,
+                        label=label)
+                ax.plot(positions[-1], values[-1], color=color, marker=marker or "*", ms=5, ls="none")
+        for ax in (top, bottom):
+            ax.axvline(positions[-1] - 0.5, color="0.8", lw=0.8)
+            ax.grid(True, alpha=0.3)
+            ax.set_ylim(bottom=0)
+        top.set_title(TITLES.get(name, name), fontsize="medium")
+        bottom.set_xticks(positions, [lag_label(lag) for lag in LAGS], rotation=45, fontsize="small")
+        bottom.set_xlabel("lag (steps)")
+    axes[0, 0].set_ylabel("diagnosis error (% of steps)")
+    axes[1, 0].set_ylabel("detection delay (steps, lag included;\noff-line: no lag to count)")
+    handles, labels = axes[1, -1].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="outside lower center", ncols=len(handles), fontsize="small")
+    fig.suptitle(f"Smoothed MAP mode against the lag: error and detection delay, mean over {runs} runs a plant")
+    plots.save(fig, path)
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--runs", type=int, default=25)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--workers", type=int, default=os.cpu_count())
+    parser.add_argument("--replot", action="store_true",
+                        help="only redraw the figure from results/smoothing/table.md")
     args = parser.parse_args()
+    folder = RESULTS / "smoothing"
+    if args.replot:
+        draw(*read_table(folder / "table.md"), FIGURES / "smoothing.png")
+        print(f"figure: {FIGURES / 'smoothing.png'}")
+        return
     start = time.perf_counter()
     with ProcessPoolExecutor(args.workers) as pool:
         results = dict(pool.map(plant_runs, PLANTS, [args.runs] * len(PLANTS), [args.seed] * len(PLANTS)))
@@ -83,36 +146,19 @@ def main():
              "lag included), by lag:", "",
              "| plant | filter | " + " | ".join(lag_label(lag) for lag in LAGS) + " |",
              "|---|---|" + "---|" * len(LAGS)]
+    means = {}
     for name, out in results.items():
         for algorithm, n in FILTERS:
             cells = []
             for lag in LAGS:
                 values = np.array(out[algorithm, n, lag])
+                means[name, filter_label(algorithm, n), lag] = tuple(values.mean(axis=0))
                 cells.append(f"{values[:, 0].mean():.2f} / {values[:, 1].mean():.1f}")
-            lines.append(f"| {name} | {algorithm}{f' N={n}' if n else ''} | " + " | ".join(cells) + " |")
-    folder = RESULTS / "smoothing"
+            lines.append(f"| {name} | {filter_label(algorithm, n)} | " + " | ".join(cells) + " |")
     folder.mkdir(parents=True, exist_ok=True)
     (folder / "table.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
-
-    fig = plots.figure(figsize=(12, 6.5), layout="constrained")
-    axes = fig.subplots(2, len(PLANTS), sharex=True, squeeze=False)
-    positions = np.arange(len(LAGS))
-    for j, (name, out) in enumerate(results.items()):
-        for algorithm, n in FILTERS:
-            errors = [np.mean([e for e, _ in out[algorithm, n, lag]]) for lag in LAGS]
-            delays = [np.mean([d for _, d in out[algorithm, n, lag]]) for lag in LAGS]
-            color, marker = plots.style(algorithm)
-            axes[0, j].plot(positions, errors, color=color, marker=marker or "*", label=algorithm)
-            axes[1, j].plot(positions, delays, color=color, marker=marker or "*", label=algorithm)
-        axes[0, j].set_title(name, fontsize="small")
-        axes[1, j].set_xticks(positions, [lag_label(lag) for lag in LAGS], rotation=90, fontsize="small")
-        axes[1, j].set_xlabel("lag (steps)")
-    axes[0, 0].set_ylabel("diagnosis error (% of steps)")
-    axes[1, 0].set_ylabel("detection delay (steps,\nlag included)")
-    axes[0, -1].legend(fontsize="small")
-    fig.suptitle(f"Smoothing: error and delay against the lag ({args.runs} runs a plant)")
-    plots.save(fig, FIGURES / "smoothing.png")
+    draw(means, args.runs, FIGURES / "smoothing.png")
     print(f"figure: {FIGURES / 'smoothing.png'}")
 
 
