@@ -44,7 +44,7 @@ CASES = [
      10, 7, "der(h) is given twice (first at line 9)"),
     ("overflowing linearisation", replace("area = 2", "area = 1e-300"), 11, 7,
      "mode 'normal' has entries that are not finite numbers in A"),
-    ("infinite literal", replace("(q - out) / area", "(q - out) / area * 1e999"), 9, 12, "this is not a finite real number"),
+    ("infinite literal", replace("(q - out) / area", "(q - out) / area * 1e999"), 9, 31, "this is not a finite real number"),
     ("division by zero", replace("(q - out) / area", "(q - out) / 0"), 9, 12, "division by zero"),
     ("output at a pole", replace("output h", "output h, z = 1 / (h - h)"), 7, 15, "division by zero"),
     ("unknown function", replace("k * sqrt(h)", "k * sqrtt(h)"), 4, 17, "unknown function 'sqrtt'; did you mean 'sqrt'?"),

@@ -94,6 +94,19 @@ def test_deep_expressions_in_a_chain_of_lets_are_an_error():
     assert len(diagnostics) == 1 and "nested too deeply" in diagnostics[0].message
 
 
+@pytest.mark.parametrize("mean, fragment, message", [
+    ("1e308 ^ 1e308 * x[t-1]", "1e308 ^", "this is not a finite real number"),
+    ("2 ^ 100000000 * x[t-1]", "2 ^", "this is not a finite real number"),
+    ("exp(exp(exp(1000))) * x[t-1]", "exp(1000)", "this is not a finite real number"),
+    ("(x[t-1] + 1) ^ 100000", "(x[t-1] + 1)", "a power of 100000 is too large for an expression in variables"),
+    ("x[t-1] ^ 1000000000", "x[t-1] ^", "a power of 1000000000 is too large"),
+])
+def test_huge_constants_and_powers_are_errors_in_no_time(mean, fragment, message):
+    start = time.perf_counter()
+    located(spec(mean=mean), fragment, message)
+    assert time.perf_counter() - start < 5
+
+
 # ------------------------------------------------------------------ 2. sizes
 
 @pytest.mark.parametrize("size", ["18446744073709551616", "46341", str(MAX_SIZE + 1)])

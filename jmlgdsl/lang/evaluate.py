@@ -7,7 +7,7 @@ import numpy as np
 import sympy as sp
 
 from ..names import suggest
-from .limits import MAX_LET_CHAIN, MAX_SIZE
+from .limits import MAX_EXPONENT, MAX_LET_CHAIN, MAX_SIZE
 from .report import Report
 from .syntax import Expr
 
@@ -148,10 +148,12 @@ def _numeric_binary(node: Expr, a, b):
 
 
 def symbolic(node: Expr, lookup) -> sp.Expr:
-    """A sympy expression; `lookup(node)` gives the sympy value of a name (a Symbol or a number)."""
+    """A sympy expression; `lookup(node)` gives the sympy value of a name (a Symbol or a number).
+    Numbers fold in floating point, as numeric() computes them: an exact 1e308^1e308 or 2^(10^9) would
+    take sympy minutes, and a value beyond a float is an EvalError where it is computed."""
     op, args = node.op, node.args
     if op == "number":
-        return sp.Integer(int(args[0])) if float(args[0]).is_integer() else sp.Float(args[0])
+        return _finite(sp.Integer(int(args[0])) if float(args[0]).is_integer() else sp.Float(args[0]), node)
     if op in ("var", "indexed"):
         return _name_value(node, lookup, 1)
     if op in BINARY:
@@ -165,11 +167,35 @@ def symbolic(node: Expr, lookup) -> sp.Expr:
                             else f"{name}() makes a matrix, which is not allowed here", node)
         lo, hi = ARITY.get(name, (1, 1))
         _check_arity(node, name, lo, hi)
-        return SCALAR_FUNCTIONS[name][1](*[symbolic(a, lookup) for a in args[1:]])
+        values = [symbolic(a, lookup) for a in args[1:]]
+        if all(v.is_Number for v in values):
+            with np.errstate(all="ignore"):
+                return _finite(sp.Float(SCALAR_FUNCTIONS[name][0](*map(float, values))), node)
+        return SCALAR_FUNCTIONS[name][1](*values)
     vals = [symbolic(a, lookup) for a in args]
     if op == "neg":
         return -vals[0]
-    return vals[0] ** vals[1]  # a power: the grammar has no other operators
+    a, b = vals  # a power: the grammar has no other operators
+    if a.is_Number and b.is_Number:
+        with np.errstate(all="ignore"):
+            value = np.power(float(a), float(b))
+        exact = a.is_Integer and b.is_Integer and b >= 0 and abs(value) < 2 ** 53
+        return sp.Integer(a) ** int(b) if exact else _finite(sp.Float(value), node)
+    if b.is_Integer and abs(b) > MAX_EXPONENT:
+        raise EvalError(f"a power of {b} is too large for an expression in variables: at most {MAX_EXPONENT}", node)
+    return a ** b
+
+
+def _finite(value: sp.Expr, node: Expr) -> sp.Expr:
+    """value, when it is not a number that a float cannot hold (an overflow, a NaN): else an EvalError."""
+    if value.is_Number:
+        try:
+            finite = np.isfinite(float(value))
+        except OverflowError:
+            finite = False
+        if not finite:
+            raise EvalError(NOT_FINITE, node)
+    return value
 
 
 def _symbolic_binary(node: Expr, a: sp.Expr, b: sp.Expr) -> sp.Expr:
@@ -177,8 +203,8 @@ def _symbolic_binary(node: Expr, a: sp.Expr, b: sp.Expr) -> sp.Expr:
     if node.op == "div":
         if b.is_zero:
             raise EvalError("division by zero", node)
-        return a / b
-    return a + b if node.op == "add" else a - b if node.op == "sub" else a * b
+        return _finite(a / b, node)
+    return _finite(a + b if node.op == "add" else a - b if node.op == "sub" else a * b, node)
 
 
 class LetExpander:

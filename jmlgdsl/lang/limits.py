@@ -3,6 +3,7 @@ a slip (a stray digit, a wrong unit) is a located error instead of a crash or an
 
 MAX_NESTING = 100  # operators, calls and signs inside one another in one expression
 MAX_LET_CHAIN = 20  # lets expanded inside one another (a uses b, which uses c, ...)
+MAX_EXPONENT = 100  # a whole-number power of an expression in variables (sympy expands it term by term)
 MAX_SIZE = 1000  # rows or columns of eye(), zeros() and ones()
 MAX_MODES = 1000
 MAX_VARIABLES = 2000  # states (declared and block-internal together), inputs, outputs: each
