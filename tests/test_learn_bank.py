@@ -240,7 +240,6 @@ def test_cli_learn_without_template_writes_the_spec_to_standard_output(dryer, ex
 
 @pytest.mark.parametrize("argv, message", [
     (["--mode", "normal"], "--mode takes NAME=CSV"),
-    (["--mode", "a=x.csv", "--mode", "a=y.csv"], "mode 'a' given twice"),
     (["--mode", "a=x.csv", "--order", "0"], "--order must be auto, N or NA,NB,NK"),
     (["--mode", "a=x.csv"], "name the output column with --output"),
     (["--mode", "a=x.csv", "--max-order", "0"], "--max-order must be at least 1, not 0"),

@@ -38,7 +38,9 @@ def register(subparsers):
                     "first --mode is the healthy one: the prior is 'initial FIRST 0.99, otherwise "
                     "uniform' (--initial) and the transitions 'stay 0.99, otherwise uniform' (--stay).")
     p.add_argument("--mode", action="append", required=True, metavar="NAME=CSV",
-                   help="a mode's experiment (repeat for every mode)")
+                   help="a mode's experiment (repeat for every mode; repeat a name for several runs of "
+                        "one mode). A file with a 'mode' column gives only the rows labelled NAME, each "
+                        "unbroken stretch of them a run")
     p.add_argument("--template", metavar="SPEC",
                    help="spec giving names, units, sample time, mode descriptions, transitions and prior")
     structure = p.add_mutually_exclusive_group()
@@ -50,7 +52,8 @@ def register(subparsers):
     p.add_argument("--max-order", type=int, default=4, help="largest na and nb tried by --order auto")
     p.add_argument("--max-delay", type=int, default=0, help="largest input delay nk tried by --order auto")
     p.add_argument("--input", default="", metavar="NAMES", help="input column names, comma separated (without --template)")
-    p.add_argument("--output", dest="outputs", default=None, metavar="NAME", help="output column name (without --template)")
+    p.add_argument("--output", dest="outputs", default=None, metavar="NAMES",
+                   help="output column names, comma separated (without --template)")
     p.add_argument("--dt", type=float, default=1.0, help="sample time in seconds (without --template)")
     p.add_argument("--name", default="plant", help="plant name (without --template)")
     p.add_argument("--stay", type=float, default=0.99,
@@ -95,7 +98,7 @@ def check_numbers(args):
 
 
 def parse_modes(items):
-    """{name: path} from NAME=CSV items, in the order given."""
+    """{name: [path, ...]} from NAME=CSV items, modes in the order first given."""
     from ..errors import JmlgError
 
     modes = {}
@@ -103,10 +106,24 @@ def parse_modes(items):
         name, sep, path = item.partition("=")
         if not sep or not name.isidentifier() or not path:
             raise JmlgError(f"--mode takes NAME=CSV, not {item!r}")
-        if name in modes:
-            raise JmlgError(f"mode {name!r} given twice")
-        modes[name] = path
+        modes.setdefault(name, []).append(path)
     return modes
+
+
+def runs(data, mode: str, index: int):
+    """The Experiments of one mode in a data file: the whole file, or, when it has a `mode` column,
+    each unbroken stretch of rows labelled with that mode."""
+    from ..errors import DataError
+    from ..learn.bank import Experiment
+
+    if data.modes is None:
+        return [Experiment(data.y, data.u, data.source)]
+    rows = np.flatnonzero(data.modes == index)
+    if not len(rows):
+        raise DataError(f"{data.source}: no rows of mode {mode!r} in its 'mode' column")
+    stretches = np.split(rows, np.flatnonzero(np.diff(rows) > 1) + 1)
+    return [Experiment(data.y[r], data.u[r], f"{data.source} (rows of {mode}, {r[0] + 1}-{r[-1] + 1})")
+            for r in stretches]
 
 
 def plant_frame(args, names):
@@ -129,8 +146,9 @@ def plant_frame(args, names):
         if not 0 <= value <= 1:
             raise JmlgError(f"{option} must be a probability, not {value}")
     inputs = tuple(n.strip() for n in args.input.split(",") if n.strip())
+    outputs = tuple(n.strip() for n in args.outputs.split(",") if n.strip())
     K = len(names)
-    return dict(name=args.name, dt=args.dt, inputs=inputs, outputs=(args.outputs,), units={},
+    return dict(name=args.name, dt=args.dt, inputs=inputs, outputs=outputs, units={},
                 input_defaults=np.full(len(inputs), np.nan), descriptions={}, P=default_transitions(K, args.stay),
                 p0=healthy_prior(K, args.initial)), tuple(names)
 
@@ -150,7 +168,7 @@ def header(args, paths, learned) -> str:
     how = ("FOPDT fits of step tests" if args.fopdt else
            f"states chosen by {args.criterion.upper()} of the EM fits, started from ARX" if args.order == "auto"
            else f"ARX order {args.order}")
-    lines = [f"Learned by jmlgdsl learn from {', '.join(paths.values())}",
+    lines = [f"Learned by jmlgdsl learn from {', '.join(dict.fromkeys(p for ps in paths.values() for p in ps))}",
              f"Structure: {how}; EM up to {args.max_iter} iterations, relative tolerance {args.tol:g}.",
              "Every mode shares one state basis: the noise-free outputs of the last steps (NAME_lag1, ...)",
              "and the inputs before this step (NAME_lag1, ...); a mode's coefficients and offset are its",
@@ -196,10 +214,8 @@ def main(args) -> int:
     check_numbers(args)
     frame, modes = plant_frame(args, list(paths))
     names = Columns(frame["inputs"], frame["outputs"], frame["input_defaults"], modes)
-    experiments = {}
-    for mode in modes:
-        data = read_csv(paths[mode], names)
-        experiments[mode] = bank.Experiment(data.y, data.u, data.source)
+    experiments = {mode: [run for path in paths[mode] for run in runs(read_csv(path, names), mode, k)]
+                   for k, mode in enumerate(modes)}
     learned = bank.learn_modes(experiments, order, args.fopdt, frame["dt"], args.max_order, args.max_delay,
                                args.criterion, args.max_iter, args.tol)
     defaults = frame["input_defaults"]

@@ -17,6 +17,7 @@ import numpy as np
 from scipy.linalg import qr, solve_triangular
 
 from ..errors import DataError
+from .em import segments
 from .lagged import LaggedMode, Lags, lag_inputs
 
 
@@ -70,14 +71,15 @@ def regressors(y, u, lags: Lags, start: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def fit(y, u, na, nb, nk=0, start=None) -> ArxFit:
-    """Least-squares ARX fit of outputs y (T, ny) or (T,) on inputs u (T, nu); `start` is the first
-    equation's time index (default: the largest lag, so that fits of different orders can share it).
-    Equations touching a missing value (NaN) are left out."""
-    y = np.asarray(y, float).reshape(len(y), -1)
-    u = np.asarray(u, float).reshape(len(y), -1)
-    lags = Lags(na, nb if u.shape[1] else 0, nk if u.shape[1] else 0)
+    """Least-squares ARX fit of outputs y (T, ny) or (T,) on inputs u (T, nu), or of several
+    experiments of one model (lists of such arrays), whose equations are pooled; `start` is each
+    experiment's first equation's time index (default: the largest lag, so that fits of different
+    orders can share it). Equations touching a missing value (NaN) are left out."""
+    parts = segments(y, u)
+    nu = parts[0][1].shape[1]
+    lags = Lags(na, nb if nu else 0, nk if nu else 0)
     start = max(na, nk + nb - 1) if start is None else start
-    X, Y = regressors(y, u, lags, start)
+    X, Y = (np.vstack(blocks) for blocks in zip(*(regressors(yk, uk, lags, start) for yk, uk in parts)))
     N, p = X.shape
     if N <= p:
         raise DataError(f"ARX({na},{nb},{nk}) has {p} parameters per output but only {N} complete equations")

@@ -29,17 +29,27 @@ class Experiment:
 
 @dataclass(frozen=True)
 class LearnedMode:
-    """Everything learned about one mode: its data, structure, EM's start and run, the fitted mode
-    in the lagged basis, and the checks."""
+    """Everything learned about one mode: its experiments, structure, EM's start and run, the fitted
+    mode in the lagged basis, and the checks (on the longest experiment)."""
 
     name: str
-    experiment: Experiment
+    experiments: tuple[Experiment, ...]
     structure: str
     start: LaggedMode
     em: EMResult
     mode: LaggedMode
     validation: Validation
     fopdt: steptest.FopdtFit | None = None
+
+    @property
+    def experiment(self) -> Experiment:
+        """The longest experiment: the one validated and plotted."""
+        return max(self.experiments, key=lambda e: len(e.y))
+
+    @property
+    def inputs(self) -> np.ndarray:
+        """The inputs of every experiment, stacked."""
+        return np.vstack([e.u for e in self.experiments])
 
     @property
     def model(self) -> StateSpace:
@@ -61,55 +71,61 @@ class LearnedMode:
         """AIC or BIC of the fitted mode: its free coefficients, and Q and R."""
         m = self.mode
         p = m.ny * int(m.lags.free(m.ny, m.nu).sum()) + m.ny * (m.ny + 1)
-        N = int((~np.isnan(self.experiment.y)).all(axis=1).sum())
+        N = sum(int((~np.isnan(e.y)).all(axis=1).sum()) for e in self.experiments)
         return -2 * self.em.loglik[-1] + p * (np.log(N) if kind == "bic" else 2.0)
 
 
 def learn_modes(experiments: dict, order="auto", fopdt=False, dt=1.0, max_order=4, max_delay=0,
                 criterion="bic", max_iter=100, tol=1e-5) -> list[LearnedMode]:
-    """Fit every mode's experiment: ARX order (na, nb, nk), "auto", or FOPDT step tests.
+    """Fit every mode: `experiments` maps a mode's name to its Experiment, or to a list of them (runs
+    of the same mode, pooled: their equations in least squares, their moments in EM). Structure:
+    ARX order (na, nb, nk), "auto", or FOPDT step tests (one per mode).
 
     "auto": the ARX order with the least criterion summed over modes (over na, nb <= max_order,
     nk <= max_delay) bounds the order from above, since ARX spends extra lags imitating measurement
     noise; EM then fits orders 1..that bound to each mode and keeps, mode by mode, the one with
     the least criterion (the shared basis lets modes of different orders sit in one bank).
     """
-    for e in experiments.values():
-        if np.isnan(e.y).all(axis=0).any():
-            raise DataError(f"{e.source}: an output is never measured")
-        for j, column in enumerate(e.u.T):
+    runs = {k: tuple(v) if isinstance(v, (list, tuple)) else (v,) for k, v in experiments.items()}
+    for name, exps in runs.items():
+        sources = ", ".join(e.source for e in exps)
+        if np.isnan(np.vstack([e.y for e in exps])).all(axis=0).any():
+            raise DataError(f"{sources}: an output of mode {name} is never measured")
+        for j, column in enumerate(np.vstack([e.u for e in exps]).T):
             if np.nanmin(column) == np.nanmax(column):
-                raise DataError(f"{e.source}: input {j + 1} never changes, so its effect cannot be told "
+                raise DataError(f"{sources}: input {j + 1} never changes, so its effect cannot be told "
                                 "from the offset; excite it, e.g. with a PRBS")
     if fopdt:
-        for e in experiments.values():
-            if e.u.shape[1] != 1 or e.y.shape[1] != 1:
-                raise DataError(f"{e.source}: a step test has one input and one output")
-        fits = {k: _located(e, steptest.fit, e.y[:, 0], e.u[:, 0], dt) for k, e in experiments.items()}
-        return [_fit(k, e, fits[k].lagged(), f"FOPDT gain {fits[k].gain:.4g}, tau {fits[k].tau:.4g} s, "
-                                             f"dead time {fits[k].delay * fits[k].dt:g} s", max_iter, tol, fits[k])
-                for k, e in experiments.items()]
+        for exps in runs.values():
+            if len(exps) != 1 or exps[0].u.shape[1] != 1 or exps[0].y.shape[1] != 1:
+                raise DataError(f"{exps[0].source}: a mode's step test is one experiment with one input and one output")
+        fits = {k: _located(e, steptest.fit, e.y[:, 0], e.u[:, 0], dt) for k, (e,) in runs.items()}
+        return [_fit(k, exps, fits[k].lagged(), f"FOPDT gain {fits[k].gain:.4g}, tau {fits[k].tau:.4g} s, "
+                                                f"dead time {fits[k].delay * fits[k].dt:g} s", max_iter, tol, fits[k])
+                for k, exps in runs.items()]
     if order != "auto":
-        return [_fit_arx(k, e, order, max_iter, tol) for k, e in experiments.items()]
-    na, nb, nk = arx.select_order([(e.y, e.u) for e in experiments.values()], max_order, max_order,
+        return [_fit_arx(k, exps, order, max_iter, tol) for k, exps in runs.items()]
+    na, nb, nk = arx.select_order([(e.y, e.u) for exps in runs.values() for e in exps], max_order, max_order,
                                   max_delay, criterion)
     orders = range(1, max(na, nk + nb) + 1)
-    return [min((_fit_arx(k, e, (n, n, 0), max_iter, tol) for n in orders), key=lambda lm: lm.criterion(criterion))
-            for k, e in experiments.items()]
+    return [min((_fit_arx(k, exps, (n, n, 0), max_iter, tol) for n in orders), key=lambda lm: lm.criterion(criterion))
+            for k, exps in runs.items()]
 
 
-def _fit_arx(name, e: Experiment, order, max_iter, tol) -> LearnedMode:
+def _fit_arx(name, exps, order, max_iter, tol) -> LearnedMode:
     """One mode from an ARX start of the given order."""
-    fit = _located(e, arx.fit, e.y, e.u, *order)
+    fit = _located(exps[0], arx.fit, [e.y for e in exps], [e.u for e in exps], *order)
     na, nb, nk = fit.order
-    structure = f"ARX({na},{nb},{nk})" if e.u.shape[1] else f"AR({na})"
-    return _fit(name, e, fit.lagged(), structure, max_iter, tol)
+    structure = f"ARX({na},{nb},{nk})" if exps[0].u.shape[1] else f"AR({na})"
+    return _fit(name, exps, fit.lagged(), structure, max_iter, tol)
 
 
-def _fit(name, e: Experiment, start: LaggedMode, structure, max_iter, tol, fopdt=None) -> LearnedMode:
-    """EM inside the lagged basis from `start`, then validation on the mode's own experiment."""
-    mode, result = lagged.fit(start, e.y, e.u, max_iter=max_iter, tol=tol)
-    return LearnedMode(name, e, structure, start, result, mode, validate(mode.statespace(e.u[0]), e.y, e.u), fopdt)
+def _fit(name, exps, start: LaggedMode, structure, max_iter, tol, fopdt=None) -> LearnedMode:
+    """EM inside the lagged basis from `start`, then validation on the mode's longest experiment."""
+    mode, result = lagged.fit(start, [e.y for e in exps], [e.u for e in exps], max_iter=max_iter, tol=tol)
+    longest = max(exps, key=lambda e: len(e.y))
+    return LearnedMode(name, exps, structure, start, result, mode,
+                       validate(mode.statespace(longest.u[0]), longest.y, longest.u), fopdt)
 
 
 def _located(e: Experiment, fit, *args):
@@ -135,7 +151,7 @@ def _stable(ss: StateSpace) -> bool:
 def assemble(learned: list[LearnedMode], *, P, p0, operating_input=None, **names) -> Model:
     """A Model over the shared lagged basis whose order is the largest of the modes'.
 
-    Each mode starts at its steady state under the operating input (default: its experiment's mean
+    Each mode starts at its steady state under the operating input (default: its experiments' mean
     input); a mode that is not stable has none and starts where its experiment began. Every output
     lag's initial sd is the widest stationary spread any mode's process noise gives it; an input
     lag's is the widest spread of that input in the experiments. B and D are Cholesky factors of the
@@ -148,14 +164,14 @@ def assemble(learned: list[LearnedMode], *, P, p0, operating_input=None, **names
     inputs = names.setdefault("inputs", tuple(f"u{i + 1}" for i in range(nu)))
     mods, x0, spread = [], [], []
     for lm in learned:
-        u_op = lm.experiment.u.mean(0) if operating_input is None else np.asarray(operating_input, float)
+        u_op = lm.inputs.mean(0) if operating_input is None else np.asarray(operating_input, float)
         m = lm.mode.statespace(u_op, n)
         mods.append(m)
         x0.append(m.steady_state(u_op) if _stable(m) else m.mu0)
         spread.append(np.diag(solve_discrete_lyapunov(m.A, m.Q)) if _stable(m)
                       else np.r_[np.tile(np.diag(lm.mode.Q), n), np.zeros((n - 1) * nu)])
     spread = np.max(spread, axis=0)
-    spread[n * ny:] = np.tile(np.max([lm.experiment.u.var(0) for lm in learned], axis=0), n - 1)
+    spread[n * ny:] = np.tile(np.max([lm.inputs.var(0) for lm in learned], axis=0), n - 1)
     B = np.stack([np.vstack([np.linalg.cholesky(m.Q[:ny, :ny]), np.zeros((m.nx - ny, ny))]) for m in mods])
     return Model.from_arrays(
         A=np.stack([m.A for m in mods]), F=np.stack([m.F for m in mods]), f=np.stack([m.f for m in mods]),

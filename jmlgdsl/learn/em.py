@@ -36,6 +36,38 @@ class Smoothed:
 
 
 @dataclass(frozen=True)
+class Moments:
+    """What the M-step takes from the E-step of one or more segments (experiments): for every step
+    t >= 1 of every segment, stacked as the segments' data are, the smoothed means and covariances
+    of x_{t-1} (prev) and x_t and their cross-covariance; each segment's smoothed x_0; the summed
+    log-likelihood."""
+
+    prev: np.ndarray
+    prev_cov: np.ndarray
+    mean: np.ndarray
+    cov: np.ndarray
+    cross: np.ndarray
+    first: np.ndarray
+    first_cov: np.ndarray
+    loglik: float
+
+    @classmethod
+    def of(cls, parts: list[Smoothed]) -> "Moments":
+        """The moments of segments smoothed one by one."""
+        return cls(np.concatenate([e.mean[:-1] for e in parts]), np.concatenate([e.cov[:-1] for e in parts]),
+                   np.concatenate([e.mean[1:] for e in parts]), np.concatenate([e.cov[1:] for e in parts]),
+                   np.concatenate([e.cross for e in parts]), np.array([e.mean[0] for e in parts]),
+                   np.array([e.cov[0] for e in parts]), sum(e.loglik for e in parts))
+
+    def initial(self) -> tuple[np.ndarray, np.ndarray]:
+        """The initial state's mean and covariance: one segment's smoothed x_0, or the moments of the
+        segments' x_0 taken together."""
+        mu0 = self.first.mean(axis=0)
+        spread = self.first - mu0
+        return mu0, spd(self.first_cov.mean(axis=0) + spread.T @ spread / len(spread))
+
+
+@dataclass(frozen=True)
 class EMResult:
     """The fitted model, the log-likelihood of every parameter set visited, and how it stopped."""
 
@@ -68,6 +100,13 @@ def columns(y, u=None) -> tuple[np.ndarray, np.ndarray]:
     """Outputs as (T, ny) and inputs as (T, nu) float arrays; no inputs gives u of shape (T, 0)."""
     y = np.asarray(y, float).reshape(len(y), -1)
     return y, np.zeros((len(y), 0)) if u is None else np.asarray(u, float).reshape(len(y), -1)
+
+
+def segments(y, u=None) -> list[tuple[np.ndarray, np.ndarray]]:
+    """[(y, u), ...] as `columns` from one experiment (arrays) or several (lists of arrays)."""
+    if isinstance(y, (list, tuple)):
+        return [columns(yk, uk) for yk, uk in zip(y, [None] * len(y) if u is None else u)]
+    return [columns(y, u)]
 
 
 def forward(ss: StateSpace, y, u) -> Filtered:
@@ -152,8 +191,8 @@ def smooth(ss: StateSpace, y, u) -> Smoothed:
     return Smoothed(mu_s, Sig_s, cross, fw.loglik)
 
 
-def m_step(ss: StateSpace, y, u, e: Smoothed, offset=True, feedthrough=True) -> StateSpace:
-    """Closed-form parameter update from the smoothed moments.
+def m_step(ss: StateSpace, y, u, e: Moments, offset=True, feedthrough=True) -> StateSpace:
+    """Closed-form parameter update from the smoothed moments (y, u: the segments' data stacked).
 
     offset: learn f (and g with feedthrough); feedthrough: learn G (else G, g stay as they are).
     Parameters not learned are held at their current values.
@@ -161,15 +200,15 @@ def m_step(ss: StateSpace, y, u, e: Smoothed, offset=True, feedthrough=True) -> 
     T = len(y)
     ones = np.ones((T, 1 if offset else 0))
     # State equation: x_t on z_t = [x_{t-1}, u_t, 1].
-    Z = np.hstack([e.mean[:-1], u, ones])
-    X = e.mean[1:] - (0 if offset else ss.f)
-    W, Q = regress(X, Z, e.cov[1:].sum(0), e.cov[:-1].sum(0), e.cross.sum(0))
+    Z = np.hstack([e.prev, u, ones])
+    X = e.mean - (0 if offset else ss.f)
+    W, Q = regress(X, Z, e.cov.sum(0), e.prev_cov.sum(0), e.cross.sum(0))
     nx, nu = ss.nx, u.shape[1]
     A, F = W[:, :nx], W[:, nx:nx + nu]
     f = W[:, nx + nu] if offset else ss.f
     # Output equation on the fully measured steps: y_t on r_t = [x_t, u_t, 1] (or x_t alone).
     o = ~np.isnan(y).any(axis=1)
-    xs, Sx = e.mean[1:][o], e.cov[1:][o].sum(0)
+    xs, Sx = e.mean[o], e.cov[o].sum(0)
     if feedthrough:
         H, R = regress(y[o] - (0 if offset else ss.g), np.hstack([xs, u[o], ones[o]]), None, Sx, None)
         C, G = H[:, :nx], H[:, nx:nx + nu]
@@ -177,7 +216,8 @@ def m_step(ss: StateSpace, y, u, e: Smoothed, offset=True, feedthrough=True) -> 
     else:
         H, R = regress(y[o] - u[o] @ ss.G.T - ss.g, xs, None, Sx, None)
         C, G, g = H, ss.G, ss.g
-    return StateSpace(A=A, F=F, f=f, C=C, G=G, g=g, Q=Q, R=R, mu0=e.mean[0], Sigma0=spd(e.cov[0]))
+    mu0, Sigma0 = e.initial()
+    return StateSpace(A=A, F=F, f=f, C=C, G=G, g=g, Q=Q, R=R, mu0=mu0, Sigma0=Sigma0)
 
 
 def regress(X, Z, Sxx_cov, Szz_cov, Sxz_cov):
@@ -208,19 +248,25 @@ def spd(S) -> np.ndarray:
 def em(ss: StateSpace, y, u=None, max_iter=100, tol=1e-5, offset=True, feedthrough=True, update=None) -> EMResult:
     """Run EM from `ss` until the log-likelihood gains less than tol relative, or max_iter iterations.
 
-    `update(ss, y, u, smoothed)` replaces the free M-step (`m_step` with offset and feedthrough) by
+    y, u: one experiment's arrays, or lists of several experiments (segments) of the same model,
+    each smoothed on its own; their moments are pooled in the M-step. `update(ss, y, u, moments)` replaces the free M-step (`m_step` with offset and feedthrough) by
     one that keeps a structure, such as the lagged basis's.
 
     The log-likelihood cannot decrease in exact arithmetic; if it falls by more than rounding, the
     last good parameters are kept and a warning says so.
     """
-    y, u = columns(y, u)
-    e = smooth(ss, y, u)
+    parts = segments(y, u)
+    y, u = np.vstack([p[0] for p in parts]), np.vstack([p[1] for p in parts])
+
+    def expect(model):
+        return Moments.of([smooth(model, yk, uk) for yk, uk in parts])
+
+    e = expect(ss)
     history = [e.loglik]
     converged = False
     for _ in range(max_iter):
         new = m_step(ss, y, u, e, offset, feedthrough) if update is None else update(ss, y, u, e)
-        e_new = smooth(new, y, u)
+        e_new = expect(new)
         gain = e_new.loglik - history[-1]
         if gain < -1e-9 * max(1.0, abs(history[-1])):
             warnings.warn(f"EM log-likelihood fell from {history[-1]:.10g} to {e_new.loglik:.10g}; "

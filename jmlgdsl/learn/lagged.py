@@ -22,7 +22,7 @@ from functools import partial
 import numpy as np
 from scipy.linalg import block_diag
 
-from .em import EMResult, columns, em, regress, spd
+from .em import EMResult, em, regress, segments, spd
 from .statespace import StateSpace
 
 
@@ -140,23 +140,24 @@ class LaggedMode:
 
 
 def m_step(ss: StateSpace, y, v, e, free) -> StateSpace:
-    """EM's M-step inside the lagged structure: the first ny rows' free coefficients on
-    [s_{t-1}.., u_t.., 1] with Q by expected least squares, R from the expected output residuals
-    (on the fully measured steps), the initial lags from the smoothed s_0..s_{1-n}."""
+    """EM's M-step inside the lagged structure (y, v: the segments' outputs and lagged inputs
+    stacked; e: their `Moments`): the first ny rows' free coefficients on [s_{t-1}.., u_t.., 1]
+    with Q by expected least squares, R from the expected output residuals (on the fully measured
+    steps), the initial lags from the smoothed s_0..s_{1-n}."""
     ny, nx = ss.C.shape
     k = int(free[:nx].sum())  # the free output lags come first
-    Z = np.hstack([e.mean[:-1], v, np.ones((len(v), 1))])[:, free]
-    W, Q = regress(e.mean[1:, :ny], Z, e.cov[1:, :ny, :ny].sum(0), e.cov[:-1, :k, :k].sum(0),
-                    e.cross[:, :ny, :k].sum(0))
+    Z = np.hstack([e.prev, v, np.ones((len(v), 1))])[:, free]
+    W, Q = regress(e.mean[:, :ny], Z, e.cov[:, :ny, :ny].sum(0), e.prev_cov[:, :k, :k].sum(0),
+                   e.cross[:, :ny, :k].sum(0))
     coef = np.zeros((ny, len(free)))
     coef[:, free] = W
     A, F, f = ss.A.copy(), ss.F.copy(), ss.f.copy()
     A[:ny], F[:ny], f[:ny] = coef[:, :nx], coef[:, nx:-1], coef[:, -1]
     o = ~np.isnan(y).any(axis=1)
-    r = y[o] - e.mean[1:][o][:, :ny]
-    R = spd((r.T @ r + e.cov[1:][o][:, :ny, :ny].sum(0)) / max(int(o.sum()), 1))
-    return ss.replace(A=A, F=F, f=f, Q=block_diag(Q, np.zeros((nx - ny,) * 2)), R=R, mu0=e.mean[0],
-                      Sigma0=spd(e.cov[0]))
+    r = y[o] - e.mean[o][:, :ny]
+    R = spd((r.T @ r + e.cov[o][:, :ny, :ny].sum(0)) / max(int(o.sum()), 1))
+    mu0, Sigma0 = e.initial()
+    return ss.replace(A=A, F=F, f=f, Q=block_diag(Q, np.zeros((nx - ny,) * 2)), R=R, mu0=mu0, Sigma0=Sigma0)
 
 
 def transformed(mode: LaggedMode, dy, my, du, mu) -> LaggedMode:
@@ -185,20 +186,23 @@ def _spread(x) -> tuple[np.ndarray, np.ndarray]:
 
 
 def fit(start: LaggedMode, y, u, max_iter=100, tol=1e-5) -> tuple[LaggedMode, EMResult]:
-    """EM from `start` inside its structure, on standardised data so that sensors in very different
-    units are fitted alike (the SPD floor of the covariances is relative to their largest
-    eigenvalue); the result is mapped back exactly, and the log-likelihood with it. Without initial
-    lags, they start at the first measured output with the noise's spread at every lag."""
-    y, u = columns(y, u)
-    (my, sy), (mu, su) = _spread(y), _spread(u)
+    """EM from `start` inside its structure, on one experiment (arrays) or several of the same mode
+    (lists), standardised so that sensors in very different units are fitted alike (the SPD floor of
+    the covariances is relative to their largest eigenvalue); the result is mapped back exactly,
+    and the log-likelihood with it. Without initial lags, they start at the first measured output
+    with the noise's spread at every lag."""
+    parts = segments(y, u)
+    (my, sy), (mu, su) = (_spread(np.vstack([p[i] for p in parts])) for i in (0, 1))
     if start.mu0 is None:
-        first = np.array([column[np.isfinite(column)][0] for column in y.T])
+        first = np.array([column[np.isfinite(column)][0] for column in parts[0][0].T])
         start = LaggedMode(start.lags, start.Phi, start.Psi, start.c, start.Q, start.R, np.tile(first, start.n),
                            np.kron(np.eye(start.n), start.Q + start.R))
     scaled = transformed(start, 1 / sy, -my / sy, 1 / su, -mu / su)
-    free = start.lags.free(start.ny, u.shape[1])
-    result = em(scaled.reduced(), (y - my) / sy, lag_inputs((u - mu) / su, start.n), max_iter, tol,
+    free = start.lags.free(start.ny, len(mu))
+    result = em(scaled.reduced(), [(yk - my) / sy for yk, _ in parts],
+                [lag_inputs((uk - mu) / su, start.n) for _, uk in parts], max_iter, tol,
                 update=partial(m_step, free=free))
     fitted = transformed(scaled.from_reduced(result.model), sy, my, su, mu)
-    jacobian = float(np.log(sy) @ (~np.isnan(y)).sum(axis=0))  # log |dy_scaled / dy| over the data
+    measured = sum((~np.isnan(yk)).sum(axis=0) for yk, _ in parts)
+    jacobian = float(np.log(sy) @ measured)  # log |d y_scaled / d y| over the data
     return fitted, EMResult(fitted.reduced(), result.loglik - jacobian, result.converged)
