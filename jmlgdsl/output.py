@@ -139,7 +139,8 @@ def replacing(path):
 
 class Pending(io.TextIOWrapper):
     """A text file written under a temporary name: close() renames it into place, discard() (or an
-    exception leaving a `with` block) removes it and leaves the target as it was."""
+    exception leaving a `with` block, or dropping the file unclosed) removes it and leaves the
+    target as it was."""
 
     def __init__(self, path):
         self.target = Path(path)
@@ -158,6 +159,9 @@ class Pending(io.TextIOWrapper):
         if not self.closed:
             super().close()
             self.temporary.unlink(missing_ok=True)
+
+    def __del__(self):
+        self.discard()
 
     def __exit__(self, kind, value, traceback):
         if kind is None:

@@ -69,6 +69,14 @@ def test_an_interrupted_table_leaves_the_old_file(tmp_path):
     assert target.read_text() == "time\n1\n" and os.listdir(tmp_path) == ["sim.csv"]
 
 
+def test_a_table_dropped_unclosed_is_not_written(tmp_path):
+    target = tmp_path / "t.csv"
+    stream = output.open_text(target)
+    stream.write("half")
+    del stream
+    assert os.listdir(tmp_path) == []
+
+
 def test_written_files_get_ordinary_permissions(tmp_path):
     new, kept = tmp_path / "new.csv", tmp_path / "kept.csv"
     kept.write_text("x\n")
@@ -109,7 +117,7 @@ def test_outputs_that_are_inputs_are_refused(files, capsys, command):
     (b"\x89PNG\r\n\x1a\n", "d.csv:1:1: byte 0x89 is not UTF-8 text"),
     (b"time,temp\n\x00\x01\x02\x03\n", "d.csv:2: binary data"),
     (b"time,temp\n1," + b"5" * 200_000 + b"\n", "d.csv:2: a cell longer than 131,072 characters"),
-])
+], ids=["latin-1", "utf-16", "png", "binary", "long cell"])
 def test_undecodable_or_oversized_data_is_located(files, capsys, content, message):
     spec, data, _ = files
     data.write_bytes(content)
@@ -212,7 +220,7 @@ def rows(text, model=None):
 
 @pytest.mark.parametrize("text, message", [
     ("temp\n50\n51\n", "d.csv: no column 'one': input one took its default 1 throughout"),
-    ("time,one,temp\n1,1,50\n3,1,51\n2,1,52\n", "d.csv:4: column 'time' runs backwards (3 then 2)"),
+    ("time,one,temp\n1,1,50\n2,1,51\n1,1,52\n", "d.csv:4: column 'time' runs backwards (2 then 1)"),
     ("time,one,temp\n1,1,50\n1,1,51\n", "d.csv:3: column 'time' repeats 1"),
     ("time,one,temp\n0,1,50\n60,1,51\n", "d.csv:3: column 'time' steps by 60 s but the model's sample time is 1 s"),
     ("time,one,temp\n1,1,\n2,1,NA\n", "d.csv: column 'temp' has no values: output temp was never measured"),

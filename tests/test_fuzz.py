@@ -47,12 +47,13 @@ class Timeout(BaseException):
 
 @contextlib.contextmanager
 def time_limit(seconds):
-    """Interrupt the block with Timeout after `seconds` of wall time."""
+    """Interrupt the block with Timeout after `seconds` of wall time (and again every 0.5 s, in case
+    the first lands where Python ignores exceptions, such as a garbage-collector callback)."""
     def expire(signum, frame):
         raise Timeout(f"still running after {seconds} s")
 
     previous = signal.signal(signal.SIGALRM, expire)
-    signal.setitimer(signal.ITIMER_REAL, seconds)
+    signal.setitimer(signal.ITIMER_REAL, seconds, 0.5)
     try:
         yield
     finally:
