@@ -157,3 +157,22 @@ def test_a_falling_likelihood_keeps_the_last_good_parameters(monkeypatch):
     assert result.iterations == 2 and not result.converged
     assert_non_decreasing(result.loglik)
     assert result.loglik[-1] == pytest.approx(forward(result.model, y, u).loglik, rel=1e-12)
+
+
+def test_reusing_settled_covariances_changes_nothing_but_rounding(monkeypatch):
+    """With missing outputs in the middle the covariances settle, unsettle and settle again; the
+    smoother's output equals the full recursion's (SETTLED below zero: never reuse) to rounding."""
+    rng = np.random.default_rng(RNG_SEED + 5)
+    truth = two_state_model()
+    u = rng.standard_normal((600, 1))
+    y = simulate(truth, u, rng)
+    y[300:305] = np.nan
+    y[400, 0] = np.nan
+    fast = smooth(truth, y, u)
+    assert forward(truth, y, u).settled.sum() > 500
+    monkeypatch.setattr(em_module, "SETTLED", -1.0)
+    assert not forward(truth, y, u).settled.any()
+    full = smooth(truth, y, u)
+    for name in ("mean", "cov", "cross"):
+        assert np.allclose(getattr(fast, name), getattr(full, name), rtol=1e-9, atol=1e-12), name
+    assert fast.loglik == pytest.approx(full.loglik, rel=1e-12)

@@ -176,18 +176,24 @@ def smooth(ss: StateSpace, y, u) -> Smoothed:
     J[solve] = np.swapaxes(np.linalg.solve(fw.cov_pred[solve], ss.A @ fw.cov[:-1][solve]), 1, 2)
     J[constant] = J[np.maximum.accumulate(np.where(solve, np.arange(len(J)), 0))[constant]]
     mu_s, Sig_s = fw.mean.copy(), fw.cov.copy()
+    reused = np.zeros(len(J) + 1, bool)  # Sig_s[t] copied from the settled one
     steady = None
     for t in range(len(J) - 1, -1, -1):
         mu_s[t] = fw.mean[t] + J[t] @ (mu_s[t + 1] - fw.mean_pred[t])
         if steady is not None and constant[t]:
-            Sig_s[t] = steady
+            Sig_s[t], reused[t] = steady, True
             continue
         Sig_s[t] = kalman.symmetrize(fw.cov[t] + J[t] @ (Sig_s[t + 1] - fw.cov_pred[t]) @ J[t].T)
         steady = None
         if constant[t] and t + 1 < len(J) and constant[t + 1] and (
                 np.abs(Sig_s[t] - Sig_s[t + 1]).max() <= SETTLED * np.abs(Sig_s[t]).max()):
             steady = Sig_s[t]
-    cross = Sig_s[1:] @ np.swapaxes(J, 1, 2)
+    # Cov(x_{t+1}, x_t) = Sig_s[t+1] J_t': the same wherever both factors are the settled ones.
+    same = constant & reused[1:] & np.r_[constant[1:] & reused[2:], False]
+    cross = np.empty_like(J)
+    cross[~same] = Sig_s[1:][~same] @ np.swapaxes(J[~same], 1, 2)
+    later = np.minimum.accumulate(np.where(same, len(J), np.arange(len(J)))[::-1])[::-1]
+    cross[same] = cross[later[same]]
     return Smoothed(mu_s, Sig_s, cross, fw.loglik)
 
 
