@@ -262,6 +262,19 @@ def nab_counts(cp_pred, changepoint, time, window: float = WINDOW) -> NabCounts:
     return NabCounts(len(lr), int((~inside).sum()), tuple(events.tolist()), tuple((at - l).tolist()))
 
 
+def switch_delays(diagnosed_modes, true_modes, lag: int | None = 0) -> np.ndarray:
+    """For each true mode switch: steps from the switch to the first row diagnosed as the new mode
+    (the rest of its segment when none is), plus the lag a smoothed row is reported after."""
+    diagnosed_modes, true_modes = np.asarray(diagnosed_modes), np.asarray(true_modes)
+    switches = np.flatnonzero(true_modes[1:] != true_modes[:-1]) + 1
+    ends = np.r_[switches[1:], len(true_modes)]
+    delays = []
+    for start, end in zip(switches, ends):
+        found = np.flatnonzero(diagnosed_modes[start:end] == true_modes[start])
+        delays.append((found[0] if len(found) else end - start) + (lag or 0))
+    return np.array(delays, dtype=float)
+
+
 def confusion(true_modes, diagnosed_modes, K: int) -> np.ndarray:
     """(K, K) counts of steps whose true mode is i and diagnosed mode is j, at [i, j]."""
     true_modes, diagnosed_modes = np.asarray(true_modes, dtype=int), np.asarray(diagnosed_modes, dtype=int)

@@ -11,7 +11,8 @@ import pytest
 
 from jmlgdsl.errors import DataError
 from jmlgdsl.metrics import (PROFILES, EventCounts, NabCounts, OutlierCounts, Scores, changepoints, confusion,
-                             event_counts, monitored, nab_counts, nab_windows, outlier_counts, score)
+                             event_counts, monitored, nab_counts, nab_windows, outlier_counts, score,
+                             switch_delays)
 
 HAND = 1e-3  # tolerance on NAB scores worked out by hand from sigmoid values carried to 6 digits
 ROUNDING = 1e-12  # tolerance where the maths is exact but floating sums round (e.g. 0.555 + 0.555 - 0.11)
@@ -260,3 +261,12 @@ def test_confusion_matrix_counts_true_rows_against_diagnosed_columns():
     assert (c + c).sum() == 10   # files pool by adding their matrices
     with pytest.raises(ValueError, match="mode indices must lie in 0..2"):
         confusion([0, 3], [0, 0], 3)
+
+
+def test_switch_delays_count_from_each_switch_to_the_first_right_row_plus_the_lag():
+    true = np.array([0, 0, 0, 1, 1, 1, 1, 2, 2, 0])
+    seen = np.array([0, 0, 0, 0, 1, 0, 1, 2, 2, 2])
+    # switch to 1 at row 3, first right at row 4: 1; to 2 at row 7: 0; to 0 at row 9, never: 1 (segment)
+    np.testing.assert_array_equal(switch_delays(seen, true), [1.0, 0.0, 1.0])
+    np.testing.assert_array_equal(switch_delays(seen, true, lag=5), [6.0, 5.0, 6.0])
+    assert switch_delays(np.zeros(4), np.zeros(4)).size == 0  # no switch, no delay

@@ -27,6 +27,7 @@ import numpy as np
 
 import jmlgdsl
 from jmlgdsl import plots
+from jmlgdsl.metrics import switch_delays
 from jmlgdsl.simulate import simulate
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -36,17 +37,6 @@ PLANTS = {"dryer": DRYER["seq1"], **{k: SCHEDULES[k] for k in
                                      ("level_tank4", "level_tank5", "heat_exchanger", "robot_smooth", "robot8")}}
 FILTERS = (("imm", None), ("fc-rbpf", 4), ("la-rbpf", 10))
 LAGS = (0, 1, 2, 5, 10, 20, None)
-
-
-def delay(map_modes, modes, lag):
-    """Mean steps from each true switch to the first row diagnosed as the new mode (plus the lag)."""
-    switches = np.flatnonzero(modes[1:] != modes[:-1]) + 1
-    ends = np.r_[switches[1:], len(modes)]
-    delays = []
-    for start, end in zip(switches, ends):
-        found = np.flatnonzero(map_modes[start:end] == modes[start])
-        delays.append((found[0] if len(found) else end - start) + (lag or 0))
-    return float(np.mean(delays))
 
 
 def plant_runs(name, runs, seed):
@@ -60,7 +50,7 @@ def plant_runs(name, runs, seed):
                 result = jmlgdsl.smooth(model, sim.y, sim.u, algorithm=algorithm, particles=n, lag=lag,
                                         seed=np.random.SeedSequence(seed, spawn_key=(run, 1)))
                 out.setdefault((algorithm, n, lag), []).append(
-                    (result.diagnosis_error(sim.modes), delay(result.map_modes, sim.modes, lag)))
+                    (result.diagnosis_error(sim.modes), switch_delays(result.map_modes, sim.modes, lag).mean()))
     return name, out
 
 
