@@ -20,7 +20,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import DataError
-from .infer import ALGORITHMS, filter as run_filter
+from .infer import ALGORITHMS, filter as run_filter, smooth
+from .metrics import switch_delays
 from .model import Model
 from .output import check_count
 from .prefilter import moving_average
@@ -29,7 +30,7 @@ from .simulate import simulate
 DEFAULT_PARTICLES = (1, 4, 10, 25, 50, 100, 200, 400, 800, 1600)
 DEFAULT_FILTERS = ("pf", "rbpf", "la-rbpf", "fc-rbpf", "imm")
 DETERMINISTIC = ("imm", "exact")
-RECORD_FIELDS = ("data", "filter", "particles", "run", "error", "ms_per_step", "loglik")
+RECORD_FIELDS = ("data", "filter", "particles", "lag", "run", "error", "delay", "ms_per_step", "loglik")
 JOB_BYTES = 4096  # a job, its seeds and its record, to refuse a sweep too large to list
 
 
@@ -77,6 +78,7 @@ class Job:
     data_seed: np.random.SeedSequence  # draws the simulated sequence (shared by every filter of a run)
     filter_seed: np.random.SeedSequence
     prefilter: int | None = None  # moving-average window applied to the outputs
+    lag: int | None = 0  # smoothing lag (0: filtering, None: off-line)
 
 
 def sequence_of(job: Job) -> Sequence:
@@ -114,26 +116,32 @@ def filter_job(job: Job):
     filter drawing from the job's own seed, so one run of a sweep can be replayed and drawn."""
     data = sequence_of(job)
     y = data.y if job.prefilter is None else moving_average(data.y, job.prefilter)
-    return data, run_filter(job.model, y, data.u, algorithm=job.algorithm, particles=job.particles,
-                            seed=job.filter_seed)
+    if job.lag == 0:
+        return data, run_filter(job.model, y, data.u, algorithm=job.algorithm, particles=job.particles,
+                                seed=job.filter_seed)
+    return data, smooth(job.model, y, data.u, algorithm=job.algorithm, particles=job.particles,
+                        seed=job.filter_seed, lag=job.lag)
 
 
 def run_job(job: Job) -> dict:
-    """Filter one sequence and measure it: diagnosis error %, milliseconds per step, log-likelihood."""
+    """Filter (or smooth) one sequence and measure it: diagnosis error %, mean detection delay of the
+    mode switches in steps (the lag included), milliseconds per step, log-likelihood."""
     data, result = filter_job(job)
-    return {"data": data.name, "filter": job.algorithm, "particles": job.particles, "run": job.run,
-            "error": result.diagnosis_error(data.modes), "ms_per_step": 1e3 * result.seconds / result.T,
-            "loglik": result.loglik}
+    delays = switch_delays(result.map_modes, data.modes, job.lag)
+    return {"data": data.name, "filter": job.algorithm, "particles": job.particles, "lag": job.lag, "run": job.run,
+            "error": result.diagnosis_error(data.modes), "delay": float(delays.mean()) if len(delays) else math.nan,
+            "ms_per_step": 1e3 * result.seconds / result.T, "loglik": result.loglik}
 
 
 def make_jobs(model, sources, filters=DEFAULT_FILTERS, particles=DEFAULT_PARTICLES, runs=25, seed=0,
-              prefilter=None) -> list[Job]:
+              prefilter=None, lags=(0,)) -> list[Job]:
     """Every (source, filter, particle count, run) with seeds derived from `seed`.
 
     Run r draws its data from the same seed for every filter (paired comparisons); each filter and
     particle count gets its own stream, keyed by (run, filter name, particle count), so adding a
     filter or a count to a sweep leaves every other setting's draws as they were. Deterministic
-    filters (imm, exact) run once per run.
+    filters (imm, exact) run once per run. Each smoothing lag in `lags` (0: the filter, None:
+    off-line) is a job of its own with the same seeds as the filter's.
     """
     if not filters:
         raise DataError(f"no filter to run; choose from {', '.join(ALGORITHMS)}")
@@ -157,7 +165,8 @@ def make_jobs(model, sources, filters=DEFAULT_FILTERS, particles=DEFAULT_PARTICL
         data_seed = np.random.SeedSequence(seed, spawn_key=(run, 0))
         for algorithm, n in cells:
             filter_seed = np.random.SeedSequence(seed, spawn_key=(run, 1, zlib.crc32(algorithm.encode()), n or 0))
-            jobs += [Job(model, source, algorithm, n, run, data_seed, filter_seed, prefilter) for source in sources]
+            jobs += [Job(model, source, algorithm, n, run, data_seed, filter_seed, prefilter, lag)
+                     for lag in lags for source in sources]
     return jobs
 
 
@@ -237,22 +246,22 @@ def execute(jobs, workers=None, scheduler=None, progress=None) -> list[dict]:
 
 
 def sweep(model, sources, filters=DEFAULT_FILTERS, particles=DEFAULT_PARTICLES, runs=25, seed=0,
-          prefilter=None, workers=None, scheduler=None, progress=None) -> list[dict]:
-    """Per-run records (see RECORD_FIELDS) of every filter at every particle count on every source."""
-    jobs = make_jobs(model, sources, filters, particles, runs, seed, prefilter)
+          prefilter=None, workers=None, scheduler=None, progress=None, lags=(0,)) -> list[dict]:
+    """Per-run records (see RECORD_FIELDS) of every filter at every particle count and lag on every source."""
+    jobs = make_jobs(model, sources, filters, particles, runs, seed, prefilter, lags)
     return execute(jobs, workers, scheduler, progress)
 
 
 def summarise(records) -> list[dict]:
-    """Mean and SD over runs for each (data, filter, particles), in order of first appearance."""
+    """Mean and SD over runs for each (data, filter, particles, lag), in order of first appearance."""
     groups = {}
     for r in records:
-        groups.setdefault((r["data"], r["filter"], r["particles"]), []).append(r)
+        groups.setdefault((r["data"], r["filter"], r["particles"], r.get("lag", 0)), []).append(r)
     rows = []
-    for (data, name, n), group in groups.items():
-        row = {"data": data, "filter": name, "particles": n, "runs": len(group)}
-        for key in ("error", "ms_per_step", "loglik"):
-            values = np.array([r[key] for r in group])
+    for (data, name, n, lag), group in groups.items():
+        row = {"data": data, "filter": name, "particles": n, "lag": lag, "runs": len(group)}
+        for key in ("error", "delay", "ms_per_step", "loglik"):
+            values = np.array([r.get(key, math.nan) for r in group], dtype=float)
             row[f"{key}_mean"] = float(values.mean())
             row[f"{key}_sd"] = float(values.std(ddof=1)) if len(values) > 1 else math.nan
         rows.append(row)
@@ -271,6 +280,8 @@ def _wide(summary):
 
 QUANTITIES = {
     "error": ("Diagnosis error %, mean (SD) over runs", lambda r: f"{r['error_mean']:.2f} ({r['error_sd']:.2f})"),
+    "delay": ("Detection delay, steps from a switch to the first right row (lag included), mean over runs",
+              lambda r: f"{r['delay_mean']:.1f}"),
     "ms_per_step": ("Time per step, ms (mean over runs)", lambda r: f"{r['ms_per_step_mean']:.3g}"),
     "loglik": ("Log-likelihood, mean (SD) over runs", lambda r: f"{r['loglik_mean']:.1f} ({r['loglik_sd']:.1f})"),
 }
@@ -288,21 +299,40 @@ def markdown_table(summary, quantity="error") -> str:
     return "\n".join(lines)
 
 
+def lag_name(lag) -> str:
+    """A smoothing lag in words: the filter, a lag of L steps, or off-line."""
+    return "filtering" if lag == 0 else "off-line smoothing" if lag is None else f"lag {lag}"
+
+
 def report(summary) -> str:
-    """Every quantity's table, as Markdown."""
-    return "\n\n".join(markdown_table(summary, q) for q in QUANTITIES) + "\n"
+    """Every quantity's table, as Markdown; with several smoothing lags, a section for each."""
+    lags = list(dict.fromkeys(r.get("lag", 0) for r in summary))
+    sections = []
+    for lag in lags:
+        rows = [r for r in summary if r.get("lag", 0) == lag]
+        tables = "\n\n".join(markdown_table(rows, q) for q in QUANTITIES)
+        sections.append(tables if len(lags) == 1 else f"### {lag_name(lag)}\n\n{tables}")
+    return "\n\n".join(sections) + "\n"
 
 
 def write_table_csv(path, summary):
-    """The same table as CSV: one row per particle count, per filter error mean/SD, ms/step, log-lik."""
-    counts, filters, cells = _wide(summary)
-    keys = ("error_mean", "error_sd", "ms_per_step_mean", "loglik_mean", "loglik_sd")
+    """The same tables as CSV: one row per smoothing lag and particle count, per filter error mean/SD,
+    detection delay, ms/step and log-likelihood."""
+    filters = list(dict.fromkeys(r["filter"] for r in summary))
+    keys = ("error_mean", "error_sd", "delay_mean", "ms_per_step_mean", "loglik_mean", "loglik_sd")
     with open(path, "w", newline="") as stream:
         writer = csv.writer(stream, lineterminator="\n")
-        writer.writerow(["particles"] + [f"{f}_{k}" for f in filters for k in keys])
-        for n in counts:
-            writer.writerow(["" if n is None else n] + [
-                _cell(cells[f, n][k]) if (f, n) in cells else "" for f in filters for k in keys])
+        writer.writerow(["lag", "particles"] + [f"{f}_{k}" for f in filters for k in keys])
+        for lag in dict.fromkeys(r.get("lag", 0) for r in summary):
+            counts, _, cells = _wide([r for r in summary if r.get("lag", 0) == lag])
+            for n in counts:
+                writer.writerow([lag_cell(lag), "" if n is None else n] + [
+                    _cell(cells[f, n][k]) if (f, n) in cells else "" for f in filters for k in keys])
+
+
+def lag_cell(lag) -> str:
+    """A smoothing lag in a CSV cell: the number, or 'offline'."""
+    return "offline" if lag is None else str(lag)
 
 
 def _cell(value):
@@ -316,5 +346,6 @@ def write_records_csv(path, records):
         writer = csv.writer(stream, lineterminator="\n")
         writer.writerow(RECORD_FIELDS)
         for r in records:
-            writer.writerow([r["data"], r["filter"], "" if r["particles"] is None else r["particles"], r["run"],
-                             *(f"{r[k]:.10g}" for k in ("error", "ms_per_step", "loglik"))])
+            writer.writerow([r["data"], r["filter"], "" if r["particles"] is None else r["particles"],
+                             lag_cell(r.get("lag", 0)), r["run"],
+                             *(f"{r.get(k, math.nan):.10g}" for k in ("error", "delay", "ms_per_step", "loglik"))])

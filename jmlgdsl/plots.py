@@ -8,6 +8,8 @@ never changes a notebook's backend and no figure outlives its file.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import matplotlib
 import numpy as np
 from matplotlib.figure import Figure
@@ -127,6 +129,33 @@ def error_boxplots(records, path, title=""):
     fig.suptitle(title or "Diagnosis error per run")
     fig.tight_layout()
     return save(fig, path)
+
+
+def error_vs_lag(summary, path, title="") -> Path:
+    """Diagnosis error and detection delay (mean over runs) against the smoothing lag, one curve per
+    filter and particle count; the off-line point stands last. Returns the path written."""
+    lags = list(dict.fromkeys(r["lag"] for r in summary))
+    lags = sorted(lag for lag in lags if lag is not None) + ([None] if None in lags else [])
+    fig = figure(figsize=(9, 4.2), layout="constrained")
+    axes = fig.subplots(1, 2, sharex=True)
+    settings = dict.fromkeys((r["filter"], r["particles"]) for r in summary)
+    for name, n in settings:
+        rows = {r["lag"]: r for r in summary if (r["filter"], r["particles"]) == (name, n)}
+        color, marker = style(name)
+        x = [i for i, lag in enumerate(lags) if lag in rows]
+        label = name + (f", N = {n}" if n else "")
+        for ax, key in zip(axes, ("error_mean", "delay_mean")):
+            ax.plot(x, [rows[lags[i]][key] for i in x], color=color, marker=marker or "*", label=label)
+    for ax, label in zip(axes, ("diagnosis error (% of steps)", "detection delay (steps, lag included)")):
+        ax.set_xticks(range(len(lags)), ["off-line" if lag is None else str(lag) for lag in lags])
+        ax.set_xlabel("smoothing lag (steps)")
+        ax.set_ylabel(label)
+        ax.set_ylim(bottom=0)
+        ax.grid(True, alpha=0.3)
+    axes[1].legend(fontsize="small")
+    fig.suptitle(title + ": error and delay against the smoothing lag" if title else "Smoothing lag")
+    save(fig, path)
+    return path
 
 
 def study_figures(folder, prefix, title, sample_time, summary, records, reference=None) -> list:

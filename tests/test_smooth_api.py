@@ -95,12 +95,12 @@ def test_a_bad_lag_is_refused(case):
 @pytest.mark.parametrize("options, lag", [(["--lag", "3"], 3), (["--smooth"], None)])
 def test_run_writes_the_smoothed_table_and_says_so(tmp_path, capsys, options, lag):
     from jmlgdsl.cli import main
-    from jmlgdsl.data import read_csv
+    from jmlgdsl.data import read_csv, write_columns
     from jmlgdsl.infer.table import read_table
 
     model = jmlgdsl.load("specs/dryer.jmlg")
     data = tmp_path / "seq.csv"
-    jmlgdsl.data.write_columns(data, simulate(model, modes="1-30:normal,31-60:grill", seed=4).columns())
+    write_columns(data, simulate(model, modes="1-30:normal,31-60:grill", seed=4).columns())
     out = tmp_path / "out.csv"
     assert main(["run", "specs/dryer.jmlg", str(data), "-o", str(out), *options]) == 0
     said = "smoothed off-line" if lag is None else "smoothed with a lag of 3 steps"

@@ -16,6 +16,22 @@ def _list(kind):
     return parse
 
 
+def _lags(text):
+    """Smoothing lags from 'L,L,...': whole numbers >= 0, or 'offline'."""
+    lags = []
+    for item in (i.strip() for i in text.split(",") if i.strip()):
+        if item.lower() in ("offline", "off-line", "none"):
+            lags.append(None)
+        elif item.isdigit():
+            lags.append(int(item))
+        else:
+            raise ValueError(text)
+    return tuple(dict.fromkeys(lags))
+
+
+_lags.__name__ = "comma-separated list of lags (whole numbers or 'offline')"
+
+
 def register(subparsers):
     from ..bench import DEFAULT_FILTERS, DEFAULT_PARTICLES
 
@@ -40,6 +56,9 @@ def register(subparsers):
     p.add_argument("--nonlinear", action="store_true",
                    help="with --simulate/--modes: simulate the spec's ODEs, not its linearised modes")
     p.add_argument("--prefilter", metavar="ma:K", help="moving average over K readings before filtering")
+    p.add_argument("--lag", type=_lags, default=(0,), metavar="L,...",
+                   help="smoothing lags to compare, e.g. 0,5,10,offline (0 is the filter; default 0): adds "
+                        "tables and a figure of error and detection delay against the lag")
     p.add_argument("--workers", type=int, help="processes (default: every core; 1 runs in this process)")
     p.add_argument("--scheduler", metavar="ADDRESS", help="run on this Dask scheduler (needs the dask extra)")
     p.add_argument("-o", "--output", default="bench", help="folder for tables and figures (default ./bench)")
@@ -106,7 +125,13 @@ def write_outputs(folder, model, records, by_source, figures=True) -> list:
         written += [put(f"{name}-table.md", lambda path: path.write_text(bench.report(summary))),
                     put(f"{name}-table.csv", lambda path: bench.write_table_csv(path, summary))]
         if figures:
-            written += plots.study_figures(folder, name, f"{model.name}, {name}", model.dt, summary, mine)
+            first = mine[0].get("lag", 0)  # the study figures of the first lag asked for
+            written += plots.study_figures(folder, name, f"{model.name}, {name}", model.dt,
+                                           [r for r in summary if r.get("lag", 0) == first],
+                                           [r for r in mine if r.get("lag", 0) == first])
+            if len({r.get("lag", 0) for r in mine}) > 1:
+                written.append(plots.error_vs_lag(summary, folder / f"{name}-error-vs-lag.png",
+                                                  f"{model.name}, {name}"))
     return written
 
 
@@ -125,7 +150,7 @@ def main(args) -> int:
     model = jmlgdsl.load(args.spec)
     window = prefilter.parse(args.prefilter)
     records = bench.sweep(model, sources(args, model), args.filters, args.particles, args.runs, args.seed,
-                          window, args.workers, args.scheduler, progress=sys.stderr)
+                          window, args.workers, args.scheduler, progress=sys.stderr, lags=args.lag)
     by_source = {}
     for name in dict.fromkeys(r["data"] for r in records):
         mine = [r for r in records if r["data"] == name]
