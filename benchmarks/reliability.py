@@ -1,7 +1,8 @@
 """Reliability count (issue 14): many generated and mutated specs, malformed data files and careless
 command lines, each sorted by what came of it. The counts that must be zero: tracebacks, hangs over
 5 s, accepted specs with non-finite matrices or sample time, NaN posteriors from finite data, unclear
-error messages, and outputs written over inputs.
+error messages, and outputs written over inputs. A hang is a spec still loading, simulating or
+filtering after 5 s of CPU time (CPU time, so a machine busy with other work does not count).
 
     python benchmarks/reliability.py                      # 10,000 specs, 2,000 data files
     python benchmarks/reliability.py --specs 1000 --data 200 --workers 2
@@ -62,7 +63,7 @@ def specs(job):
             text = f"# {type(exc).__name__}: {exc}\n{text}"
         counts[f"{kind} specs: {outcome}"] += 1
         if outcome in BAD and len(failures) < 5:
-            failures.append(text)
+            failures.append(f"# outcome: {outcome}\n{text}")
 
     _drive(strategy, examples, worker, body)
     return counts, failures
@@ -99,7 +100,7 @@ def data(job):
         counts[f"data files, read: {read}"] += 1
         counts[f"data files, run: {ran}"] += 1
         if (read in BAD or ran in BAD) and len(failures) < 5:
-            failures.append(repr(content))
+            failures.append(f"# read: {read}, run: {ran}\n{content!r}")
 
     with contextlib.redirect_stderr(open(os.devnull, "w")):  # read_csv's warnings
         _drive(fuzz.DATA, examples, worker, body)

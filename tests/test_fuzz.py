@@ -31,7 +31,7 @@ from jmlgdsl.errors import DataError, SpecError
 
 ROOT = Path(__file__).resolve().parents[1]
 LONG = os.environ.get("JMLGDSL_FUZZ") == "1"
-SPEC_SECONDS = 10  # longest a spec may take to load
+SPEC_SECONDS = 10  # CPU seconds a spec may take to load, simulate and filter
 
 
 def budget(examples):
@@ -47,18 +47,19 @@ class Timeout(BaseException):
 
 @contextlib.contextmanager
 def time_limit(seconds):
-    """Interrupt the block with Timeout after `seconds` of wall time (and again every 0.5 s, in case
-    the first lands where Python ignores exceptions, such as a garbage-collector callback)."""
+    """Interrupt the block with Timeout after `seconds` of CPU time (so a machine busy with other work
+    does not look like a hang), and again every 0.5 s, in case the first lands where Python ignores
+    exceptions, such as a garbage-collector callback."""
     def expire(signum, frame):
-        raise Timeout(f"still running after {seconds} s")
+        raise Timeout(f"still running after {seconds} s of CPU time")
 
-    previous = signal.signal(signal.SIGALRM, expire)
-    signal.setitimer(signal.ITIMER_REAL, seconds, 0.5)
+    previous = signal.signal(signal.SIGPROF, expire)
+    signal.setitimer(signal.ITIMER_PROF, seconds, 0.5)
     try:
         yield
     finally:
-        signal.setitimer(signal.ITIMER_REAL, 0)
-        signal.signal(signal.SIGALRM, previous)
+        signal.setitimer(signal.ITIMER_PROF, 0)
+        signal.signal(signal.SIGPROF, previous)
 
 
 # Data files ------------------------------------------------------------------------------------
@@ -248,6 +249,13 @@ def test_a_mutated_spec_loads_and_filters_or_is_a_spec_error(text):
 @budget(15)
 @given(st.one_of(GRAMMAR_SPECS, spliced_specs()))
 def test_a_spec_the_grammar_derives_loads_and_filters_or_is_a_spec_error(text):
+    assert spec_outcome(text) in GOOD
+
+
+@pytest.mark.xfail(strict=False, reason="compile/infer: an offset of 1e160 is accepted, and the squared "
+                   "innovation overflows in IMM to a NaN posterior (issue 14 item 3, owned by the spec side)")
+def test_a_huge_steady_state_is_refused_or_filtered():
+    text = SPECS["dryer.jmlg"].replace("at current 15 -> 54.76", "at current 15 -> 1e160")
     assert spec_outcome(text) in GOOD
 
 
