@@ -1,4 +1,4 @@
-"""`jmlgdsl learn`: fit a mode bank to one experiment per mode and write it as a .jmlg spec."""
+"""`jmlgdsl learn`: fit a mode bank to experiments of every mode and write it as a .jmlg spec."""
 
 from __future__ import annotations
 
@@ -27,7 +27,7 @@ class Columns:
 
 def register(subparsers):
     p = subparsers.add_parser(
-        "learn", help="learn a mode bank from one experiment per mode and write a .jmlg spec",
+        "learn", help="learn a mode bank from experiments of every mode and write a .jmlg spec",
         description="Fit one linear-Gaussian model per mode: an ARX least-squares fit (or an FOPDT "
                     "fit of a step test) gives the structure and the start for EM, which learns the "
                     "coefficients and both noise levels. Every mode is written over one shared state "
