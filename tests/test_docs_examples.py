@@ -161,6 +161,18 @@ def check_cstr(m):
     close(m.p0, [0.997, 0.001, 0.001, 0.001])
 
 
+def check_catch_all(m):
+    assert m.modes == ("normal", "anomaly")
+    close(m.A, [[[0.9]], [[0.9]]])
+    close(m.f, [[3.2], [3.2]])
+    close(m.B, [[[0.1]], [[0.3]]])
+    close(m.D, [[[0.2, 0.0], [0.0, 0.01]], [[0.6, 0.0], [0.0, 0.03]]])
+    close(m.C, [[[1.0], [0.05]], [[1.0], [0.05]]])
+    np.testing.assert_array_equal(m.outlier_gate, [20.0, np.inf])
+    close(m.P, stay_otherwise_uniform(2, 0.99))
+    close(m.p0, [0.99, 0.01])
+
+
 CHECKS = {name[len("check_"):]: fn for name, fn in globals().items() if name.startswith("check_")}
 
 

@@ -53,7 +53,7 @@ CASES = [
     ("state time", replace("0.8 * x[t-1] + u", "0.8 * x[t] + u"), 10, 46, "a state equation uses states at t-1: write x[t-1]"),
     ("time unit", replace("sample 1 s", "sample 1 secs"), 2, 10, "unknown time unit 'secs'; use s, min or h"),
     ("no sample", replace("sample 1 s\n", ""), 1, 1, "missing sample time: add a line such as 'sample 1 s'"),
-    ("noise kind", replace("noise process 0.1", "noise proces 0.1"), 8, 7, "unknown noise kind 'proces'; use 'process' or 'measurement'; did you mean 'process'?"),
+    ("noise kind", replace("noise process 0.1", "noise proces 0.1"), 8, 7, "unknown noise kind 'proces'; use 'process', 'measurement' or 'scale'; did you mean 'process'?"),
     ("no equation", replace("{ x[t] ~ Normal(0.8 * x[t-1] + u, 0.1) }", "{ }").replace("like normal ", ""), 6, 15,
      "state 'x' has no equation in mode 'fault'"),
     ("distribution", replace("0.8 * x[t-1] + u, 0.1)", "0.8 * x[t-1] + u, 0.1, 2)"), 10, 33,

@@ -10,16 +10,38 @@ from ..lang.check import ModeInfo, Plant, noise_values
 from ..lang.evaluate import evaluate_number
 from ..lang.limits import MAX_STACKED, MAX_VARIABLES, check_sd
 from ..lang.report import Report
-from ..model import Model
+from ..model import DEFAULT_GATE, Model
 from .blocks import MATRIX_NAMES, Layout, ModeArrays
 
 
 def mode_noise(plant: Plant, mode: ModeInfo, params: dict, report: Report) -> tuple[float, float]:
     """(process, measurement) noise standard deviations in a mode: plant defaults, mode overrides."""
-    own = noise_values([st.noise for st in mode.statements if st.kind == "noise"], params, report,
-                       plant_level=False)
-    values = {**plant.noise, **own}
+    values = {**plant.noise, **_own_noise(mode, params, report)}
     return values.get("process", 0.0), values.get("measurement", np.nan)
+
+
+def _own_noise(mode: ModeInfo, params: dict, report: Report) -> dict[str, float]:
+    """A mode's own `noise` lines, by kind."""
+    return noise_values([st.noise for st in mode.statements if st.kind == "noise"], params, report,
+                        plant_level=False)
+
+
+def outlier_gates(plant: Plant, outputs: list[str], report: Report) -> np.ndarray:
+    """Each output's gross-error gate in standard deviations (inf: `outliers off`); the model's
+    default where the declaration says nothing."""
+    gates = np.full(len(outputs), DEFAULT_GATE)
+    for d in plant.outputs:
+        if d.gate is None or d.name.text not in outputs:
+            continue
+        i = outputs.index(d.name.text)
+        if d.gate == "off":
+            gates[i] = np.inf
+            continue
+        gates[i] = evaluate_number(d.gate, plant.nominal, report, what=f"the outlier gate of {d.name.text}")
+        if not gates[i] > 0 or not np.isfinite(gates[i]):
+            report.error(f"an outlier gate is a positive number of standard deviations (or 'off'); got {gates[i]:g}",
+                         d.gate.pos)
+    return gates
 
 
 def declared_values(plant: Plant, decls, report: Report) -> np.ndarray:
@@ -58,8 +80,13 @@ def steady_mean(m: ModeArrays, u: np.ndarray) -> np.ndarray | None:
         return None
 
 
-def stack(plant: Plant, layout: Layout, modes: list[ModeArrays], report: Report) -> Model:
-    """Stack per-mode arrays into a Model; noise factors are padded to a common width."""
+def stack(plant: Plant, layout: Layout, modes: list[ModeArrays], params: list[dict], report: Report) -> Model:
+    """Stack per-mode arrays into a Model; noise factors are padded to a common width, and scaled by
+    each mode's `noise scale`."""
+    for mode, m, env in zip(plant.modes, modes, params):
+        scale = _own_noise(mode, env, report).get("scale")
+        if scale is not None:
+            m.B, m.D = m.B * scale, m.D * scale
     nw = max(m.B.shape[1] for m in modes)
     nv = max(m.D.shape[1] for m in modes)
     pad = lambda M, n: np.pad(M, ((0, 0), (0, n - M.shape[1])))  # noqa: E731
@@ -87,6 +114,7 @@ def stack(plant: Plant, layout: Layout, modes: list[ModeArrays], report: Report)
             if sd0[i] < 0:
                 report.error("a standard deviation cannot be negative", d.sd.pos)
             check_sd(sd0[i], d.sd.pos, report)
+    gates = outlier_gates(plant, layout.outputs, report)
     report.raise_errors()
     units = {d.name.text: d.unit for d in [*plant.inputs, *plant.outputs, *plant.states] if d.unit}
     return Model(
@@ -97,4 +125,5 @@ def stack(plant: Plant, layout: Layout, modes: list[ModeArrays], report: Report)
         P=plant.P, p0=plant.p0, mu0=np.stack([m.x0 for m in modes]), Sigma0=np.diag(sd0 ** 2),
         input_defaults=layout.input_defaults, modes=[m.name for m in plant.modes],
         states=layout.states, inputs=layout.inputs, outputs=layout.outputs, dt=plant.dt, name=plant.name,
-        descriptions={m.name: m.description for m in plant.modes if m.description}, units=units)
+        descriptions={m.name: m.description for m in plant.modes if m.description}, units=units,
+        outlier_gate=gates)

@@ -74,7 +74,7 @@ def lower_linear(plant: Plant, report: Report) -> Model:
     state_means = np.array([declared.get(s, np.nan) for s in layout.states])
     for m in modes:
         _fill_initial_mean(m, state_means, layout.input_defaults)
-    return stack(plant, layout, modes, report)
+    return stack(plant, layout, modes, params, report)
 
 
 def _add_block_states(plant: Plant, layout: Layout, params: list[dict], report: Report):

@@ -221,7 +221,7 @@ def linearise(plant: Plant, system: OdeSystem, report: Report) -> Model:
         settled = None if per_mode else steady_mean(m, u_bar)
         m.x0 = x_bar if settled is None else settled
         modes.append(m)
-    return stack(plant, layout, modes, report)
+    return stack(plant, layout, modes, params, report)
 
 
 def _check_divisors(plant: Plant, mode: str, env: dict, report: Report):

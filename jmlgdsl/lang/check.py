@@ -17,7 +17,7 @@ from .probabilities import initial_distribution, transition_matrix
 from .report import Report
 from .units import time_in_seconds
 
-NOISE_KINDS = ("process", "measurement")
+NOISE_KINDS = ("process", "measurement", "scale")
 
 
 @dataclass
@@ -238,11 +238,17 @@ def noise_values(stmts: list[S.Noise], env, report: Report, plant_level: bool) -
     for st in stmts:
         for name, expr in st.items:
             if name.text not in NOISE_KINDS:
-                report.error(f"unknown noise kind {name.text!r}; use 'process' or 'measurement'"
+                report.error(f"unknown noise kind {name.text!r}; use 'process', 'measurement' or 'scale'"
                              f"{suggest(name.text, NOISE_KINDS)}", name.pos)
                 continue
+            if name.text == "scale" and plant_level:
+                report.error("'noise scale' multiplies one mode's noise: write it in a mode, e.g. "
+                             "'mode anomaly like normal { noise scale 3 }'", name.pos)
+                continue
             value = evaluate_number(expr, env, report, what=f"{name.text} noise")
-            if value < 0:
+            if name.text == "scale" and not value > 0:
+                report.error(f"a noise scale must be a positive number (got {value:g})", expr.pos)
+            elif value < 0:
                 report.error(f"a noise standard deviation cannot be negative (got {value:g})", expr.pos)
             check_sd(value, expr.pos, report)
             if name.text in out and plant_level:

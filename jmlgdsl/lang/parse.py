@@ -221,21 +221,29 @@ class _Builder(Transformer):
 
     def _item(kind):
         def build(self, meta, c):
-            name, unit, value, sd = _name(c[0]), None, None, None
+            name, unit, value, sd, gate = _name(c[0]), None, None, None, None
             for x in c[1:]:
                 if isinstance(x, Token) and x.type == "UNIT":
                     unit = str(x)[1:-1].strip()
                 elif isinstance(x, tuple) and x[0] == "sd":
                     sd = x[1]
+                elif isinstance(x, tuple) and x[0] == "gate":
+                    gate = x[1]
                 elif isinstance(x, tuple):
                     value = x[1]
                 else:
                     value = x
-            return S.Decl(kind, name, unit, value, sd)
+            return S.Decl(kind, name, unit, value, sd, gate)
         return build
 
     input_item, output_item, state_item = _item("input"), _item("output"), _item("state")
     del _item
+
+    def gate_off(self, meta, c):
+        return ("gate", "off")
+
+    def gate_value(self, meta, c):
+        return ("gate", c[0])
 
     def state_value(self, meta, c):
         return ("value", c[0])

@@ -51,6 +51,7 @@ class Decl:
     unit: str | None = None
     value: Expr | None = None
     sd: Expr | None = None
+    gate: Expr | str | None = None  # an output's gross-error gate in standard deviations, or "off"
 
 
 @dataclass(frozen=True)
