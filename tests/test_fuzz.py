@@ -252,11 +252,16 @@ def test_a_spec_the_grammar_derives_loads_and_filters_or_is_a_spec_error(text):
     assert spec_outcome(text) in GOOD
 
 
-@pytest.mark.xfail(strict=False, reason="compile/infer: an offset of 1e160 is accepted, and the squared "
-                   "innovation overflows in IMM to a NaN posterior (issue 14 item 3, owned by the spec side)")
-def test_a_huge_steady_state_is_refused_or_filtered():
-    text = SPECS["dryer.jmlg"].replace("at current 15 -> 54.76", "at current 15 -> 1e160")
-    assert spec_outcome(text) in GOOD
+@pytest.mark.xfail(strict=False, reason="compile/infer: huge finite values are accepted (an offset of 1e160, "
+                   "an initial state of 1e308) and IMM's squared innovation overflows to a NaN posterior "
+                   "(issue 14 item 3, owned by the spec side)")
+@pytest.mark.parametrize("name, old, new", [
+    ("dryer.jmlg", "at current 15 -> 54.76", "at current 15 -> 1e160"),
+    ("robot_smooth.jmlg", "v0 = 0.5037", "v0 = 1e308"),
+])
+def test_huge_values_are_refused_or_filtered(name, old, new):
+    assert old in SPECS[name]
+    assert spec_outcome(SPECS[name].replace(old, new)) in GOOD
 
 
 def test_the_time_limit_interrupts():
