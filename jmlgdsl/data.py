@@ -94,6 +94,9 @@ class Data:
     changepoint: np.ndarray | None = None  # (T,) 0/1 labels
 
 
+_READING = weakref.WeakSet()  # the files open for reading, which no table may be written over
+
+
 class Source:
     """The lines of a data file or of standard input ('-'), decoded one at a time, so that a byte that
     is not UTF-8, a binary or UTF-16 file, or a closed standard input is a DataError naming the file
@@ -155,9 +158,6 @@ class Source:
 def open_source(path) -> Source:
     """The lines of a data file, or of standard input for '-'."""
     return Source(path)
-
-
-_READING = weakref.WeakSet()  # the files open for reading, which no table may be written over
 
 
 def open_target(path):
