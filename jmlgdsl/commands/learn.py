@@ -2,27 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
-
-
-@dataclass(frozen=True)
-class Columns:
-    """The names a bank being learned binds CSV columns by: what `data.read_csv` asks of a model."""
-
-    inputs: tuple[str, ...]
-    outputs: tuple[str, ...]
-    input_defaults: np.ndarray
-    modes: tuple[str, ...]
-
-    @property
-    def nu(self) -> int:
-        return len(self.inputs)
-
-    @property
-    def ny(self) -> int:
-        return len(self.outputs)
 
 
 def register(subparsers):
@@ -205,7 +185,7 @@ def main(args) -> int:
     import sys
     from pathlib import Path
 
-    from ..data import read_csv
+    from ..data import Columns, read_csv
     from ..learn import bank
     from ..learn.writer import write_spec
 
@@ -213,7 +193,8 @@ def main(args) -> int:
     order = parse_order(args.order)
     check_numbers(args)
     frame, modes = plant_frame(args, list(paths))
-    names = Columns(frame["inputs"], frame["outputs"], frame["input_defaults"], modes)
+    names = Columns(outputs=frame["outputs"], inputs=frame["inputs"], input_defaults=frame["input_defaults"],
+                    modes=modes, dt=frame["dt"])
     experiments = {mode: [run for path in paths[mode] for run in runs(read_csv(path, names), mode, k)]
                    for k, mode in enumerate(modes)}
     learned = bank.learn_modes(experiments, order, args.fopdt, frame["dt"], args.max_order, args.max_delay,
