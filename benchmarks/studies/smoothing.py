@@ -2,8 +2,8 @@
 (docs/studies.md, "Smoothing"): a table in benchmarks/studies/results/smoothing/ and a figure in
 docs/figures/smoothing.png.
 
-    python benchmarks/studies/smoothing.py               # 25 runs a plant (about 10 minutes on 2 cores)
-    python benchmarks/studies/smoothing.py --runs 5
+    python benchmarks/studies/smoothing.py               # 25 runs a plant
+    python benchmarks/studies/smoothing.py --runs 5      # 18 minutes on 2 cores shared with other work
     python benchmarks/studies/smoothing.py --replot      # redraw the figure from the table only
 
 Each run simulates the plant through its study schedule (sequence No. 1 for the dryer) with its own
