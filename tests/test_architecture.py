@@ -12,7 +12,7 @@ import pytest
 
 PACKAGE = Path(__file__).resolve().parents[1] / "jmlgdsl"
 LAYERS = [
-    {"errors", "names", "random", "gaussian"},
+    {"errors", "names", "random", "gaussian", "output"},
     {"model", "data", "prefilter", "metrics", "alarms"},
     {"lang"},
     {"compile"},
