@@ -109,21 +109,34 @@ def publish(name, model, records, reference=None, title=None):
     print(bench.markdown_table(summary))
 
 
-def diagnosis_example(name, model, schedule, algorithm, particles, seed, plant=None, prefilter=None):
-    """The mode-posterior figure of one run: docs/figures/<name>-diagnosis.png."""
+def diagnosis_example(name, model, schedule, algorithm, particles, seed, plant=None, prefilter=None, run=0,
+                      figure="diagnosis"):
+    """The mode-posterior figure of one run (the sweep's run `run`): docs/figures/<name>-<figure>.png."""
     source = bench.Simulated(None, schedule, name, plant)
-    job = bench.make_jobs(model, [source], (algorithm,), (particles,), runs=1, seed=seed, prefilter=prefilter)[0]
-    data, result = bench.filter_job(job)
-    plots.result_figure(result, FIGURES / f"{name}-diagnosis.png", true_modes=data.modes)
+    jobs = bench.make_jobs(model, [source], (algorithm,), (particles,), runs=run + 1, seed=seed, prefilter=prefilter)
+    data, result = bench.filter_job(next(job for job in jobs if job.run == run))
+    plots.result_figure(result, FIGURES / f"{name}-{figure}.png", true_modes=data.modes)
 
 
-def linear_study(args, name, spec, schedule, reference=None, model=None, title=None, example=("la-rbpf", 10)):
-    """Every filter at every particle count on fresh simulations of a linear plant through a schedule."""
+def worst_example(name, model, schedule, records, algorithm, particles, seed):
+    """The sweep's worst run of one filter and count, drawn as docs/figures/<name>-worst.png (a
+    typical run rarely shows how a filter fails)."""
+    runs = [r for r in records if r["filter"] == algorithm and r["particles"] == particles]
+    worst = max(runs, key=lambda r: r["error"])
+    diagnosis_example(name, model, schedule, algorithm, particles, seed, run=worst["run"], figure="worst")
+
+
+def linear_study(args, name, spec, schedule, reference=None, model=None, title=None, example=("la-rbpf", 10),
+                 worst=False):
+    """Every filter at every particle count on fresh simulations of a linear plant through a schedule;
+    `worst` also draws the example filter's worst run."""
     model = model or jmlgdsl.load(SPECS / spec)
     check_schedule(model, schedule)
     records = sweep(args, name, model, [bench.Simulated(None, schedule, name)], args.filters, args.particles)
     publish(name, model, records, reference, title)
     diagnosis_example(name, model, schedule, *example, args.seed)
+    if worst and example[0] in args.filters and example[1] in args.particles:
+        worst_example(name, model, schedule, records, *example, args.seed)
 
 
 def dryer(args, seq):
@@ -238,7 +251,7 @@ STUDIES = {
     "dryer-transitions": lambda args: robustness(args, "dryer-transitions", "dryer.jmlg", DRYER["seq1"],
                                                  ("rbpf", "la-rbpf")),
     "level-tank4": lambda args: linear_study(args, "level-tank4", "level_tank4.jmlg", SCHEDULES["level_tank4"],
-                                             TABLE_D_6, title="Level tank, 4 modes"),
+                                             TABLE_D_6, title="Level tank, 4 modes", worst=True),
     "level-tank5": lambda args: linear_study(args, "level-tank5", "level_tank5.jmlg", SCHEDULES["level_tank5"],
                                              title="Level tank, 5 modes"),
     "heat-exchanger": lambda args: linear_study(args, "heat-exchanger", "heat_exchanger.jmlg",
