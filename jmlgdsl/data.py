@@ -274,6 +274,9 @@ def iter_rows(stream, model, source="<data>", outputs=True) -> Iterator[Row]:
             raise DataError(f"{source}: column {name!r} appears {names.count(name)} times in the header")
         if name in index:
             return index[name]
+        spelled = [i for i, h in enumerate(names) if re.sub(r"\W", "_", h) == name]
+        if len(spelled) == 1:  # a header such as 'Volume Flow Rate' for the name Volume_Flow_Rate
+            return spelled[0]
         if required:
             raise DataError(f"{source}: missing column {name!r}; the header has {', '.join(header)}"
                             f"{suggest(name, header)}")

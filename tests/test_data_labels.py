@@ -46,3 +46,10 @@ def test_a_label_must_be_zero_or_one(tmp_path):
     path.write_text("flow,pressure,anomaly\n1,2,0.5\n")
     with pytest.raises(DataError, match=r"rig.csv:2: column 'anomaly': '0.5' is not a 0/1 label"):
         read_csv(path, COLUMNS)
+
+
+def test_a_header_with_spaces_binds_to_the_name_written_with_underscores(tmp_path):
+    path = tmp_path / "rig.csv"
+    path.write_text("Volume Flow Rate;Pressure (bar)\n32.0;0.05\n")
+    data = read_csv(path, Columns(outputs=("Volume_Flow_Rate", "Pressure__bar_")))
+    assert data.y.tolist() == [[32.0, 0.05]]
