@@ -10,6 +10,7 @@ import numpy as np
 from scipy.linalg import solve_discrete_lyapunov
 
 from ..errors import DataError
+from ..lang.probabilities import otherwise_uniform
 from ..model import Model
 from . import arx, lagged, steptest
 from .em import EMResult
@@ -137,10 +138,11 @@ def _located(e: Experiment, fit, *args):
 
 
 def default_transitions(K: int, stay: float) -> np.ndarray:
-    """`stay p, otherwise uniform`: p on the diagonal, the rest of each row shared evenly."""
+    """`stay p, otherwise uniform`: p on the diagonal, the rest of each row shared evenly, exactly as
+    the language reads those words."""
     if K == 1:
         return np.ones((1, 1))
-    return np.full((K, K), (1 - stay) / (K - 1)) + (stay - (1 - stay) / (K - 1)) * np.eye(K)
+    return np.array([otherwise_uniform(np.where(np.arange(K) == k, stay, np.nan)) for k in range(K)])
 
 
 def _stable(ss: StateSpace) -> bool:

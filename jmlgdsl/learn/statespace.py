@@ -14,6 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..compile.assemble import steady_state
+
 
 @dataclass(frozen=True)
 class StateSpace:
@@ -50,7 +52,7 @@ class StateSpace:
 
     def steady_state(self, u) -> np.ndarray:
         """The state the noise-free model settles at under a constant input u."""
-        return np.linalg.solve(np.eye(self.nx) - self.A, self.F @ np.asarray(u, float) + self.f)
+        return steady_state(self.A, self.F, self.f, np.asarray(u, float))
 
     def free_run(self, u) -> np.ndarray:
         """Noise-free output y_1..y_T from the initial mean under inputs u (T, nu): the simulation fit."""

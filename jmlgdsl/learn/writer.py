@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..lang.probabilities import otherwise_uniform
 from ..model import Model, ModelError
 
 
@@ -43,10 +44,9 @@ def _quoted(text: str) -> str:
 
 
 def _rest_uniform(values, keep) -> bool:
-    """Whether every entry but `keep` equals exactly (1 - values[keep]) / (K - 1): "otherwise uniform"."""
-    K = len(values)
-    rest = np.delete(values, keep)
-    return K > 1 and bool(np.all(rest == (1 - values[keep]) / (K - 1)))
+    """Whether `values` is exactly what "NAME values[keep], otherwise uniform" reads as."""
+    given = np.where(np.arange(len(values)) == keep, values, np.nan)
+    return len(values) > 1 and np.array_equal(otherwise_uniform(given), values)
 
 
 def _initial(model: Model) -> str:
