@@ -34,6 +34,7 @@ from hypothesis import HealthCheck, Phase, given, seed, settings  # noqa: E402
 from hypothesis import strategies as st  # noqa: E402
 
 HANG_SECONDS = 5
+KEEP = 5  # failing cases kept per worker, kind and outcome
 BAD = ("traceback", "hang", "non-finite model", "NaN posterior", "unclear message", "data lost")
 
 
@@ -62,7 +63,7 @@ def specs(job):
             outcome = "traceback"
             text = f"# {type(exc).__name__}: {exc}\n{text}"
         counts[f"{kind} specs: {outcome}"] += 1
-        if outcome in BAD and len(failures) < 5:
+        if outcome in BAD and counts[f"{kind} specs: {outcome}"] <= KEEP:
             failures.append(f"# outcome: {outcome}\n{text}")
 
     _drive(strategy, examples, worker, body)
@@ -99,7 +100,7 @@ def data(job):
         ran = command_outcome(["run", fuzz.MODEL, path])
         counts[f"data files, read: {read}"] += 1
         counts[f"data files, run: {ran}"] += 1
-        if (read in BAD or ran in BAD) and len(failures) < 5:
+        if (read in BAD or ran in BAD) and len(failures) < KEEP:
             failures.append(f"# read: {read}, run: {ran}\n{content!r}")
 
     with contextlib.redirect_stderr(open(os.devnull, "w")):  # read_csv's warnings
@@ -228,7 +229,8 @@ def main(argv=None) -> int:
     print(table(counts))
     bad = sum(n for key, n in counts.items() if key.rsplit(": ", 1)[1] in BAD)
     print(f"\n{args.specs:,} specs, {args.data:,} data files and {len(command_lines(fuzz.FOLDER)) + 1} command "
-          f"lines in {time.perf_counter() - start:.0f} s on {args.workers} processes; {bad} must-be-zero cases")
+          f"lines in {time.perf_counter() - start:.0f} s on {args.workers} process{'es' * (args.workers != 1)}; "
+          f"{bad} must-be-zero cases")
     for failure in failures:
         print("\n--- failure ---\n" + failure[:2000])
     if args.failures:
