@@ -172,15 +172,16 @@ def smooth(model: Model, y, u=None, *, algorithm: str = DEFAULT_ALGORITHM, lag: 
     data) with the matching state moments where the algorithm gives them (exact and imm; NaN for
     the particle filters); predictions, residuals and the log-likelihood are the filter's.
 
-    Lag 0 is `filter` itself. `exact` and `imm` smooth the whole sequence at once (every mode
-    history; Kim's backward pass) over the readings the filter used; the particle filters trace
-    their candidates' ancestral lines back (see jmlgdsl.infer.lagged).
+    Lag 0 is `filter` itself. `exact` smooths over every mode history and `imm` with a lag runs
+    Kim's backward pass over every window at once, both over the readings the filter used; `imm`
+    off-line runs Kim's pass once over the filter's own per-mode moments, and the particle filters
+    trace their candidates' ancestral lines back (see jmlgdsl.infer.lagged).
     """
     if lag == 0:
         return filter(model, y, u, algorithm=algorithm, particles=particles, seed=seed, resampling=resampling,
                       ess_threshold=ess_threshold)
     y, u = _arrays(model, y, u)
-    if algorithm in ("exact", "imm"):
+    if algorithm == "exact" or (algorithm == "imm" and lag is not None):
         result = filter(model, y, u, algorithm=algorithm, seed=seed)
         start = time.perf_counter()
         used = np.where(result.rejected, np.nan, y)  # readings rejected as gross errors stay out

@@ -1,0 +1,53 @@
+"""Time of smoothing a long run (BENCHMARKS.md): IMM off-line and at a lag of 10, and the
+on-line fixed-lag filter, on 10,000 dryer steps.
+
+    python benchmarks/bench_smooth.py [--steps 10000] [--repeats 3]
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import time
+from pathlib import Path
+
+import numpy as np
+
+import jmlgdsl
+from jmlgdsl.simulate import simulate
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def best(repeats, work):
+    """The shortest wall-clock time of `repeats` calls (the least disturbed by other work)."""
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        work()
+        times.append(time.perf_counter() - start)
+    return min(times)
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--steps", type=int, default=10_000)
+    parser.add_argument("--repeats", type=int, default=3)
+    args = parser.parse_args()
+    model = jmlgdsl.load(ROOT / "specs" / "dryer.jmlg")
+    sim = simulate(model, args.steps, seed=0)
+    print(f"machine: {platform.machine()}, Python {platform.python_version()}, numpy {np.__version__}; "
+          f"{time.strftime('%Y-%m-%d')}; dryer, {args.steps:,} steps, best of {args.repeats}\n")
+    print("| what | seconds |\n|---|---|")
+    cases = {
+        "filter (imm)": lambda: jmlgdsl.filter(model, sim.y, sim.u),
+        "smooth, imm, off-line (filter included)": lambda: jmlgdsl.smooth(model, sim.y, sim.u),
+        "smooth, imm, lag 10 (filter included)": lambda: jmlgdsl.smooth(model, sim.y, sim.u, lag=10),
+        "smooth, fc-rbpf N=4, lag 10": lambda: jmlgdsl.smooth(model, sim.y, sim.u, algorithm="fc-rbpf", lag=10),
+    }
+    for name, work in cases.items():
+        print(f"| {name} | {best(args.repeats, work):.2f} |", flush=True)
+
+
+if __name__ == "__main__":
+    main()
