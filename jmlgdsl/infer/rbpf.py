@@ -84,10 +84,13 @@ class RaoBlackwellised:
             pred = every
             at = self.node
             log_prior = (self.logw[:, None] + model.logP[self.z]).reshape(n * K)
+            prior = (np.exp(self.logw)[:, None] * model.P[self.z]).reshape(n * K)  # sums to 1: logw is normalised
         else:
             pred = pred[parent, mode]
             at = (self.node[parent], mode)
             log_prior = self.logw[parent] + model.logP[self.z[parent], mode] - log_prop
+            prior = np.exp(log_prior - log_prior.max())
+            prior /= prior.sum()
         mu_p, y_pred = pred[:, :nx], pred[:, nx:]
         Linv, logdet, gain_t, Sig_f = rows.at(at)
         r = y - y_pred if rows.complete else y[mask] - y_pred[:, mask]
@@ -103,12 +106,10 @@ class RaoBlackwellised:
         ll = kalman.log_density(quad, logdet, r.shape[1])
         mu_f = mu_p + (r[:, None, :] @ gain_t)[:, 0]
 
-        top = log_prior.max()
-        prior = np.exp(log_prior - top)
         q, loglik = normalize(log_prior + ll)
         mean, cov = mixture_moments(q, mu_f, (q @ Sig_f.reshape(len(q), nx * nx)).reshape(nx, nx))
         posterior = np.bincount(mode, weights=q, minlength=K)
-        yp = prior @ y_pred / prior.sum()
+        yp = prior @ y_pred
 
         chosen, logw, size = self.select(q, parent, mode)
         key = chosen if log_prop is None else parent[chosen] * K + mode[chosen]  # (parent, mode) as one number
