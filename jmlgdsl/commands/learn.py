@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 
@@ -73,7 +75,7 @@ def check_numbers(args):
                                  ("--max-iter", args.max_iter, 0)):
         if value < least:
             raise JmlgError(f"{option} must be at least {least}, not {value}")
-    if not args.dt > 0:
+    if not (math.isfinite(args.dt) and args.dt > 0):
         raise JmlgError(f"--dt must be a positive number of seconds, not {args.dt}")
 
 
@@ -189,7 +191,12 @@ def main(args) -> int:
     from ..learn import bank
     from ..learn.writer import write_spec
 
+    from ..output import check_file, check_folder, replacing
+
     paths = parse_modes(args.mode)
+    check_file(args.spec_out, inputs=[p for runs_ in paths.values() for p in runs_] + [args.template])
+    if args.figures:
+        check_folder(args.figures, option="--figures")
     order = parse_order(args.order)
     check_numbers(args)
     frame, modes = plant_frame(args, list(paths))
@@ -206,7 +213,8 @@ def main(args) -> int:
     if args.spec_out == "-":
         sys.stdout.write(text)
     else:
-        Path(args.spec_out).write_text(text)
+        with replacing(args.spec_out) as temporary:
+            Path(temporary).write_text(text)
         print(f"wrote {args.spec_out}", file=report)
     for lm in learned:
         print(lm.summary(), file=report)

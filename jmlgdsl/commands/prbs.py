@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 
 def register(subparsers):
     p = subparsers.add_parser(
@@ -32,8 +34,17 @@ def main(args) -> int:
     from ..errors import JmlgError
     from ..learn.prbs import prbs, warn_if_short
 
+    from ..output import check_count, check_file
+
+    check_file(args.output)
+    for option, value in (("--dt", args.dt), ("--amplitude", args.amplitude), ("--around", args.around)):
+        if not math.isfinite(value):
+            raise JmlgError(f"{option} must be a finite number, not {value}")
     if not args.dt > 0:
         raise JmlgError(f"--dt must be a positive number of seconds, not {args.dt}")
+    if 2 <= args.cells <= 20:
+        check_count("--samples" if args.samples else "--periods",
+                    args.samples or args.periods * (2 ** args.cells - 1) * args.clock, 48)
     u = prbs(args.cells, args.clock, args.amplitude, args.around, args.periods, args.samples)
     if args.settling is not None:
         warn_if_short(args.cells, args.clock, args.dt, args.settling)

@@ -121,9 +121,17 @@ def diagnose(args, on_step=None):
     from ..infer.table import TableWriter
     from ..prefilter import MovingAverage, parse
 
+    from ..output import FIGURE, check_count, check_file
+
+    check_file(args.output, inputs=[args.spec, args.data])
+    check_file(args.plot, inputs=[args.spec, args.data], suffixes=FIGURE, option="--plot")
     window = parse(args.prefilter)
     smooth = MovingAverage(window) if window else None
     model = jmlgdsl.load(args.spec)
+    if args.particles is not None:
+        from ..bench import particle_bytes
+
+        check_count("--particles", args.particles, particle_bytes(model))
     rule = alarm_rule(args, model)
     streaming = args.data == "-"
     source = "<stdin>" if streaming else args.data
@@ -158,6 +166,10 @@ def diagnose(args, on_step=None):
                 record(step)
         for step in f.flush():
             record(step)
+    except Exception:
+        if out not in (None, sys.stdout):
+            out.discard()  # a run stopped by an error leaves the old table as it was
+        raise
     finally:
         if stream is not sys.stdin:
             stream.close()
@@ -243,7 +255,11 @@ def main(args) -> int:
         from ..infer import Result
         from ..plots import result_figure
 
+        from ..output import replacing
+
         result = dataclasses.replace(Result.from_steps(f.model, f.algorithm, f.particles, steps, f.seconds), lag=f.lag)
-        result_figure(result, args.plot, true_modes=None if truth[0] is None else np.array(truth))
+        labelled = all(t is not None for t in truth)
+        with replacing(args.plot) as temporary:
+            result_figure(result, temporary, true_modes=np.array(truth) if labelled else None)
         print(f"figure: {args.plot}", file=out)
     return 0

@@ -1,0 +1,58 @@
+"""run, learn and prbs check their outputs and numbers before any work (issue 14, items 12, 15-17)."""
+
+import pytest
+from infer_models import dryer
+
+from jmlgdsl.cli import main
+from jmlgdsl.data import write_columns
+from jmlgdsl.simulate import simulate
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("outputs")
+    spec, data = folder / "dryer.json", folder / "seq.csv"
+    dryer().save(spec)
+    write_columns(data, simulate(dryer(), modes="1-20:normal,21-40:fan", seed=1).columns())
+    return spec, data
+
+
+def refused(argv, capsys, message):
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err
+
+
+def test_run_refuses_to_write_over_its_data(files, capsys):
+    spec, data = files
+    before = data.read_bytes()
+    refused(["run", str(spec), str(data), "-o", str(data)], capsys, "")
+    assert data.read_bytes() == before
+
+
+@pytest.mark.parametrize("plot, message", [("fig.txt", "--plot"), ("missing/fig.png", "missing")])
+def test_run_checks_the_figure_path_before_filtering(files, capsys, tmp_path, plot, message):
+    spec, data = files
+    refused(["run", str(spec), str(data), "--plot", str(tmp_path / plot)], capsys, message)
+
+
+def test_run_refuses_zero_particles(files, capsys):
+    spec, data = files
+    refused(["run", str(spec), str(data), "--filter", "la-rbpf", "--particles", "0"], capsys, "--particles")
+
+
+def test_learn_checks_its_output_and_sample_time(files, capsys, tmp_path):
+    _, data = files
+    refused(["learn", "--mode", f"normal={data}", "--output", "temp", "--dt", "1", "-o", str(data)], capsys, "")
+    refused(["learn", "--mode", f"normal={data}", "--output", "temp", "--dt", "inf", "-o", str(tmp_path / "s.jmlg")],
+            capsys, "--dt")
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--amplitude", "nan"], "--amplitude must be a finite number"),
+    (["--around", "inf"], "--around must be a finite number"),
+    (["--dt", "inf"], "--dt must be a finite number"),
+    (["--cells", "20", "--periods", "1000"], "GiB"),
+])
+def test_prbs_refuses_unusable_numbers(capsys, tmp_path, extra, message):
+    refused(["prbs", "--cells", "5", "-o", str(tmp_path / "u.csv"), *extra], capsys, message)
