@@ -8,7 +8,7 @@ import numpy as np
 
 from ..lang.check import ModeInfo, Plant, noise_values
 from ..lang.evaluate import evaluate_number
-from ..lang.limits import MAX_STACKED, MAX_VARIABLES, check_sd
+from ..lang.limits import MAX_MAGNITUDE, MAX_STACKED, MAX_VARIABLES, check_sd
 from ..lang.report import Report
 from ..model import DEFAULT_GATE, Model
 from .blocks import MATRIX_NAMES, Layout, ModeArrays
@@ -96,6 +96,11 @@ def stack(plant: Plant, layout: Layout, modes: list[ModeArrays], params: list[di
             report.error(f"mode {mode.name!r} has entries that are not finite numbers in {', '.join(overflowed)}: "
                          "a value overflowed (values too large, or equations too stiff for the sample time?)",
                          mode.pos)
+            continue
+        huge = [k for k in MATRIX_NAMES if (np.abs(getattr(m, k)) > MAX_MAGNITUDE).any()]
+        if huge:
+            report.error(f"mode {mode.name!r} has entries larger than {MAX_MAGNITUDE:g} in {', '.join(huge)}: at most "
+                         f"{MAX_MAGNITUDE:g}, so that the filters' squares and products stay finite numbers", mode.pos)
             continue
         R = m.D @ m.D.T
         if R.size and np.linalg.eigvalsh(R).min() <= 0:

@@ -39,7 +39,7 @@ class IMM:
         means, covs, ll, quad = kalman.update(mu_p, Sig_p, y_pred, S, CS, y, mask)
         flagged = None
         if quad.min() > gate.bound:
-            sd = np.sqrt(np.diagonal(S, axis1=1, axis2=2)[:, mask])
+            sd = np.sqrt(np.maximum(np.diagonal(S, axis1=1, axis2=2)[:, mask], 0.0))  # rounding can make it < 0
             screened, flagged = screen(self, y, mask, u, gate, y[mask] - y_pred[:, mask], sd)
             if screened is not None:
                 return screened

@@ -58,8 +58,20 @@ def inverse_cholesky(S):
     """(Linv, log det S) with Linv = L^-1 for the Cholesky factor L of S (..., n, n): the one
     factorisation of an innovation covariance, reused for its density (z = Linv r) and for the
     gain (S^-1 = Linv' Linv), and kept where one S whitens the residuals of many particles."""
-    Linv = np.linalg.inv(np.linalg.cholesky(S))
+    try:
+        L = np.linalg.cholesky(S)
+    except np.linalg.LinAlgError:  # rounding made a huge covariance indefinite: floor its spectrum
+        L = np.linalg.cholesky(_positive_definite(S))
+    Linv = np.linalg.inv(L)
     return Linv, -2.0 * np.log(np.diagonal(Linv, axis1=-2, axis2=-1)).sum(-1)
+
+
+def _positive_definite(S):
+    """S with its eigenvalues raised to at least 1e-12 of the largest (and to the smallest normal
+    float): the nearest covariance a Cholesky factorisation accepts, when rounding has broken one."""
+    vals, vecs = np.linalg.eigh(symmetrize(S))
+    floor = np.maximum(1e-12 * np.abs(vals).max(axis=-1, keepdims=True), np.finfo(float).tiny)
+    return symmetrize((vecs * np.maximum(vals, floor)[..., None, :]) @ np.swapaxes(vecs, -1, -2))
 
 
 def quad_form(z):

@@ -7,6 +7,7 @@ This is the one filtering loop: the batch call, `jmlgdsl run` and a live stream 
 from __future__ import annotations
 
 import dataclasses
+import math
 import time
 from collections import deque
 
@@ -91,6 +92,9 @@ class Filter:
                 bad = [n for n, v in zip(model.inputs, u) if not np.isfinite(v)]
                 raise DataError(f"t={t}: no value and no default for input {', '.join(bad)}")
         est = self.engine.step(y, mask, u, self._gate)
+        if not math.isfinite(est.loglik):  # NaN or infinite: the model's numbers overflowed
+            raise FilterError(f"t={t}: the filter's arithmetic overflowed (log-likelihood {est.loglik}); the "
+                              "model's numbers are too large for this data (an unstable mode, or a huge noise?)")
         if est.flagged is not None or self._watching:
             self._count_flagged(est.flagged)
         self.t = t

@@ -11,6 +11,7 @@ MAX_STACKED = 20_000_000  # modes × (states or outputs)²: the numbers in one s
 MAX_DELAY_SAMPLES = 1000  # a fopdt dead time becomes one state per sample: more is almost surely a unit slip
 MAX_ORDER = 100  # coefficients of an arx block's a or b
 MAX_SD = 1e150  # a standard deviation: its square and sums of squares stay finite numbers
+MAX_MAGNITUDE = MAX_SD  # any compiled coefficient, offset or initial mean, for the same reason
 MAX_ERRORS = 50  # errors shown for one file; the rest are counted
 
 
