@@ -19,9 +19,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .alarms import AlarmRule
 from .errors import DataError
 from .infer import ALGORITHMS, filter as run_filter, smooth
-from .metrics import switch_delays
+from .metrics import changepoints, score, switch_delays
 from .model import Model
 from .output import check_count
 from .prefilter import moving_average
@@ -30,7 +31,9 @@ from .simulate import simulate
 DEFAULT_PARTICLES = (1, 4, 10, 25, 50, 100, 200, 400, 800, 1600)
 DEFAULT_FILTERS = ("pf", "rbpf", "la-rbpf", "fc-rbpf", "imm")
 DETERMINISTIC = ("imm", "exact")
-RECORD_FIELDS = ("data", "filter", "particles", "lag", "run", "error", "delay", "ms_per_step", "loglik")
+RECORD_FIELDS = ("data", "filter", "particles", "lag", "run", "error", "delay", "f1", "far", "mar", "nab",
+                 "ms_per_step", "loglik")
+MEASURES = RECORD_FIELDS[5:]  # what a run measures, averaged over runs in the tables
 JOB_BYTES = 4096  # a job, its seeds and its record, to refuse a sweep too large to list
 
 
@@ -125,12 +128,25 @@ def filter_job(job: Job):
 
 def run_job(job: Job) -> dict:
     """Filter (or smooth) one sequence and measure it: diagnosis error %, mean detection delay of the
-    mode switches in steps (the lag included), milliseconds per step, log-likelihood."""
+    mode switches in steps (the lag included), the alarms' F1, FAR %, MAR % and NAB (standard) with
+    the spec's first mode as the healthy one, milliseconds per step, log-likelihood."""
     data, result = filter_job(job)
     delays = switch_delays(result.map_modes, data.modes, job.lag)
+    alarms = alarm_scores(job.model, result.mode_posterior, data.modes, job.lag)
     return {"data": data.name, "filter": job.algorithm, "particles": job.particles, "lag": job.lag, "run": job.run,
             "error": result.diagnosis_error(data.modes), "delay": float(delays.mean()) if len(delays) else math.nan,
-            "ms_per_step": 1e3 * result.seconds / result.T, "loglik": result.loglik}
+            **alarms, "ms_per_step": 1e3 * result.seconds / result.T, "loglik": result.loglik}
+
+
+def alarm_scores(model: Model, posterior, true_modes, lag) -> dict:
+    """F1, FAR, MAR and NAB (standard) of the default alarm rule (the first mode healthy, threshold
+    0.5) against the true modes; a smoothed row's alarm counts where it is known, `lag` rows later."""
+    rule = AlarmRule((model.modes[0],))
+    alarm, truth = rule.alarms(posterior, model.modes), rule.truth(true_modes, model.modes)
+    if lag:
+        alarm = np.concatenate([np.zeros(lag, dtype=alarm.dtype), alarm])[:len(alarm)]
+    summary = score(alarm, truth, model.dt, changepoints(truth)).summary()
+    return {"f1": summary["f1"], "far": summary["far"], "mar": summary["mar"], "nab": summary["nab_standard"]}
 
 
 def make_jobs(model, sources, filters=DEFAULT_FILTERS, particles=DEFAULT_PARTICLES, runs=25, seed=0,
@@ -260,7 +276,7 @@ def summarise(records) -> list[dict]:
     rows = []
     for (data, name, n, lag), group in groups.items():
         row = {"data": data, "filter": name, "particles": n, "lag": lag, "runs": len(group)}
-        for key in ("error", "delay", "ms_per_step", "loglik"):
+        for key in MEASURES:
             values = np.array([r.get(key, math.nan) for r in group], dtype=float)
             row[f"{key}_mean"] = float(values.mean())
             row[f"{key}_sd"] = float(values.std(ddof=1)) if len(values) > 1 else math.nan
@@ -282,6 +298,9 @@ QUANTITIES = {
     "error": ("Diagnosis error %, mean (SD) over runs", lambda r: f"{r['error_mean']:.2f} ({r['error_sd']:.2f})"),
     "delay": ("Detection delay, steps from a switch to the first right row (lag included), mean over runs",
               lambda r: f"{r['delay_mean']:.1f}"),
+    "f1": ("Alarms (the spec's first mode healthy, P > 0.5): F1, FAR %, MAR %, mean over runs",
+           lambda r: f"{r['f1_mean']:.3f}, {r['far_mean']:.1f}, {r['mar_mean']:.1f}"),
+    "nab": ("Alarms: NAB score (standard profile, 60 s windows), mean over runs", lambda r: f"{r['nab_mean']:.1f}"),
     "ms_per_step": ("Time per step, ms (mean over runs)", lambda r: f"{r['ms_per_step_mean']:.3g}"),
     "loglik": ("Log-likelihood, mean (SD) over runs", lambda r: f"{r['loglik_mean']:.1f} ({r['loglik_sd']:.1f})"),
 }
@@ -319,7 +338,8 @@ def write_table_csv(path, summary):
     """The same tables as CSV: one row per smoothing lag and particle count, per filter error mean/SD,
     detection delay, ms/step and log-likelihood."""
     filters = list(dict.fromkeys(r["filter"] for r in summary))
-    keys = ("error_mean", "error_sd", "delay_mean", "ms_per_step_mean", "loglik_mean", "loglik_sd")
+    keys = ("error_mean", "error_sd", "delay_mean", "f1_mean", "far_mean", "mar_mean", "nab_mean", "ms_per_step_mean",
+            "loglik_mean", "loglik_sd")
     with open(path, "w", newline="") as stream:
         writer = csv.writer(stream, lineterminator="\n")
         writer.writerow(["lag", "particles"] + [f"{f}_{k}" for f in filters for k in keys])
@@ -348,4 +368,4 @@ def write_records_csv(path, records):
         for r in records:
             writer.writerow([r["data"], r["filter"], "" if r["particles"] is None else r["particles"],
                              lag_cell(r.get("lag", 0)), r["run"],
-                             *(f"{r.get(k, math.nan):.10g}" for k in ("error", "delay", "ms_per_step", "loglik"))])
+                             *(f"{r.get(k, math.nan):.10g}" for k in MEASURES)])

@@ -62,3 +62,21 @@ def test_a_bad_lag_list_is_a_clear_error(sequence, tmp_path, capsys):
     assert stop.value.code == 2
     assert "argument --lag: invalid comma-separated list of lags (whole numbers or 'offline') value: '0,soon'" \
         in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("lag", [0, 4])
+def test_a_record_scores_the_default_alarm_rule_where_each_alarm_is_known(sequence, lag):
+    from jmlgdsl.alarms import AlarmRule
+    from jmlgdsl.metrics import changepoints, score
+
+    model, data = sequence
+    job = bench.make_jobs(model, [data], ("imm",), (1,), runs=1, seed=0, lags=(lag,))[0]
+    record = bench.run_job(job)
+    result = jmlgdsl.smooth(model, data.y, data.u, lag=lag)
+    rule = AlarmRule(("normal",))
+    alarm = np.r_[np.zeros(lag, int), rule.alarms(result.mode_posterior, model.modes)][:len(data.y)]
+    truth = rule.truth(data.modes, model.modes)  # rows 21-60 (fan, grill) are faults
+    expected = score(alarm, truth, model.dt, changepoints(truth)).summary()
+    assert (record["f1"], record["far"], record["mar"], record["nab"]) == (
+        expected["f1"], expected["far"], expected["mar"], expected["nab_standard"])
+    assert 0.9 < record["f1"] <= 1.0  # 20 normal then 40 faulty steps: the alarms follow them closely

@@ -40,7 +40,9 @@ def register(subparsers):
         description="Run every filter at every particle count on data whose true mode is known (a "
                     "'mode' column) or on freshly simulated sequences, --runs times each with seeds "
                     "derived from --seed. Prints the diagnosis error (% of steps whose most probable "
-                    "mode is wrong), time per step and log-likelihood as Markdown tables, and writes "
+                    "mode is wrong), the detection delay of the mode switches, the alarms' F1, FAR, MAR "
+                    "and NAB score (the spec's first mode taken as healthy), time per step and "
+                    "log-likelihood as Markdown tables, and writes "
                     "the tables (Markdown, CSV), every run (CSV) and figures to the output folder.")
     p.add_argument("spec", help="plant spec (.jmlg) or compiled model (.json/.npz)")
     p.add_argument("data", nargs="*", help="CSV data files with a 'mode' column (or use --simulate)")
