@@ -17,7 +17,7 @@ from ..errors import DataError
 from ..model import Model
 from ..random import generator
 from .algorithms import ALGORITHMS, DEFAULT_ALGORITHM
-from .engine import FilterError, Gate, Resampler
+from .engine import FilterError, Gate, Resampler, offsets
 from .lagged import Genealogies, ImmWindow
 from .resample import SCHEMES
 from .result import Result, Step
@@ -50,6 +50,8 @@ class Filter:
             raise FilterError(f"unknown filter {algorithm!r}; choose from {', '.join(ALGORITHMS)}")
         if resampling not in SCHEMES:
             raise FilterError(f"unknown resampling scheme {resampling!r}; choose from {', '.join(SCHEMES)}")
+        if lag is not None and (isinstance(lag, bool) or not isinstance(lag, (int, np.integer)) or lag < 0):
+            raise FilterError(f"the lag must be a whole number of steps >= 0 (or None: off-line), got {lag!r}")
         spec = ALGORITHMS[algorithm]
         if particles is None or not spec.uses_particles:
             particles = spec.default_particles
@@ -62,8 +64,6 @@ class Filter:
         self.t = 0
         self.loglik = 0.0
         self.seconds = 0.0  # time spent inside step()
-        if lag is not None and (isinstance(lag, bool) or not isinstance(lag, (int, np.integer)) or lag < 0):
-            raise FilterError(f"the lag must be a whole number of steps >= 0 (or None: off-line), got {lag!r}")
         self.lag = lag
         self._pending = deque()  # records held back until the rows after them have arrived
         self._smoother = (None if lag == 0 else ImmWindow(model, lag) if algorithm == "imm"
@@ -109,7 +109,7 @@ class Filter:
     def _hold(self, record, u):
         """Keep the new record back; give out the oldest one, smoothed, once `lag` rows follow it."""
         if isinstance(self._smoother, ImmWindow):
-            self._smoother.update(self.engine, self.model.F @ u + self.model.f)
+            self._smoother.update(self.engine, offsets(self.model, u)[0])
         else:
             self._smoother.update(self.engine.genealogy)
         self._pending.append(record)
