@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import JmlgError
+from ..gaussian import symmetrize
 from . import kalman
 
 # Exact smoothing keeps every history's Kalman statistics at every step: up to twice this many
@@ -51,11 +52,6 @@ class Smoothed:
 def _t(M):
     """Transpose over the last two axes."""
     return M.swapaxes(-1, -2)
-
-
-def _symmetrize(S):
-    """(S + S') / 2 over the last two axes."""
-    return 0.5 * (S + S.swapaxes(-1, -2))
 
 
 def _check(model, y, u, lag):
@@ -87,7 +83,7 @@ def _mixture(w, means, covs):
     mean = np.einsum("...n,...na->...a", w, means)
     d = means - mean[..., None, :]
     cov = np.einsum("...n,...nab->...ab", w, covs) + np.einsum("...n,...na,...nb->...ab", w, d, d)
-    return mean, _symmetrize(cov)
+    return mean, symmetrize(cov)
 
 
 def _rts_gain(Sig_f, A, Sig_p):
@@ -167,7 +163,7 @@ def _exact_backward(K, levels, s, first):
             level, parent = levels[t], levels[t - 1]
             J = level.gain[ancestor]
             mean = parent.mean[ancestor // K] + (J @ (mean - level.pred_mean[ancestor])[..., None])[..., 0]
-            cov = _symmetrize(parent.cov[ancestor // K] + J @ (cov - level.pred_cov[ancestor]) @ _t(J))
+            cov = symmetrize(parent.cov[ancestor // K] + J @ (cov - level.pred_cov[ancestor]) @ _t(J))
 
 
 # ----------------------------------------------------------------------------- imm
@@ -279,7 +275,7 @@ def _update(mean_p, cov_p, C, R, target):
     z = (Linv @ (target - (C @ mean_p[..., None])[..., 0])[..., None])[..., 0]
     Wt = _t(Linv @ CS)  # the gain is Wt Linv
     ll = kalman.whitened_log_normal(z, -2.0 * np.log(np.diagonal(Linv, axis1=-2, axis2=-1)).sum(-1))
-    return mean_p + (Wt @ z[..., None])[..., 0], _symmetrize(cov_p - Wt @ _t(Wt)), ll
+    return mean_p + (Wt @ z[..., None])[..., 0], symmetrize(cov_p - Wt @ _t(Wt)), ll
 
 
 def _kim_pairs(model, fwd: _ModeGaussians, b) -> _Pairs:
@@ -288,7 +284,7 @@ def _kim_pairs(model, fwd: _ModeGaussians, b) -> _Pairs:
     mu, Sig = fwd.mean[:-1, :, None], fwd.cov[:-1, :, None]
     pred_mean, pred_cov = kalman.predict(mu, Sig, model.A, b[1:, None], model.Q)
     gain = _rts_gain(Sig, model.A, pred_cov)
-    rest = _symmetrize(Sig - gain @ pred_cov @ _t(gain))
+    rest = symmetrize(Sig - gain @ pred_cov @ _t(gain))
     log_pred = np.logaddexp.reduce(fwd.log_w[:-1, :, None] + model.logP, axis=1)
     return _Pairs(log_pred, pred_mean, gain, rest)
 
@@ -338,7 +334,7 @@ def _kim_offline(logP, fwd: _ModeGaussians, pairs: _Pairs, first) -> _ModeGaussi
     base = np.einsum("tij,tijab->tiab", cond, pairs.rest + d[..., :, None] * d[..., None, :])
     cov = filt.cov.copy()
     for t in range(n - 2, -1, -1):
-        cov[t] = _symmetrize(base[t] + np.einsum("ijab,jbc,ijdc->iad", CJ[t], cov[t + 1], pairs.gain[t]))
+        cov[t] = symmetrize(base[t] + np.einsum("ijab,jbc,ijdc->iad", CJ[t], cov[t + 1], pairs.gain[t]))
     return _ModeGaussians(log_w, mean, cov)
 
 
