@@ -187,12 +187,16 @@ class Exact(RaoBlackwellised):
 
     max_gaussians = 100_000
 
+    def candidates(self):
+        # Refused when the work is due, so the last step of a sequence never is.
+        if len(self.z) * self.K > self.max_gaussians:
+            raise FilterError(
+                f"exact filtering would need {len(self.z) * self.K} Gaussians at this step, more than the "
+                f"limit of {self.max_gaussians}; use fc-rbpf, which is exact while the particles outnumber "
+                f"the mode histories")
+        return super().candidates()
+
     def select(self, q, parent, mode):
         chosen = np.flatnonzero(q > 0)
-        if len(chosen) * self.model.K > self.max_gaussians:
-            raise FilterError(
-                f"exact filtering would need {len(chosen) * self.model.K} Gaussians at the next step, "
-                f"more than the limit of {self.max_gaussians}; use fc-rbpf, which is exact while "
-                f"the particles outnumber the mode histories")
         w = q[chosen]
         return chosen, np.log(w), ess(w)
