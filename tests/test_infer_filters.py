@@ -247,8 +247,9 @@ def test_exact_refuses_too_many_gaussians(small, monkeypatch):
     monkeypatch.setattr(Exact, "max_gaussians", 20)
     with pytest.raises(FilterError, match="exact filtering would need 32 Gaussians.*limit of 20"):
         jmlgdsl.filter(model, y, algorithm="exact")
-    # four steps need at most 16 Gaussians: the 32 a fifth step would need are never asked for
-    assert jmlgdsl.filter(model, y[:4], algorithm="exact").T == 4
+    # two initial modes: three steps end with 16 histories; the 32 Gaussians a fourth step would need
+    # are never asked for (the old check refused at the third step already)
+    assert jmlgdsl.filter(model, y[:3], algorithm="exact").T == 3
 
 
 def test_result_shapes_and_deterministic_filters_have_no_particles(small):
