@@ -56,3 +56,17 @@ def test_learn_checks_its_output_and_sample_time(files, capsys, tmp_path):
 ])
 def test_prbs_refuses_unusable_numbers(capsys, tmp_path, extra, message):
     refused(["prbs", "--cells", "5", "-o", str(tmp_path / "u.csv"), *extra], capsys, message)
+
+
+def test_run_warns_about_an_output_in_another_unit(files, capsys, tmp_path):
+    import csv
+
+    spec, data = files
+    rows = list(csv.DictReader(data.open()))
+    scaled = tmp_path / "centi.csv"
+    write_columns(scaled, {"temp": [100 * float(r["temp"]) for r in rows]})  # degC written as centi-degC
+    assert main(["run", str(spec), str(scaled)]) == 0
+    err = capsys.readouterr().err
+    assert "warning: output 'temp': its residuals are about" in err and "times the model's measurement noise" in err
+    assert main(["run", str(spec), str(data)]) == 0
+    assert "residuals are about" not in capsys.readouterr().err  # data in the spec's unit: no warning

@@ -7,8 +7,13 @@ the same path; with a stream every output row is flushed as soon as it is comput
 from __future__ import annotations
 
 import sys
+import warnings
 from array import array
 from collections import deque
+
+import numpy as np
+
+from ..data import DataWarning
 
 MAX_SEGMENTS = 30
 
@@ -106,6 +111,39 @@ class Labelled:
         return metrics.score(np.frombuffer(self.alarm, dtype=np.uint8), anomaly, np.array(self.time), changepoint)
 
 
+class ScaleCheck:
+    """Warns, once, about an output whose residuals over the first rows are orders of magnitude
+    beyond the model's measurement noise: most often a column in another unit than the spec's."""
+
+    rows, factor = 50, 100.0
+
+    def __init__(self, model):
+        self.model = model
+        self.sd = np.sqrt(np.diagonal(model.R, axis1=1, axis2=2).mean(axis=0))  # (ny,)
+        self.seen = []
+
+    def add(self, step):
+        if len(self.seen) < self.rows:
+            self.seen.append(np.abs(step.residual) / self.sd)
+            if len(self.seen) == self.rows:
+                self.finish()
+
+    def finish(self):
+        """Warn now (at the end of a file shorter than the check's rows)."""
+        if not self.seen or len(self.seen) > self.rows:
+            return
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # an output never measured: all NaN
+            typical = np.nanmedian(np.array(self.seen), axis=0)
+        self.seen.append(None)  # warned once
+        for name, size in zip(self.model.outputs, typical):
+            if size > self.factor:
+                unit = self.model.units.get(name)
+                warnings.warn(DataWarning(
+                    f"output {name!r}: its residuals are about {size:.3g} times the model's measurement noise; "
+                    f"is the column in the spec's unit{f' [{unit}]' if unit else ''}?"), stacklevel=2)
+
+
 def diagnose(args, on_step=None):
     """Filter the data named in args row by row, writing the result table if asked.
 
@@ -138,6 +176,7 @@ def diagnose(args, on_step=None):
     f = Filter(model, algorithm=args.filter, particles=args.particles, seed=args.seed,
                resampling=args.resampling, ess_threshold=args.ess_threshold, lag=None if args.smooth else args.lag or 0)
     summary, alarms, labelled = Summary(max_segments=MAX_SEGMENTS), rule.stream(model.modes), Labelled(rule, model)
+    scale = ScaleCheck(model)
     stream = open_source(args.data)
     out = writer = None
     rows = deque()  # data rows whose records the filter still holds back (with a lag)
@@ -149,6 +188,7 @@ def diagnose(args, on_step=None):
         alarm = alarms.step(step.mode_posterior)
         summary.add(step, row.mode)
         labelled.add(row, alarm, step.t)
+        scale.add(step)
         if on_step is not None:
             on_step(step, row)
         if out is not None:
@@ -166,6 +206,7 @@ def diagnose(args, on_step=None):
                 record(step)
         for step in f.flush():
             record(step)
+        scale.finish()
     except Exception:
         if out not in (None, sys.stdout):
             out.discard()  # a run stopped by an error leaves the old table as it was
