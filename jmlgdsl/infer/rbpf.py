@@ -113,7 +113,8 @@ class RaoBlackwellised:
 
         chosen, logw, size = self.select(q, parent, mode)
         key = chosen if log_prop is None else parent[chosen] * K + mode[chosen]  # (parent, mode) as one number
-        chosen, self.logw, self.copies = merge_copies(key, chosen, logw, n * K)
+        resampled = self.resampler is not None and logw is self.resampler.uniform  # all weights 1 / N
+        chosen, self.logw, self.copies = merge_copies(key, chosen, logw, n * K, resampled)
         self.genealogy = Genealogy(parent, mode, q, chosen)
         self.z = mode[chosen]
         self.mu = mu_f[chosen]
@@ -123,9 +124,10 @@ class RaoBlackwellised:
         return Estimate(posterior, mean, cov, yp, loglik, size, flagged=flagged)
 
 
-def merge_copies(key, chosen, logw, size):
+def merge_copies(key, chosen, logw, size, equal=False):
     """Chosen candidates with equal keys (same parent, same mode) are identical particles: keep one
-    of each, in key order, with the summed weight. Keys lie in [0, size).
+    of each, in key order, with the summed weight. Keys lie in [0, size); `equal` says every logw
+    is the same (as after resampling), so c copies weigh log c + logw[0].
     Returns (chosen, log-weights, copy counts)."""
     counts = np.bincount(key, minlength=size)
     distinct = np.flatnonzero(counts)
@@ -137,6 +139,8 @@ def merge_copies(key, chosen, logw, size):
         first = np.empty(size, dtype=np.int64)
         first[key[::-1]] = chosen[::-1]  # the first chosen candidate with each key
         kept = first[distinct]
+    if equal:
+        return kept, np.log(counts[distinct]) + logw[0], counts[distinct]
     top = logw.max()
     summed = np.bincount(key, weights=np.exp(logw - top), minlength=size)[distinct]
     return kept, np.log(summed, out=np.full(len(summed), -np.inf), where=summed > 0) + top, counts[distinct]
