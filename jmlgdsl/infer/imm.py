@@ -10,6 +10,8 @@ import numpy as np
 
 from . import kalman
 from .engine import OPEN, Estimate, mixture_moments, offsets, screen
+
+LOG_FLOOR = np.finfo(float).min  # below every finite log-probability
 from .resample import normalize
 
 
@@ -29,8 +31,8 @@ class IMM:
         # Mixing: mix[i, j] = p(z_{t-1} = i | z_t = j, y_1:t-1); log_pred[j] = log p(z_t = j | y_1:t-1).
         joint = self.log_mu[:, None] + model.logP
         log_pred = np.logaddexp.reduce(joint, axis=0)
-        with np.errstate(invalid="ignore"):
-            mix = np.nan_to_num(np.exp(joint - log_pred))  # a mode that cannot be reached mixes nothing
+        # a mode that cannot be reached (log_pred = -inf) mixes nothing: -inf less a finite floor is -inf
+        mix = np.exp(joint - np.maximum(log_pred, LOG_FLOOR))
         mixed = mix.T @ self.means
         d = self.means[None, :, :] - mixed[:, None, :]  # (j, i, nx)
         K, nx = self.means.shape
@@ -48,8 +50,7 @@ class IMM:
             if screened is not None:
                 return screened
         post, loglik = normalize(log_pred + ll)
-        with np.errstate(divide="ignore"):
-            self.log_mu = np.log(post)
+        self.log_mu = np.log(post, out=np.full_like(post, -np.inf), where=post > 0)
         self.means, self.covs = means, covs
         mean, cov = mixture_moments(post, means, (post @ covs.reshape(len(post), -1)).reshape(covs.shape[1:]))
         return Estimate(post, mean, cov, np.exp(log_pred) @ y_pred, loglik, np.nan, flagged=flagged)

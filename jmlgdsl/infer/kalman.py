@@ -58,6 +58,9 @@ def inverse_cholesky(S):
     """(Linv, log det S) with Linv = L^-1 for the Cholesky factor L of S (..., n, n): the one
     factorisation of an innovation covariance, reused for its density (z = Linv r) and for the
     gain (S^-1 = Linv' Linv), and kept where one S whitens the residuals of many particles."""
+    if S.shape[-1] == 1 and (S > 0).all():  # one output: the factor is a square root
+        Linv = 1.0 / np.sqrt(S)
+        return Linv, np.log(S[..., 0, 0])
     try:
         L = np.linalg.cholesky(S)
     except np.linalg.LinAlgError:  # rounding made a huge covariance indefinite: floor its spectrum
