@@ -99,8 +99,6 @@ class Labelled:
 
     def scores(self):
         """The detection scores, or None when the data carry no truth."""
-        import numpy as np
-
         from .. import metrics
 
         if not self.has_anomaly or not self.alarm:
@@ -120,22 +118,23 @@ class ScaleCheck:
     def __init__(self, model):
         self.model = model
         self.sd = np.sqrt(np.diagonal(model.R, axis1=1, axis2=2).mean(axis=0))  # (ny,)
-        self.seen = []
+        self.seen, self.done = [], False
 
     def add(self, step):
-        if len(self.seen) < self.rows:
+        """Note one step's residuals in units of the noise; judge once `rows` steps are in."""
+        if not self.done:
             self.seen.append(np.abs(step.residual) / self.sd)
             if len(self.seen) == self.rows:
                 self.finish()
 
     def finish(self):
-        """Warn now (at the end of a file shorter than the check's rows)."""
-        if not self.seen or len(self.seen) > self.rows:
+        """Judge now (also at the end of a file shorter than the check's rows); only once."""
+        if self.done or not self.seen:
             return
+        self.done = True
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)  # an output never measured: all NaN
             typical = np.nanmedian(np.array(self.seen), axis=0)
-        self.seen.append(None)  # warned once
         for name, size in zip(self.model.outputs, typical):
             if size > self.factor:
                 unit = self.model.units.get(name)
@@ -157,9 +156,8 @@ def diagnose(args, on_step=None):
     from ..infer import Filter
     from ..infer.result import Summary
     from ..infer.table import TableWriter
-    from ..prefilter import MovingAverage, parse
-
     from ..output import FIGURE, check_count, check_file
+    from ..prefilter import MovingAverage, parse
 
     check_file(args.output, inputs=[args.spec, args.data])
     check_file(args.plot, inputs=[args.spec, args.data], suffixes=FIGURE, option="--plot")
@@ -259,8 +257,6 @@ def confusion_report(modes, confusion) -> list[str]:
 
 def alarm_report(rule, labelled, lag=0) -> list[str]:
     """Lines on the alarms raised and, against the truth in the data, how well they detect."""
-    import numpy as np
-
     from ..metrics import runs
 
     raised = runs(np.frombuffer(labelled.alarm, dtype=np.uint8))
@@ -283,9 +279,8 @@ def alarm_report(rule, labelled, lag=0) -> list[str]:
 
 
 def main(args) -> int:
+    """Run the command on parsed arguments; returns the exit status."""
     import dataclasses
-
-    import numpy as np
 
     steps, truth = [], []
     summary, f, rule, labelled = diagnose(args, (lambda step, row: (steps.append(step), truth.append(row.mode)))
