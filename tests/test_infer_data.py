@@ -7,7 +7,7 @@ import pytest
 from infer_models import dryer
 
 from jmlgdsl import DataError, Model
-from jmlgdsl.data import iter_rows, read_csv, write_columns
+from jmlgdsl.data import DataWarning, iter_rows, read_csv, write_columns
 
 
 def two_input_model():
@@ -42,7 +42,8 @@ def test_missing_cells_and_defaults():
 
 
 def test_optional_input_column_takes_its_default():
-    got = rows("temp\n50\n", dryer())
+    with pytest.warns(DataWarning, match="no column 'one': input one took its default 1 throughout"):
+        got = rows("temp\n50\n", dryer())
     np.testing.assert_array_equal(got[0].u, [1.0])
 
 
@@ -50,7 +51,8 @@ def test_spreadsheet_exports_read_cleanly():
     got = rows("\ufefftemp , one\r\n50.5, 2\r\n", dryer())
     assert got[0].y[0] == 50.5 and got[0].u[0] == 2.0
     # Repeated columns the model does not use are ignored like any other.
-    assert rows("note,temp,note\na,51,b\n", dryer())[0].y[0] == 51.0
+    with pytest.warns(DataWarning, match="no column 'one'"):
+        assert rows("note,temp,note\na,51,b\n", dryer())[0].y[0] == 51.0
 
 
 @pytest.mark.parametrize("text, message", [
@@ -72,7 +74,8 @@ def test_errors_name_file_line_and_column(text, message):
 
 
 def test_inputs_only_when_outputs_are_not_needed():
-    got = rows("flow\n2\n", two_input_model(), outputs=False)
+    with pytest.warns(DataWarning, match="no column 'power'"):
+        got = rows("flow\n2\n", two_input_model(), outputs=False)
     assert np.isnan(got[0].y[0]) and got[0].u[0] == 2.0
 
 
