@@ -1,6 +1,6 @@
 """The engine contract every filtering algorithm follows, and the small weighted helpers they share.
 
-An engine is one algorithm's state after t steps plus `step(y, mask, u) -> Estimate`; the `Filter`
+An engine is one algorithm's state after t steps plus `step(y, mask, u, gate) -> Estimate`; the `Filter`
 front end (online.py) validates data, keeps the clock and the log-likelihood, and turns estimates
 into records. Algorithms are registered by name in algorithms.py.
 """
@@ -71,7 +71,7 @@ class Engine(Protocol):
     def step(self, y: np.ndarray, mask: np.ndarray, u: np.ndarray, gate: Gate = OPEN) -> Estimate:
         """Condition on y (ny,), of which the entries where mask (ny,) is True were measured, under
         input u (nu,); a measured reading beyond `gate` under every hypothesis is left out (see
-        `gross_errors` and `without`)."""
+        `gross_errors` and `screen`)."""
 
 
 def gross_errors(r, sd, limit) -> np.ndarray:
