@@ -81,17 +81,19 @@ class Labelled:
     truth (from an 'anomaly' column, else from the true mode), the true change points and the time."""
 
     def __init__(self, rule, model):
-        self.rule, self.model = rule, model
+        self.model = model
+        self.faulty = rule.faulty_modes(model.modes)  # (K,) which true modes are anomalies
         self.alarm, self.anomaly, self.changepoint = bytearray(), bytearray(), bytearray()
         self.time = array("d")
         self.has_anomaly = self.has_changepoint = True
 
     def add(self, row, alarm, t):
+        """Keep one row's alarm, time and truth."""
         self.alarm.append(alarm)
         self.time.append(row.time if row.time is not None else t * self.model.dt)
         anomaly = row.anomaly
         if anomaly is None and row.mode is not None:
-            anomaly = int(self.rule.truth([row.mode], self.model.modes)[0])
+            anomaly = int(self.faulty[row.mode])
         self.has_anomaly &= anomaly is not None
         self.has_changepoint &= row.changepoint is not None
         self.anomaly.append(anomaly or 0)
