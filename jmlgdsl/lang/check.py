@@ -30,6 +30,7 @@ class ModeInfo:
     overrides: list[S.Assign] = field(default_factory=list)
     statements: list[S.Statement] = field(default_factory=list)
     like: S.Name | None = None
+    inputs: list[S.Assign] = field(default_factory=list)  # the mode's own operating values of inputs
 
 
 @dataclass
@@ -82,7 +83,7 @@ def check(spec: S.Spec) -> tuple[Plant, Report]:
     dt, unit = _sample_time(spec, report)
     params = spec.params
     nominal = evaluate_params(params, report)
-    modes = _modes(spec, report, set(nominal))
+    modes = _modes(spec, report, set(nominal), {d.name.text for d in spec.decls if d.kind == "input"})
     names = [m.name for m in modes]
     P = transition_matrix(spec, names, nominal, report)
     p0 = initial_distribution(spec, names, nominal, report)
@@ -127,8 +128,9 @@ def _check_declarations(spec: S.Spec, report: Report):
         else:
             seen[name.text] = (kind, name)
     for d in spec.decls:
-        if d.sd is not None and d.kind != "state":
-            report.error("only states take an initial standard deviation ('sd')", d.sd.pos)
+        if d.sd is not None and d.kind == "input":
+            report.error("only states and outputs (the states of their blocks) take an initial standard deviation "
+                         "('sd')", d.sd.pos)
     if not spec.modes:  # mode blocks declare the modes
         for b in spec.blocks:
             if b.name.text in seen:
@@ -159,14 +161,17 @@ def _sample_time(spec: S.Spec, report: Report) -> tuple[float, str]:
     return seconds, unit.text
 
 
-def _modes(spec: S.Spec, report: Report, params: set[str]) -> list[ModeInfo]:
-    """Mode list in declaration order, with block statements attached and `like` resolved."""
+def _modes(spec: S.Spec, report: Report, params: set[str], inputs: set[str]) -> list[ModeInfo]:
+    """Mode list in declaration order, with block statements attached and `like` resolved. A mode's
+    `NAME = value` sets a parameter (an override) or an input's operating value in that mode."""
     infos: dict[str, ModeInfo] = {}
     for m in spec.modes:
         if m.name.text in infos:
             continue  # duplicate reported by _check_declarations
-        infos[m.name.text] = ModeInfo(m.name.text, m.description or "", m.name.pos, list(m.overrides))
-        _check_overrides(m.overrides, params, report)
+        _check_overrides(m.overrides, params | inputs, report)
+        infos[m.name.text] = ModeInfo(m.name.text, m.description or "", m.name.pos,
+                                      [a for a in m.overrides if a.name.text in params],
+                                      inputs=[a for a in m.overrides if a.name.text in inputs])
     declared = bool(spec.modes)
     seen_blocks: dict[str, S.ModeBlock] = {}
     for b in spec.blocks:
@@ -188,10 +193,11 @@ def _modes(spec: S.Spec, report: Report, params: set[str]) -> list[ModeInfo]:
                              "same in every mode, which changes parameters (e.g. 'U = 1.1') or noise",
                              st.target.name.pos)
                 continue
-            is_override = (st.kind == "assign" and st.target.lag is None and st.target.index is None
-                           and st.target.name.text in params)
-            if is_override:
+            plain = st.kind == "assign" and st.target.lag is None and st.target.index is None
+            if plain and st.target.name.text in params:
                 info.overrides.append(S.Assign(st.target.name, st.expr))
+            elif plain and st.target.name.text in inputs:
+                info.inputs.append(S.Assign(st.target.name, st.expr))
             else:
                 info.statements.append(st)
     if not infos:
@@ -202,11 +208,11 @@ def _modes(spec: S.Spec, report: Report, params: set[str]) -> list[ModeInfo]:
     return list(infos.values())
 
 
-def _check_overrides(overrides, params: set[str], report: Report):
-    """A mode may only override declared parameters."""
+def _check_overrides(overrides, names: set[str], report: Report):
+    """A mode may only set declared parameters and inputs."""
     for a in overrides:
-        if a.name.text not in params:
-            report.error(f"{a.name.text!r} is not a parameter{suggest(a.name.text, params)}", a.name.pos)
+        if a.name.text not in names:
+            report.error(f"{a.name.text!r} is not a parameter or an input{suggest(a.name.text, names)}", a.name.pos)
 
 
 def _resolve_like(info: ModeInfo, infos: dict[str, ModeInfo], report: Report):
@@ -227,6 +233,7 @@ def _resolve_like(info: ModeInfo, infos: dict[str, ModeInfo], report: Report):
         current.like = None
     for derived, base in reversed(list(zip(chain, chain[1:]))):
         derived.overrides = base.overrides + derived.overrides
+        derived.inputs = base.inputs + derived.inputs
         derived.statements = base.statements + derived.statements
         derived.description = derived.description or base.description
         derived.like = None
