@@ -12,12 +12,12 @@ import pytest
 
 PACKAGE = Path(__file__).resolve().parents[1] / "jmlgdsl"
 LAYERS = [
-    {"errors", "names", "random", "gaussian", "output"},
+    {"errors", "names", "random", "gaussian", "output", "priors"},
     {"model", "data", "prefilter", "metrics", "alarms"},
     {"lang"},
     {"compile"},
     {"infer", "simulate", "nonlinear"},
-    {"bench", "learn", "plots"},
+    {"bench", "learn", "fit", "plots"},
     {"commands", "cli", "__main__", "jmlgdsl"},
 ]
 RANK = {name: rank for rank, names in enumerate(LAYERS) for name in names}

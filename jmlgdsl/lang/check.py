@@ -16,6 +16,7 @@ from .limits import MAX_MODES, MAX_VARIABLES, check_sd
 from .probabilities import initial_distribution, transition_matrix
 from .report import Report
 from .units import time_in_seconds
+from .unknowns import Unknown, resolve
 
 NOISE_KINDS = ("process", "measurement", "scale")
 
@@ -51,6 +52,7 @@ class Plant:
     p0: np.ndarray
     noise: dict[str, float]
     spec: S.Spec
+    unknowns: list[Unknown] = field(default_factory=list)  # numbers left to the data (lang.unknowns)
 
     def mode_params(self, mode: ModeInfo, report: Report) -> dict[str, float]:
         """Parameter values in a mode: the nominal list re-evaluated with the mode's overrides."""
@@ -71,12 +73,14 @@ def evaluate_params(params: list[S.Assign], report: Report) -> dict[str, float]:
     return env
 
 
-def check(spec: S.Spec) -> tuple[Plant, Report]:
+def check(spec: S.Spec, values: dict | None = None) -> tuple[Plant, Report]:
     """Resolve a parsed spec into a Plant; problems go to the returned Report (not raised here), except
-    a plant beyond the size limits, raised at once, before anything is built for it."""
+    a plant beyond the size limits, raised at once, before anything is built for it. Unknowns (priors)
+    take `values` by name, or their priors' medians with a warning each (lang.unknowns)."""
     report = Report(spec.path, spec.lines)
     _check_counts(spec, report)
     report.raise_errors()
+    spec, unknowns = resolve(spec, values, report)
     for what, pos in spec.repeated:
         report.error(f"'{what}' is given more than once", pos)
     _check_declarations(spec, report)
@@ -94,7 +98,7 @@ def check(spec: S.Spec) -> tuple[Plant, Report]:
     plant = Plant(
         name=spec.plant.text if spec.plant else Path(spec.path).stem, dt=dt, time_unit=unit,
         inputs=decls["input"], outputs=decls["output"], states=decls["state"], params=params, nominal=nominal,
-        lets={a.name.text: a for a in spec.lets}, modes=modes, P=P, p0=p0, noise=noise, spec=spec)
+        lets={a.name.text: a for a in spec.lets}, modes=modes, P=P, p0=p0, noise=noise, spec=spec, unknowns=unknowns)
     return plant, report
 
 

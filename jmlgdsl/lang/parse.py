@@ -259,6 +259,9 @@ class _Builder(Transformer):
     def assign(self, meta, c):
         return S.Assign(_name(c[0]), c[1])
 
+    def prior(self, meta, c):
+        return S.Assign(_name(c[0]), None, prior=c[1])
+
     def param_decl(self, meta, c):
         self.spec.params.extend(c)
 
@@ -306,6 +309,8 @@ class _Builder(Transformer):
     def noise_item(self, meta, c):
         return (_name(c[0]), c[1])
 
+    noise_prior = noise_item
+
     def noise(self, meta, c):
         return S.Noise(tuple(c), _pos(meta))
 
@@ -336,7 +341,8 @@ class _Builder(Transformer):
             _name(c[0]),
             positional=tuple(a[1] for a in args if a[0] == "pos"),
             keywords=tuple((a[1], a[2], a[3]) for a in args if a[0] == "kw"),
-            at=next((a[1:] for a in args if a[0] == "at"), None))
+            at=next((a[1:] for a in args if a[0] == "at"), None),
+            end=S.Pos(meta.end_line, meta.end_column))
 
     def sample_stmt(self, meta, c):
         return S.Statement("sample", _pos(meta), target=c[0], dist=c[1])

@@ -56,10 +56,12 @@ class Decl:
 
 @dataclass(frozen=True)
 class Assign:
-    """`name = expr` in param/let declarations, mode overrides and linearisation points."""
+    """`name = expr` in param/let declarations, mode overrides and linearisation points; or, for a
+    parameter, `name ~ Prior(...)`: unknown, with a prior (expr None until the checker gives it a value)."""
 
     name: Name
-    expr: Expr
+    expr: Expr | None
+    prior: Dist | None = None
 
 
 @dataclass(frozen=True)
@@ -94,9 +96,10 @@ class Probabilities:
 
 @dataclass(frozen=True)
 class Noise:
-    """`noise process s, measurement s`: standard deviations by kind, plant-wide or in a mode."""
+    """`noise process s, measurement s`: standard deviations by kind, plant-wide or in a mode; a
+    `measurement ~ HalfNormal(0.1)` item is unknown, with a prior, until the checker gives it a value."""
 
-    items: tuple[tuple[Name, Expr], ...]
+    items: tuple[tuple[Name, Expr | Dist], ...]
     pos: Pos
 
 
@@ -108,6 +111,7 @@ class Dist:
     positional: tuple[Expr, ...] = ()
     keywords: tuple[tuple[Name, Expr, str | None], ...] = ()  # (key, value, unit)
     at: tuple[Name, Expr, Expr] | None = None  # operating point: input value -> output value
+    end: Pos = Pos()  # just after the closing parenthesis (where a fitted value's text ends)
 
 
 @dataclass(frozen=True)

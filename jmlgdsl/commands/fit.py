@@ -1,0 +1,52 @@
+"""`jmlgdsl fit SPEC DATA.csv [MORE.csv ...] -o FITTED.jmlg`: fit a spec's unknowns to recorded data."""
+
+from __future__ import annotations
+
+import sys
+
+from ..infer.algorithms import ALGORITHMS
+
+
+def register(subparsers):
+    p = subparsers.add_parser(
+        "fit", help="fit the unknowns of a spec (parameters and noise levels with priors) to data",
+        description="Gray-box identification. A spec may give a parameter, a mode's override or a noise "
+                    "level a prior instead of a value ('param U ~ LogNormal(log(1.2), 0.3)'). 'fit' finds "
+                    "their maximum a posteriori values given the data: log p(data | values) + log p(values) "
+                    "is maximised over the compiled bank (nonlinear plants are re-linearised at each try). "
+                    "Data whose every row names its mode in a 'mode' column have an exact likelihood (a "
+                    "Kalman filter through the labelled modes); other files use a filter's (--filter). "
+                    "Prints each estimate with its standard error from the curvature (Laplace), names "
+                    "unknowns the data cannot tell apart, and writes the spec with the fitted values.")
+    p.add_argument("spec", help="plant spec (.jmlg) with unknowns")
+    p.add_argument("data", nargs="+", metavar="DATA", help="CSV recordings of the plant (several: one likelihood)")
+    p.add_argument("-o", "--output", default="-", metavar="FITTED.jmlg",
+                   help="where to write the fitted spec (default: standard output; the report goes to "
+                        "standard error)")
+    p.add_argument("--filter", default="imm", choices=list(ALGORITHMS),
+                   help="the filter whose likelihood is used for unlabelled data (default imm: deterministic "
+                        "and smooth in the unknowns; a particle filter's likelihood is noisy)")
+    p.add_argument("--samples", type=int, default=0, metavar="N",
+                   help="also draw N values from the posterior by random-walk Metropolis (one likelihood "
+                        "evaluation each) and report their means and 95 %% intervals")
+    p.add_argument("--seed", type=int, help="random seed for --samples (the same seed gives the same draws)")
+    p.add_argument("-q", "--quiet", action="store_true", help="do not show the optimiser's progress")
+    p.set_defaults(func=main)
+
+
+def main(args) -> int:
+    from ..errors import JmlgError
+    from ..fit import fit
+
+    if args.samples < 0:
+        raise JmlgError(f"--samples must be 0 or more, got {args.samples}")
+    progress = None if args.quiet else (lambda text: print(text, file=sys.stderr, flush=True))
+    result = fit(args.spec, args.data, algorithm=args.filter, samples=args.samples, seed=args.seed,
+                 progress=progress)
+    print(result.report(), file=sys.stderr)
+    if args.output == "-":
+        sys.stdout.write(result.text)
+    else:
+        result.write(args.output)
+        print(f"wrote {args.output}", file=sys.stderr)
+    return 0

@@ -1,0 +1,238 @@
+"""Maximum a posteriori values of a spec's unknowns, their Laplace standard errors, and optionally
+draws from the posterior by random-walk Metropolis.
+
+Every unknown moves in its unconstrained coordinate z (jmlgdsl.priors): the log posterior
+log p(data | theta) + log p(theta) is maximised by BFGS over z, so no bound is ever crossed. At the
+maximum the gradient vanishes, so the curvature in z maps to theta through the diagonal derivative
+d theta / d z alone (the delta method) and correlations are the same in both coordinates.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from scipy.optimize import minimize
+
+from ..errors import JmlgError
+from ..model import Model
+from ..random import generator
+from .family import Family, FitError
+from .likelihood import loglik
+
+GRADIENT_STEP = 1e-6  # forward-difference step in z (relative change of a positive unknown)
+GTOL = 1e-3  # BFGS stops when no z-gradient entry exceeds this (far below one posterior sd's worth)
+HESSIAN_STEP = 0.3  # central-difference step for the curvature, in posterior standard deviations of z
+FIRST_STEP = 1e-3  # the step in z of the first, diagonal pass that finds those standard deviations
+CORRELATED = 0.95  # |correlation| beyond which two unknowns are reported as hard to tell apart
+AT_EDGE = 8.0  # |z| beyond which an unknown sits at an edge of its prior's support (Uniform, or 0)
+
+
+@dataclass
+class Fit:
+    """What `fit` found: estimates with Laplace standard errors, the fitted Model and how it went."""
+
+    names: list[str]
+    priors: list
+    estimate: np.ndarray  # (d,) maximum a posteriori values
+    se: np.ndarray  # (d,) Laplace standard errors (NaN where the curvature says nothing)
+    correlation: np.ndarray  # (d, d)
+    loglik_start: float  # log p(data) with the unknowns at their priors' medians
+    loglik: float  # log p(data) at the estimate
+    model: Model
+    notes: list[str] = field(default_factory=list)  # unidentifiable unknowns, estimates at an edge
+    evaluations: int = 0
+    seconds: float = 0.0
+    samples: np.ndarray | None = None  # (N, d) posterior draws with --samples
+    acceptance: float = math.nan
+    text: str = ""  # the spec rewritten with the fitted values
+
+    def write(self, path) -> None:
+        """Write the fitted spec."""
+        Path(path).write_text(self.text, encoding="utf-8")
+
+    def values(self) -> dict[str, float]:
+        """{unknown: estimate}."""
+        return dict(zip(self.names, map(float, self.estimate)))
+
+    def report(self) -> str:
+        """The fit as a reader wants it: a table of unknowns, the likelihood before and after, notes."""
+        rows = [["unknown", "prior", "estimate", "se", "prior median"]]
+        rows += [[n, str(p), f"{v:.6g}", f"{s:.2g}", f"{p.median:.6g}"]
+                 for n, p, v, s in zip(self.names, self.priors, self.estimate, self.se)]
+        if self.samples is not None:
+            lo, hi = np.percentile(self.samples, [2.5, 97.5], axis=0)
+            rows[0] += ["posterior mean", "sd", "95 % interval"]
+            for row, m, s, a, b in zip(rows[1:], self.samples.mean(0), self.samples.std(0), lo, hi):
+                row += [f"{m:.6g}", f"{s:.2g}", f"[{a:.6g}, {b:.6g}]"]
+        widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
+        lines = ["  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip() for r in rows]
+        lines.append(f"log-likelihood {self.loglik_start:.6g} at the priors' medians, {self.loglik:.6g} fitted "
+                     f"({self.loglik - self.loglik_start:+.4g})")
+        if self.samples is not None:
+            lines.append(f"{len(self.samples)} posterior draws by random-walk Metropolis, "
+                         f"acceptance {self.acceptance:.0%}")
+        lines += [f"note: {n}" for n in self.notes]
+        lines.append(f"{self.evaluations} likelihood evaluations in {self.seconds:.1f} s")
+        return "\n".join(lines)
+
+
+class Posterior:
+    """-log p(theta | data) up to a constant, as a function of z; counts its evaluations."""
+
+    def __init__(self, family: Family, datasets, algorithm: str):
+        self.family, self.datasets, self.algorithm = family, datasets, algorithm
+        self.evaluations = 0
+
+    def theta(self, z) -> np.ndarray:
+        return np.array([p.from_z(v) for p, v in zip(self.family.priors, z)])
+
+    def loglik(self, theta) -> float:
+        """log p(data | theta); -inf where theta makes no model (a mode without a steady state, ...)."""
+        self.evaluations += 1
+        try:
+            model = self.family.model(theta)
+            with np.errstate(all="ignore"):
+                return sum(loglik(model, d, self.algorithm) for d in self.datasets)
+        except (JmlgError, np.linalg.LinAlgError, ValueError):
+            return -math.inf
+
+    def __call__(self, z) -> float:
+        theta = self.theta(z)
+        value = self.loglik(theta) + sum(p.logpdf(t) for p, t in zip(self.family.priors, theta))
+        return -value if math.isfinite(value) else math.inf
+
+    def gradient(self, z, f0=None) -> np.ndarray:
+        """Forward differences in z."""
+        f0 = self(z) if f0 is None else f0
+        steps = np.eye(len(z)) * GRADIENT_STEP
+        return np.array([(self(z + s) - f0) / GRADIENT_STEP for s in steps])
+
+
+def fit(family: Family, datasets, algorithm: str = "imm", samples: int = 0, seed=None, progress=None) -> Fit:
+    """The maximum a posteriori values of the family's unknowns given the datasets (jmlgdsl.data.Data),
+    with Laplace standard errors; `samples` > 0 adds that many Metropolis draws. `progress(text)`
+    hears of each optimiser iteration."""
+    start = time.perf_counter()
+    post = Posterior(family, datasets, algorithm)
+    z0 = np.array([p.to_z(p.median) for p in family.priors])
+    loglik_start = post.loglik(post.theta(z0))
+    if not math.isfinite(loglik_start):
+        raise FitError("the spec makes no model at the priors' medians, or the data have no likelihood under it")
+    say = progress or (lambda text: None)
+    cache = {}
+
+    def objective(z):
+        key = z.tobytes()
+        if key not in cache:
+            cache[key] = post(z)
+        return cache[key]
+
+    iteration = [0]
+
+    def report_iteration(z):
+        iteration[0] += 1
+        say(f"iteration {iteration[0]}: log posterior {-objective(z):.8g}")
+
+    result = minimize(objective, z0, jac=lambda z: post.gradient(z, objective(z)), method="BFGS",
+                      callback=report_iteration, options={"gtol": GTOL, "maxiter": 200})
+    z = result.x
+    say("curvature at the estimate (Laplace)")
+    H = hessian(post, z, objective(z))
+    theta = post.theta(z)
+    cov_z, notes = _covariance(H, family.names)
+    J = np.array([p.dtheta_dz(v) for p, v in zip(family.priors, z)])
+    cov = cov_z * np.outer(J, J)
+    se = np.sqrt(np.where(np.diag(cov) >= 0, np.diag(cov), np.nan))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        corr = cov_z / np.sqrt(np.outer(np.diag(cov_z), np.diag(cov_z)))
+    notes += _correlated(corr, family.names) + [
+        f"{n} sits at an edge of its prior ({p}): its standard error is not meaningful"
+        for n, p, v in zip(family.names, family.priors, z) if abs(v) > AT_EDGE and p.family != "Normal"]
+    if not result.success and "precision" not in result.message:
+        notes.append(f"the optimiser stopped early: {result.message}")
+    draws, acceptance = (None, math.nan)
+    if samples:
+        draws, acceptance = metropolis(post, z, cov_z, samples, generator(seed), say)
+    return Fit(list(family.names), list(family.priors), theta, se, corr, loglik_start, post.loglik(theta),
+               family.model(theta), notes, post.evaluations, time.perf_counter() - start, draws, acceptance)
+
+
+def hessian(f, z: np.ndarray, f0: float) -> np.ndarray:
+    """The curvature of f at z by central differences, with per-coordinate steps of HESSIAN_STEP
+    standard deviations, found by a first diagonal pass (so the steps suit tight and loose unknowns)."""
+    d = len(z)
+    first = _diagonal(f, z, f0, np.full(d, FIRST_STEP))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        sd = 1.0 / np.sqrt(first)
+    step = np.where(first > 0, np.minimum(HESSIAN_STEP * sd, 1.0), FIRST_STEP)
+    H = np.diag(_diagonal(f, z, f0, step))
+    E = np.diag(step)
+    for i in range(d):
+        for j in range(i + 1, d):
+            ei, ej = E[i], E[j]
+            H[i, j] = H[j, i] = (f(z + ei + ej) - f(z + ei - ej) - f(z - ei + ej) + f(z - ei - ej)) \
+                / (4 * step[i] * step[j])
+    return H
+
+
+def _diagonal(f, z: np.ndarray, f0: float, step: np.ndarray) -> np.ndarray:
+    """d2 f / d z_i^2 by central differences with the given steps."""
+    return np.array([(f(z + e) - 2 * f0 + f(z - e)) / h ** 2 for e, h in zip(np.diag(step), step)])
+
+
+def _covariance(H: np.ndarray, names: list[str]) -> tuple[np.ndarray, list[str]]:
+    """The inverse curvature, or, where the posterior is flat or bent the wrong way in some direction,
+    the pseudo-inverse of its positive part, with a note naming the unknowns that direction moves."""
+    vals, vecs = np.linalg.eigh(0.5 * (H + H.T))
+    flat = vals <= 1e-9 * max(vals.max(initial=0.0), 1e-300)
+    notes = []
+    for v in vecs[:, flat].T:
+        moved = [names[i] for i in np.argsort(-np.abs(v)) if abs(v[i]) > 0.3]
+        notes.append(f"the data do not determine {' and '.join(moved)}: the posterior is flat along a "
+                     f"combination of them (fix one, or give it a narrower prior)")
+    inv = np.where(flat, 0.0, 1.0 / np.where(flat, 1.0, vals))
+    cov = (vecs * inv) @ vecs.T
+    if flat.any():
+        idx = {i for v in vecs[:, flat].T for i in np.flatnonzero(np.abs(v) > 0.3)}
+        for i in idx:
+            cov[i, :] = cov[:, i] = np.nan
+    return cov, notes
+
+
+def _correlated(corr: np.ndarray, names: list[str]) -> list[str]:
+    """Notes on pairs of unknowns the data hardly tell apart."""
+    d = len(names)
+    return [f"{names[i]} and {names[j]} are strongly correlated ({corr[i, j]:+.3f}): the data mostly fix a "
+            f"combination of them" for i in range(d) for j in range(i + 1, d)
+            if np.isfinite(corr[i, j]) and abs(corr[i, j]) > CORRELATED]
+
+
+def metropolis(post: Posterior, z: np.ndarray, cov_z: np.ndarray, n: int, rng: np.random.Generator, say):
+    """n draws of theta from the posterior by random-walk Metropolis in z, from the estimate, with the
+    Laplace covariance scaled by 2.38^2/d as the proposal; a burn-in of n/4 draws is discarded first."""
+    d = len(z)
+    cov = np.where(np.isfinite(cov_z), cov_z, 0.0) + 1e-12 * np.eye(d)
+    L = np.linalg.cholesky((2.38 ** 2 / d) * cov)
+    priors = post.family.priors
+
+    def target(v):
+        return -post(v) + sum(p.log_jacobian(x) for p, x in zip(priors, v))
+
+    current, value = z.copy(), target(z)
+    burn = n // 4
+    draws, accepted = np.empty((n, d)), 0
+    for i in range(burn + n):
+        proposal = current + L @ rng.standard_normal(d)
+        new = target(proposal)
+        if math.log(rng.uniform()) < new - value:
+            current, value = proposal, new
+            accepted += i >= burn
+        if i >= burn:
+            draws[i - burn] = post.theta(current)
+        if (i + 1) % 100 == 0:
+            say(f"draw {i + 1 - burn if i >= burn else 0} of {n}" + (" (burn-in)" if i < burn else ""))
+    return draws, accepted / n

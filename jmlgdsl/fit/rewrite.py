@@ -1,0 +1,51 @@
+"""The fitted spec: the user's own text with each prior replaced by its fitted value and a comment
+that keeps the estimate's standard error and the prior it came from, so the file reads as before."""
+
+from __future__ import annotations
+
+import math
+
+from ..lang.syntax import Pos, Spec
+
+
+def fitted_text(spec: Spec, unknowns, estimate, se, header: str = "") -> str:
+    """The spec's text with `U ~ Prior(...)` written `U = value  # fitted U = value ± se, prior Prior(...)`
+    (a noise level `measurement value`); `header` lines go first, as comments."""
+    text = "\n".join(spec.lines) + "\n"
+    starts = [0]
+    for line in spec.lines:
+        starts.append(starts[-1] + len(line) + 1)
+
+    def offset(pos: Pos) -> int:
+        return starts[pos.line - 1] + pos.column - 1
+
+    edits, comments = [], {}
+    for u, value, error in zip(unknowns, estimate, se):
+        a, b = offset(u.pos), offset(u.end)
+        prior = " ".join(text[a:b].split("~", 1)[1].split())
+        name = u.name.rsplit(".", 1)[-1]
+        edits.append((a, b, f"{name} {value:.10g}" if ".noise." in f".{u.name}" else f"{name} = {value:.10g}"))
+        shown = "se unknown" if not math.isfinite(error) else f"± {error:.2g}"
+        comments.setdefault(u.end.line - 1, []).append(f"fitted {u.name} = {value:.4g} {shown}, prior {prior}")
+    for line, notes in comments.items():
+        hash_at = _comment_column(spec.lines[line])
+        note = "; ".join(notes)
+        if hash_at is None:
+            edits.append((starts[line] + len(spec.lines[line]),) * 2 + (f"  # {note}",))
+        else:
+            edits.append((starts[line] + hash_at, starts[line] + hash_at + 1, f"# {note};"))
+    for a, b, new in sorted(edits, reverse=True):
+        text = text[:a] + new + text[b:]
+    lead = "".join(f"# {line}\n" if line else "#\n" for line in header.splitlines())
+    return lead + text
+
+
+def _comment_column(line: str) -> int | None:
+    """Where a line's `#` comment starts (outside a quoted description), or None."""
+    quoted = False
+    for i, ch in enumerate(line):
+        if ch == '"':
+            quoted = not quoted
+        elif ch == "#" and not quoted:
+            return i
+    return None
