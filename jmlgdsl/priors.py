@@ -120,14 +120,3 @@ class Prior:
             lo, hi = self.args
             return math.log(hi - lo) - np.logaddexp(0.0, z) - np.logaddexp(0.0, -z)
         return z
-
-    def sample(self, rng: np.random.Generator, size=None):
-        """Draws from the prior (used to start fits from several places and by tests)."""
-        a = self.args
-        if self.family == "Normal":
-            return rng.normal(a[0], a[1], size)
-        if self.family == "LogNormal":
-            return np.exp(rng.normal(a[0], a[1], size))
-        if self.family == "HalfNormal":
-            return np.abs(rng.normal(0.0, a[0], size))
-        return rng.uniform(a[0], a[1], size)

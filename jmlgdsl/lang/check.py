@@ -191,6 +191,7 @@ def _modes(spec: S.Spec, report: Report, params: set[str], inputs: set[str]) -> 
             infos[name] = ModeInfo(name, "", b.name.pos)
         info = infos[name]
         info.like = b.like
+        _check_defined_once(b, report)
         for st in b.statements:
             if st.kind == "der":
                 report.error(f"der({st.target.name.text}) belongs in the 'ode' block: the equations are the "
@@ -210,6 +211,23 @@ def _modes(spec: S.Spec, report: Report, params: set[str], inputs: set[str]) -> 
     for info in infos.values():
         _resolve_like(info, infos, report)
     return list(infos.values())
+
+
+def _check_defined_once(block: S.ModeBlock, report: Report):
+    """A block defines each state or output once: a second `y ~ ...` (or `y[t] = ...`) would silently
+    replace the first. (A mode `like` another may redefine what it inherits: that is its purpose.)"""
+    first: dict[str, S.Statement] = {}
+    for st in block.statements:
+        defines = st.kind == "sample" or (st.kind == "assign" and st.target.lag == 0)
+        if not defines:
+            continue
+        name = st.target.name.text
+        if name in first:
+            report.error(f"{name} is already defined in mode {block.name.text!r} at line "
+                         f"{first[name].target.name.pos.line}; a mode block defines each variable once",
+                         st.target.name.pos)
+        else:
+            first[name] = st
 
 
 def _check_overrides(overrides, names: set[str], report: Report):
