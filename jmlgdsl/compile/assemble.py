@@ -4,6 +4,8 @@ into a validated Model."""
 
 from __future__ import annotations
 
+import hashlib
+
 import numpy as np
 
 from ..lang.check import ModeInfo, Plant, noise_values
@@ -50,6 +52,29 @@ def declared_values(plant: Plant, decls, report: Report) -> np.ndarray:
     return np.array([np.nan if d.value is None else
                      evaluate_number(d.value, plant.nominal, report, what=f"the value of {d.name.text}")
                      for d in decls], dtype=float)
+
+
+def input_shifts(plant: Plant, mode: ModeInfo, params: dict, declared: np.ndarray, report: Report) -> np.ndarray:
+    """Per input, the mode's own operating value (`supply = 200` in the mode) less the declared one, with
+    the mode's parameters; 0 where the mode sets none. An input without a declared value is an error."""
+    names = [d.name.text for d in plant.inputs]
+    shift = np.zeros(len(names))
+    for a in mode.inputs:
+        i = names.index(a.name.text)
+        value = evaluate_number(a.expr, params, report, what=f"the value of {a.name.text} in mode {mode.name!r}")
+        if np.isnan(declared[i]):
+            report.error(f"mode {mode.name!r} sets input {a.name.text!r}, which has no declared value to differ from: "
+                         f"declare it as 'input {a.name.text} = VALUE'", a.name.pos)
+        elif np.isfinite(value):
+            shift[i] = value - declared[i]
+    return shift
+
+
+def shift_inputs(m: ModeArrays, shift: np.ndarray):
+    """Make a mode act as if its inputs were shifted by `shift` from the data: f += F shift, g += G shift."""
+    if shift.any():
+        m.f = m.f + m.F @ shift
+        m.g = m.g + m.G @ shift
 
 
 def check_size(plant: Plant, layout: Layout, report: Report):
@@ -110,21 +135,14 @@ def stack(plant: Plant, layout: Layout, modes: list[ModeArrays], params: list[di
         eig = np.abs(np.linalg.eigvals(m.A)) if m.A.size else np.zeros(0)
         if eig.size and eig.max() > 1 + 1e-9:
             report.warn(f"mode {mode.name!r} is unstable: eigenvalue of modulus {eig.max():.6g} > 1", mode.pos)
-    sd0 = np.zeros(layout.nx)
-    lookup = {d.name.text: d for d in plant.states}
-    for i, s in enumerate(layout.states):
-        d = lookup.get(s)
-        if d is not None and d.sd is not None:
-            sd0[i] = evaluate_number(d.sd, plant.nominal, report, what=f"the initial sd of {s}")
-            if sd0[i] < 0:
-                report.error("a standard deviation cannot be negative", d.sd.pos)
-            check_sd(sd0[i], d.sd.pos, report)
+    sd0 = initial_sd(plant, layout, report)
     gates = outlier_gates(plant, layout.outputs, report)
     report.raise_errors()
+    B, D = [pad(m.B, nw) for m in modes], [pad(m.D, nv) for m in modes]
+    _warn_identical(plant, [[m.A, b, m.C, d, m.F, m.G, m.f, m.g, m.x0] for m, b, d in zip(modes, B, D)], report)
     units = {d.name.text: d.unit for d in [*plant.inputs, *plant.outputs, *plant.states] if d.unit}
     return Model(
-        A=np.stack([m.A for m in modes]), B=np.stack([pad(m.B, nw) for m in modes]),
-        C=np.stack([m.C for m in modes]), D=np.stack([pad(m.D, nv) for m in modes]),
+        A=np.stack([m.A for m in modes]), B=np.stack(B), C=np.stack([m.C for m in modes]), D=np.stack(D),
         F=np.stack([m.F for m in modes]), G=np.stack([m.G for m in modes]),
         f=np.stack([m.f for m in modes]), g=np.stack([m.g for m in modes]),
         P=plant.P, p0=plant.p0, mu0=np.stack([m.x0 for m in modes]), Sigma0=np.diag(sd0 ** 2),
@@ -132,3 +150,39 @@ def stack(plant: Plant, layout: Layout, modes: list[ModeArrays], params: list[di
         states=layout.states, inputs=layout.inputs, outputs=layout.outputs, dt=plant.dt, name=plant.name,
         descriptions={m.name: m.description for m in plant.modes if m.description}, units=units,
         outlier_gate=gates)
+
+
+def initial_sd(plant: Plant, layout: Layout, report: Report) -> np.ndarray:
+    """The initial standard deviation of each state: a state's `sd`, and an output's `sd` for the states
+    of its blocks that hold output values (the output and its past values; input registers and a fopdt
+    block's per-input parts keep 0)."""
+    sd0 = np.zeros(layout.nx)
+    for d in [*plant.states, *plant.outputs]:
+        if d.sd is None:
+            continue
+        sd = evaluate_number(d.sd, plant.nominal, report, what=f"the initial sd of {d.name.text}")
+        if sd < 0:
+            report.error("a standard deviation cannot be negative", d.sd.pos)
+        check_sd(sd, d.sd.pos, report)
+        held = [d.name.text] if d.kind == "state" else \
+            [s for s in layout.block_states.get(d.name.text, ()) if layout.block_roles[s][1] == "history"]
+        if not held:
+            report.error(f"an output's 'sd' is the initial standard deviation of its fopdt or arx block, and no mode "
+                         f"gives {d.name.text!r} one; a state takes its own: 'state NAME = MEAN sd SD'", d.sd.pos)
+        for s in held:
+            sd0[layout.states.index(s)] = sd
+    return sd0
+
+
+def _warn_identical(plant: Plant, arrays: list[list[np.ndarray]], report: Report):
+    """Warn about a mode whose matrices and initial mean are exactly those of an earlier mode: what it
+    changes reaches no matrix (a parameter or input that nothing uses), so no data can tell them apart."""
+    first: dict[bytes, str] = {}
+    for mode, mats in zip(plant.modes, arrays):
+        digest = hashlib.sha256(b"".join((np.asarray(M, float) + 0.0).tobytes() for M in mats)).digest()  # -0.0 is 0.0
+        if digest in first:
+            report.warn(f"mode {mode.name!r} compiles to exactly the same model as mode {first[digest]!r} (the same "
+                        "matrices and initial mean): what it changes reaches no matrix, so the data cannot tell "
+                        "the two apart", mode.pos)
+        else:
+            first[digest] = mode.name

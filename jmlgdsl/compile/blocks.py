@@ -14,7 +14,7 @@ import sympy as sp
 
 from ..lang.evaluate import (NOT_FINITE, EvalError, LetExpander, UnknownName, finite_numeric,
                                 finite_real, show, symbolic)
-from ..lang.limits import MAX_ORDER, check_sd
+from ..lang.limits import MAX_DELAY_SAMPLES, MAX_ORDER, check_sd
 from ..lang.report import Report
 from ..lang.syntax import Dist, Expr, Name, Statement
 from ..lang.units import time_in_seconds
@@ -22,6 +22,9 @@ from ..names import suggest
 
 MATRIX_NAMES = ("A", "B", "C", "D", "F", "G", "f", "g", "x0")
 BLOCK_FORMS = ("Normal", "fopdt", "arx")
+FOPDT_KEYS = ("gain", "tau", "delay")
+ARX_KEYS = ("a", "b", "na", "nb")
+OPERATING_KEYS = ("u_ss", "y_ss")  # the operating point of a block with several inputs (`at` names one)
 
 
 @dataclass
@@ -33,6 +36,8 @@ class Layout:
     outputs: list[str]
     input_defaults: np.ndarray
     block_states: dict[str, list[str]] = field(default_factory=dict)  # output -> its internal states
+    block_roles: dict[str, tuple] = field(default_factory=dict)  # internal state -> (output, kind, key, n)
+    single_inputs: dict[str, str] = field(default_factory=dict)  # output -> input of its single-input blocks
 
     @property
     def nx(self):
@@ -292,13 +297,15 @@ class Lowering:
             m.outputs_defined.update(lay.outputs)
 
     # ------------------------------------------------------------- block forms
-    def _keywords(self, d: Dist, allowed: dict, required: tuple) -> dict | None:
+    def _keywords(self, d: Dist, allowed: tuple, required: tuple) -> dict | None:
         """Keyword arguments as {key: (Expr, unit Name or None)}; reports unknown, repeated, missing."""
         got, ok = {}, True
         for key, value, unit in d.keywords:
             if key.text not in allowed:
-                self.report.error(f"{d.name.text} has no argument {key.text!r}; it takes "
-                                  f"{', '.join(allowed)}{suggest(key.text, allowed)}", key.pos)
+                hint = ("; a block with one input gives its operating point as 'at INPUT VALUE -> OUTPUT'"
+                        if key.text in OPERATING_KEYS else suggest(key.text, allowed))
+                self.report.error(f"{d.name.text} has no argument {key.text!r}; it takes {', '.join(allowed)}{hint}",
+                                  key.pos)
                 ok = False
             elif key.text in got:
                 self.report.error(f"{key.text!r} is given twice", key.pos)
@@ -310,51 +317,105 @@ class Lowering:
                 ok = False
         return got if ok else None
 
-    def _block_input(self, d: Dist) -> int | None:
-        if len(d.positional) != 1 or d.positional[0].op != "var":
-            self.report.error(f"{d.name.text} starts with the name of its input, e.g. {d.name.text}(u, ...)",
-                              d.name.pos)
-            return None
-        name = d.positional[0].args[0]
-        if name not in self.layout.inputs:
-            self.report.error(f"unknown input {name!r}{suggest(name, self.layout.inputs)}", d.positional[0].pos)
-            return None
-        return self.layout.inputs.index(name)
+    @staticmethod
+    def _allowed(d: Dist, keys: tuple) -> tuple:
+        """A block's keywords: with several inputs, the operating point is `u_ss [...], y_ss VALUE`."""
+        return keys + OPERATING_KEYS if len(d.positional) > 1 else keys
 
-    def _operating_point(self, d: Dist, k: int) -> tuple[float, float]:
-        """(u_ss, y_ss) from `at INPUT u -> y`; NaN without one (deviation 0, initial mean left open)."""
-        if d.at is None:
-            return math.nan, math.nan
-        name, u_expr, y_expr = d.at
-        if name.text != self.layout.inputs[k]:
-            self.report.error(f"the operating point names the block's input: 'at {self.layout.inputs[k]} "
-                              f"VALUE -> OUTPUT'", name.pos)
-        return self.number(u_expr, "an operating input"), self.number(y_expr, "an operating output")
+    def input_problem(self, d: Dist):
+        """What is wrong with the inputs a block names first, as (message, position); None if nothing."""
+        if not d.positional or any(e.op != "var" for e in d.positional):
+            return f"{d.name.text} starts with the name of its input, e.g. {d.name.text}(u, ...)", d.name.pos
+        seen = set()
+        for e in d.positional:
+            name = e.args[0]
+            if name not in self.layout.inputs:
+                return f"unknown input {name!r}{suggest(name, self.layout.inputs)}", e.pos
+            if name in seen:
+                return f"input {name!r} is named twice in the {d.name.text} block", e.pos
+            seen.add(name)
+        return None
 
-    def _duration(self, value: Expr, unit, what: str) -> float:
-        """A time in seconds; without a unit, the unit of the sample time."""
-        v = self.number(value, what)
+    def _block_inputs(self, d: Dist) -> list[int] | None:
+        """Indices of the inputs a block names first, fopdt(u1, u2, ...); None, reported, if one is wrong."""
+        problem = self.input_problem(d)
+        if problem is not None:
+            self.report.error(*problem)
+            return None
+        return [self.layout.inputs.index(e.args[0]) for e in d.positional]
+
+    def _vector(self, expr: Expr, n: int, key: str, what: str) -> np.ndarray:
+        """A keyword's value for each of a block's n inputs: one number for all of them, or one per input
+        (NaN, reported, otherwise)."""
+        if n == 1:
+            return np.array([self.number(expr, what)])
+        v = self.matrix(expr)
+        if v is None:
+            return np.full(n, np.nan)
+        if v.size == 1:
+            return np.full(n, v.item())
+        if v.size != n or 1 not in v.shape:
+            self.report.error(f"'{key}' takes one value for every input or one per input ({n} here), got "
+                              f"{' x '.join(map(str, v.shape))}", expr.pos)
+            return np.full(n, np.nan)
+        return v.ravel()
+
+    def _operating_point(self, d: Dist, kw: dict, ks: list[int]) -> tuple[np.ndarray, float]:
+        """(u_ss per input, y_ss) from `at INPUT u -> y` (one input) or `u_ss [...], y_ss y` (several);
+        NaN without one (deviations 0, initial mean left open)."""
+        n = len(ks)
+        none = np.full(n, math.nan), math.nan
+        if n == 1:
+            if d.at is None:
+                return none
+            name, u_expr, y_expr = d.at
+            if name.text != self.layout.inputs[ks[0]]:
+                self.report.error(f"the operating point names the block's input: 'at {self.layout.inputs[ks[0]]} "
+                                  f"VALUE -> OUTPUT'", name.pos)
+            return (np.array([self.number(u_expr, "an operating input")]),
+                    self.number(y_expr, "an operating output"))
+        if d.at is not None:
+            self.report.error(f"a block with several inputs gives its operating point as 'u_ss [...], y_ss VALUE', "
+                              f"with one u_ss value per input", d.at[0].pos)
+            return none
+        given = [k for k in OPERATING_KEYS if k in kw]
+        if len(given) == 1:
+            self.report.error("an operating point needs both 'u_ss [...]' (the inputs) and 'y_ss VALUE' "
+                              "(the output)", kw[given[0]][0].pos)
+        if len(given) < 2:
+            return none
+        return (self._vector(kw["u_ss"][0], n, "u_ss", "an operating input"),
+                self.number(kw["y_ss"][0], "an operating output"))
+
+    def _durations(self, value: Expr, unit, n: int, key: str, what: str) -> np.ndarray:
+        """Times in seconds, one per input; without a unit, in the unit of the sample time."""
+        v = self._vector(value, n, key, what)
         return time_in_seconds(v, unit if isinstance(unit, Name) else Name(unit or self.time_unit, value.pos),
                                self.report)
 
-    def _block_rows(self, m: ModeArrays, j: int, k: int, u_ss: float, y_ss: float) -> dict[str, int]:
-        """Claim the internal states of output j's block (the union over modes): every output and input
+    def _block_rows(self, m: ModeArrays, j: int, ks: list[int], u_ss: np.ndarray, y_ss: float) -> dict[str, int]:
+        """Claim the internal states of output j's blocks (the union over modes): every output and input
         history register keeps shifting in every mode, so a mode switch finds the true past values.
-        Returns the state indices by name; the caller fills the row of the output state itself."""
-        out = self.layout.outputs[j]
-        names = self.layout.block_states[out]
-        idx = {s: self.layout.states.index(s) for s in names}
+        Returns the state indices by name; the caller fills the rows of the output and its parts."""
+        lay, out = self.layout, self.layout.outputs[j]
+        names = lay.block_states[out]
+        idx = {s: lay.states.index(s) for s in names}
+        inputs = [lay.inputs[k] for k in ks]
         for s, i in idx.items():
             m.A[i] = m.F[i] = m.f[i] = m.B[i] = 0.0
-            m.x0[i] = u_ss if s.startswith(f"{out}_u") else y_ss
-        m.states_defined.update(names)
-        for prefix, first in ((f"{out}_y", None), (f"{out}_u", k)):
-            history = [idx[s] for s in names if s.startswith(prefix)]
-            for n, i in enumerate(history):
-                if n == 0 and first is not None:
-                    m.F[i, first] = 1.0
+            _, kind, key, n = lay.block_roles[s]
+            if kind == "history":
+                m.x0[i] = y_ss
+                if n:
+                    m.A[i, idx[history_name(out, n - 1)]] = 1.0
+            elif kind == "register":
+                feed = key if key is not None else inputs[0] if len(inputs) == 1 else lay.single_inputs[out]
+                m.x0[i] = u_ss[inputs.index(feed)] if feed in inputs else math.nan
+                if n:
+                    m.A[i, idx[register_name(out, key, n - 1)]] = 1.0
                 else:
-                    m.A[i, history[n - 1] if n else idx[out]] = 1.0
+                    m.F[i, lay.inputs.index(feed)] = 1.0
+        m.states_defined.update(names)
         return idx
 
     def _measure(self, m: ModeArrays, j: int, state: int):
@@ -364,90 +425,136 @@ class Lowering:
         m.outputs_defined.add(self.layout.outputs[j])
 
     def _fopdt(self, m: ModeArrays, d: Dist, j: int):
-        """K e^{-θs}/(τs+1) with zero-order hold: exact for any dead time (modified z-transform)."""
-        kw = self._keywords(d, {"gain": 1, "tau": 1, "delay": 1}, ("gain", "tau"))
-        k = self._block_input(d)
-        if kw is None or k is None:
+        """The sum over the inputs of K e^{-θs}/(τs+1), with zero-order hold: exact for any dead time
+        (modified z-transform). The output's state holds the whole response; each input after the first
+        has a state holding its part, so that every part relaxes at its own rate."""
+        kw = self._keywords(d, self._allowed(d, FOPDT_KEYS), ("gain", "tau"))
+        ks = self._block_inputs(d)
+        if kw is None or ks is None:
             return
-        gain = self.number(kw["gain"][0], "a gain")
-        tau, delay = self.fopdt_times(kw)
-        if math.isnan(tau) or math.isnan(delay):
+        n = len(ks)
+        gain = self._vector(kw["gain"][0], n, "gain", "a gain")
+        tau, delay = self.fopdt_times(kw, n)
+        if np.isnan(tau).any() or np.isnan(delay).any():
             return  # a value that could not be evaluated is already reported
-        if not tau > 0:
-            self.report.error(f"the time constant must be positive (got {tau:g} s)", kw["tau"][0].pos)
+        if not (tau > 0).all():
+            self.report.error(f"the time constant must be positive (got {tau[~(tau > 0)][0]:g} s)", kw["tau"][0].pos)
             return
-        if delay < 0:
-            self.report.error(f"the dead time cannot be negative (got {delay:g} s)", kw["delay"][0].pos)
+        if (delay < 0).any():
+            self.report.error(f"the dead time cannot be negative (got {delay[delay < 0][0]:g} s)",
+                              kw["delay"][0].pos)
             return
-        u_ss, y_ss = self._operating_point(d, k)
-        out = self.layout.outputs[j]
-        lags, fraction = fopdt_lags(self.dt, tau, delay)
-        idx = self._block_rows(m, j, k, u_ss, y_ss)
-        x = idx[out]
-        a = math.exp(-self.dt / tau)
-        m.A[x, x] = a
-        m.f[x] = (1 - a) * np.nan_to_num(y_ss - gain * u_ss)
-        m.B[x, x] = self.process
-        for lag, b in zip(lags, fopdt_weights(self.dt, tau, fraction, a, gain)):
-            if lag == 0:
-                m.F[x, k] += b
-            else:
-                m.A[x, idx[f"{out}_u{lag - 1}"]] += b  # u_{t-lag}: the register holding u_{t-lag+1}, at t-1
-        self._measure(m, j, x)
+        u_ss, y_ss = self._operating_point(d, kw, ks)
+        out, names = self.layout.outputs[j], [self.layout.inputs[k] for k in ks]
+        idx = self._block_rows(m, j, ks, u_ss, y_ss)
+        y = idx[out]
+        a = [math.exp(-self.dt / t) for t in tau]
+        m.A[y, y] = a[0]
+        for i, k in enumerate(ks):
+            rows = [y]
+            if i:  # the first input's part is the output less the other parts
+                part = idx[part_name(out, names[i])]
+                rows.append(part)
+                m.A[part, part] = a[i]
+                m.A[y, part] = a[i] - a[0]
+                m.x0[part] = gain[i] * u_ss[i]
+            lags, fraction = fopdt_lags(self.dt, tau[i], delay[i])
+            for lag, b in zip(lags, fopdt_weights(self.dt, tau[i], fraction, a[i], gain[i])):
+                if lag == 0:
+                    m.F[rows, k] += b
+                else:  # u_{t-lag}: the register holding u_{t-lag+1}, at t-1
+                    m.A[rows, idx[register_name(out, None if n == 1 else names[i], lag - 1)]] += b
+        m.f[y] = (1 - a[0]) * np.nan_to_num(y_ss - gain @ u_ss)
+        m.B[y, y] = self.process
+        self._measure(m, j, y)
 
-    def fopdt_times(self, kw) -> tuple[float, float]:
-        """Time constant and dead time of a fopdt block, in seconds."""
-        tau = self._duration(*kw["tau"], "a time constant")
-        delay = self._duration(*kw["delay"], "a dead time") if "delay" in kw else 0.0
+    def fopdt_times(self, kw, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """Time constants and dead times of a fopdt block with n inputs, in seconds."""
+        tau = self._durations(*kw["tau"], n, "tau", "a time constant")
+        delay = self._durations(*kw["delay"], n, "delay", "a dead time") if "delay" in kw else np.zeros(n)
         return tau, delay
 
-    def arx_coefficients(self, kw) -> tuple[np.ndarray, np.ndarray] | None:
-        """The a (a1..a_na) and b (b0..b_nb) coefficient vectors of an arx block, each of at most
-        MAX_ORDER coefficients; None, reported, otherwise."""
+    def arx_coefficients(self, kw, n: int) -> tuple[np.ndarray, np.ndarray] | None:
+        """The a (a1..a_na) vector and b (b0..b_nb, one row per input) matrix of an arx block with n
+        inputs, each of at most MAX_ORDER coefficients; None, reported, otherwise."""
         a, b = self.matrix(kw["a"][0]), self.matrix(kw["b"][0])
         if a is None or b is None:
             return None
-        for key, vec, first in (("a", a, "a1"), ("b", b, "b0")):
-            if vec.size == 0:
+        a = a.ravel()
+        if n == 1:
+            b = b.reshape(1, -1)  # one input: its coefficients, as a row or a column
+        elif b.shape[0] != n:
+            self.report.error(f"'b' has one row of coefficients per input: {n} rows here, got {b.shape[0]}",
+                              kw["b"][0].pos)
+            return None
+        for key, count, first in (("a", a.size, "a1"), ("b", b.shape[1], "b0")):
+            if count == 0:
                 hint = "; without output feedback write 'a [0]'" if key == "a" else ""
                 self.report.error(f"arx needs at least {first} in '{key} [...]'{hint}", kw[key][0].pos)
                 return None
-            if vec.size > MAX_ORDER:
-                self.report.error(f"{vec.size} coefficients in '{key}' are too many: at most {MAX_ORDER}",
+            if count > MAX_ORDER:
+                self.report.error(f"{count} coefficients in '{key}' are too many: at most {MAX_ORDER}",
                                   kw[key][0].pos)
                 return None
-        return a.ravel(), b.ravel()
+        return a, b
 
     def _arx(self, m: ModeArrays, d: Dist, j: int):
-        """y_t + a1 y_{t-1} + ... + a_na y_{t-na} = b0 u_t + ... + b_nb u_{t-nb} + e_t, realised on the
-        states (y_t, ..., y_{t-na+1}, u_t, ..., u_{t-nb+1}), so the process noise is the equation error e_t."""
-        kw = self._keywords(d, {"a": 1, "b": 1, "na": 1, "nb": 1}, ("a", "b"))
-        k = self._block_input(d)
-        if kw is None or k is None:
+        """y_t + a1 y_{t-1} + ... + a_na y_{t-na} = sum over the inputs of b0 u_t + ... + b_nb u_{t-nb}, plus
+        e_t, realised on the states (y_t, ..., y_{t-na+1}, then u_t, ..., u_{t-nb+1} for each input), so the
+        process noise is the equation error e_t."""
+        kw = self._keywords(d, self._allowed(d, ARX_KEYS), ("a", "b"))
+        ks = self._block_inputs(d)
+        if kw is None or ks is None:
             return
-        coeffs = self.arx_coefficients(kw)
+        coeffs = self.arx_coefficients(kw, len(ks))
         if coeffs is None:
             return
         a, b = coeffs
-        for key, vec, extra in (("na", a, 0), ("nb", b, -1)):
+        for key, count, extra in (("na", a.size, 0), ("nb", b.shape[1], -1)):
             if key in kw:
                 order = self.number(kw[key][0], f"the order {key}")
-                if order != len(vec) + extra:
-                    self.report.error(f"{key} = {order:g} but {len(vec)} coefficients are given "
+                if order != count + extra:
+                    self.report.error(f"{key} = {order:g} but {count} coefficients are given "
                                       f"({'a1..a_na' if key == 'na' else 'b0..b_nb'})", kw[key][0].pos)
                     return
-        u_ss, y_ss = self._operating_point(d, k)
+        u_ss, y_ss = self._operating_point(d, kw, ks)
         out = self.layout.outputs[j]
-        idx = self._block_rows(m, j, k, u_ss, y_ss)
+        idx = self._block_rows(m, j, ks, u_ss, y_ss)
         y = idx[out]
-        past_y = [idx[s] for s in arx_states(out, len(a), 0)]  # y_{t-1}.. are these states at t-1
-        past_u = [idx[f"{out}_u{i}"] for i in range(len(b) - 1)]
-        m.A[y, past_y] = -a
-        m.A[y, past_u] = b[1:]
-        m.F[y, k] = b[0]
-        m.f[y] = np.nan_to_num(y_ss * (1 + a.sum()) - u_ss * b.sum())
+        m.A[y, [idx[history_name(out, n)] for n in range(a.size)]] = -a  # y_{t-1}.. are these states at t-1
+        for i, k in enumerate(ks):
+            key = None if len(ks) == 1 else self.layout.inputs[k]
+            m.A[y, [idx[register_name(out, key, n)] for n in range(b.shape[1] - 1)]] = b[i, 1:]
+            m.F[y, k] = b[i, 0]
+        m.f[y] = np.nan_to_num(y_ss * (1 + a.sum()) - u_ss @ b.sum(axis=1))
         m.B[y, y] = self.process
         self._measure(m, j, y)
+
+    def internal_states(self, out: str, d: Dist) -> list[tuple[str, tuple]] | None:
+        """The internal states of a fopdt or arx block on output `out`, with their roles; None when the
+        block is not well formed (reported here or by its lowering) or its dead time is beyond the limit."""
+        kw = {k.text: (v, u) for k, v, u in d.keywords}
+        problem = self.input_problem(d)
+        if problem is not None:
+            self.report.error(*problem)
+            return None
+        inputs = [e.args[0] for e in d.positional]
+        n = len(inputs)
+        if d.name.text == "fopdt" and "tau" in kw:
+            tau, delay = self.fopdt_times(kw, n)
+            if np.isnan(delay).any():
+                return None  # a value that could not be evaluated is already reported
+            if (delay > MAX_DELAY_SAMPLES * self.dt).any():
+                self.report.error(f"a dead time of {delay.max() / self.dt:.6g} samples needs as many input registers; "
+                                  f"at most {MAX_DELAY_SAMPLES} are allowed: check the unit, or lengthen the "
+                                  f"sample time", kw["delay"][0].pos)
+                return None
+            registers = [max(fopdt_lags(self.dt, t, max(th, 0.0))[0]) for t, th in zip(tau, delay)]
+            return block_roles(out, inputs, registers, history=1, parts=True)
+        if d.name.text == "arx" and "a" in kw and "b" in kw and (coeffs := self.arx_coefficients(kw, n)):
+            a, b = coeffs
+            return block_roles(out, inputs, [b.shape[1] - 1] * n, history=a.size, parts=False)
+        return None
 
 
 def fopdt_lags(dt: float, tau: float, delay: float) -> tuple[list[int], float]:
@@ -467,11 +574,40 @@ def fopdt_weights(dt: float, tau: float, fraction: float, a: float, gain: float)
     return [gain * (1 - part), gain * (part - a)]
 
 
-def fopdt_states(out: str, dt: float, tau: float, delay: float) -> list[str]:
-    """Internal states of a fopdt block: the lag state (named after the output), then u_t, u_{t-1}, ..."""
-    return [out] + [f"{out}_u{i}" for i in range(max(fopdt_lags(dt, tau, delay)[0]))]
+def history_name(out: str, n: int) -> str:
+    """The state holding output `out` n samples back: the output's own name for n = 0, then out_y1, ..."""
+    return out if n == 0 else f"{out}_y{n}"
 
 
-def arx_states(out: str, na: int, nb: int) -> list[str]:
-    """Internal states of an arx block: y_t (named after the output), y_{t-1}, ..., then u_t, u_{t-1}, ..."""
-    return [out] + [f"{out}_y{i}" for i in range(1, na)] + [f"{out}_u{i}" for i in range(nb)]
+def register_name(out: str, key: str | None, n: int) -> str:
+    """The state holding an input n samples back: out_u0, out_u1, ... in a block with one input (key
+    None), out_INPUT_u0, ... for each input of a block with several."""
+    return f"{out}_u{n}" if key is None else f"{out}_{key}_u{n}"
+
+
+def part_name(out: str, u: str) -> str:
+    """The state holding the part of output `out` due to input u, in a fopdt block with several inputs."""
+    return f"{out}_{u}"
+
+
+def block_roles(out: str, inputs: list[str], registers: list[int], history: int, parts: bool):
+    """A block's internal states as (name, (output, kind, key, n)): the output and its past values
+    (kind "history"), the part due to each input after the first (a fopdt block with several inputs)
+    and the past values of each input (registers, as many per input as `registers` says)."""
+    key = {u: None if len(inputs) == 1 else u for u in inputs}
+    roles = [(history_name(out, n), (out, "history", None, n)) for n in range(history)]
+    if parts:
+        roles += [(part_name(out, u), (out, "part", u, 0)) for u in inputs[1:]]
+    for u, count in zip(inputs, registers):
+        roles += [(register_name(out, key[u], n), (out, "register", key[u], n)) for n in range(count)]
+    return roles
+
+
+def describe_role(role: tuple) -> str:
+    """What an internal block state holds, for messages."""
+    out, kind, key, n = role
+    if kind == "history":
+        return f"output {out!r}" + (f" {n} samples back" if n else "")
+    if kind == "part":
+        return f"the part of output {out!r} due to input {key!r}"
+    return f"a past value of {'the block input' if key is None else f'input {key!r}'} (output {out!r})"

@@ -6,13 +6,13 @@ from __future__ import annotations
 import numpy as np
 
 from ..lang.check import Plant, check
-from ..lang.limits import MAX_DELAY_SAMPLES
 from ..lang.parse import parse_file, parse_text
 from ..lang.report import Report
 from ..lang.syntax import Pos, Spec
 from ..model import Model
-from .assemble import check_size, declared_values, mode_noise, stack, steady_mean
-from .blocks import Layout, Lowering, ModeArrays, arx_states, fopdt_states
+from .assemble import (check_size, declared_values, input_shifts, mode_noise, shift_inputs, stack, steady_mean,
+                       steady_state)
+from .blocks import Layout, Lowering, ModeArrays, describe_role
 
 
 def compile_file(path) -> Model:
@@ -60,6 +60,7 @@ def lower_linear(plant: Plant, report: Report) -> Model:
         process, measurement = mode_noise(plant, mode, env, report)
         arrays = ModeArrays.empty(layout, process, 0.0 if np.isnan(measurement) else measurement)
         Lowering(layout, env, plant.lets, report, plant.dt, plant.time_unit, process).lower(arrays, mode.statements)
+        _shift_mode_inputs(arrays, layout, input_shifts(plant, mode, env, layout.input_defaults, report))
         for s in layout.states:
             if s not in arrays.states_defined:
                 report.error(f"state {s!r} has no equation in mode {mode.name!r} "
@@ -78,37 +79,47 @@ def lower_linear(plant: Plant, report: Report) -> Model:
 
 
 def _add_block_states(plant: Plant, layout: Layout, params: list[dict], report: Report):
-    """Reserve the internal states of fopdt/arx blocks, per output the union over modes (by name)."""
+    """Reserve the internal states of fopdt/arx blocks, per output the union over modes (by name); a
+    name that would hold two different things is an error."""
     declared = {d.name.text: d for d in plant.states}
     for mode, env in zip(plant.modes, params):
         low = Lowering(layout, env, plant.lets, report, plant.dt, plant.time_unit)
         for st in mode.statements:
             out = st.target.name.text if st.kind == "sample" else None
-            if out not in layout.outputs:
+            if out not in layout.outputs or st.dist.name.text not in ("fopdt", "arx"):
                 continue
-            form, kw = st.dist.name.text, {k.text: (v, u) for k, v, u in st.dist.keywords}
-            if form == "fopdt" and "tau" in kw:
-                tau, delay = low.fopdt_times(kw)
-                if np.isnan(delay):
-                    continue  # a value that could not be evaluated is already reported
-                if delay > MAX_DELAY_SAMPLES * plant.dt:
-                    report.error(f"a dead time of {delay / plant.dt:.6g} samples needs as many input registers; "
-                                 f"at most {MAX_DELAY_SAMPLES} are allowed: check the unit, or lengthen the "
-                                 f"sample time", kw["delay"][0].pos)
-                    continue
-                names = fopdt_states(out, plant.dt, tau, max(delay, 0.0))
-            elif form == "arx" and "a" in kw and "b" in kw and (coeffs := low.arx_coefficients(kw)):
-                names = arx_states(out, len(coeffs[0]), max(len(coeffs[1]) - 1, 0))
-            else:
+            roles = low.internal_states(out, st.dist)
+            if roles is None:
                 continue
+            if len(st.dist.positional) == 1:
+                layout.single_inputs.setdefault(out, st.dist.positional[0].args[0])
             block = layout.block_states.setdefault(out, [])
-            for s in names:
+            for s, role in roles:
+                held = layout.block_roles.get(s)
                 if s in declared:
-                    report.error(f"state {s!r} is also an internal state of the {form} block for output "
+                    report.error(f"state {s!r} is also an internal state of the {st.dist.name.text} block for output "
                                  f"{out!r}; rename the state", declared[s].name.pos)
-                elif s not in block:
+                elif held is not None and held != role:
+                    report.error(f"the {st.dist.name.text} block needs a state {s!r} for {describe_role(role)}, but "
+                                 f"that name already holds {describe_role(held)}; rename an input or output",
+                                 st.dist.name.pos)
+                elif held is None:
                     block.append(s)
                     layout.states.append(s)
+                    layout.block_roles[s] = role
+
+
+def _shift_mode_inputs(m: ModeArrays, layout: Layout, shift: np.ndarray):
+    """A mode's own input values: its offsets act on the shifted inputs, and its blocks' operating points
+    (their states' initial means) move by the steady-state change the shift causes."""
+    shift_inputs(m, shift)
+    held = [layout.states.index(s) for names in layout.block_states.values() for s in names]
+    if not held or not shift.any():
+        return
+    try:  # block rows use only block states and inputs, so their steady change is solved on its own
+        m.x0[held] += steady_state(m.A[np.ix_(held, held)], m.F[held], np.zeros(len(held)), shift)
+    except np.linalg.LinAlgError:
+        pass  # a block with no single steady state keeps its operating point
 
 
 def _fill_initial_mean(m: ModeArrays, declared: np.ndarray, u_default: np.ndarray):

@@ -27,7 +27,7 @@ from ..lang.report import Report
 from ..lang.units import time_in_seconds
 from ..model import Model
 from ..names import suggest
-from .assemble import check_size, declared_values, mode_noise, stack, steady_mean
+from .assemble import check_size, declared_values, input_shifts, mode_noise, shift_inputs, stack, steady_mean
 from .blocks import Layout, ModeArrays
 
 STEADY_TOLERANCE = 1e-8  # largest accepted |der(x)| at a steady state, relative to 1 + |x|
@@ -203,14 +203,16 @@ def linearise(plant: Plant, system: OdeSystem, report: Report) -> Model:
             report.error(f"input {d.name.text!r} needs an operating value to linearise around: "
                          f"input {d.name.text} = VALUE", d.name.pos)
     report.raise_errors()
-    points, u_lin, per_mode = _operating_points(plant, system, pvecs, u_bar, report)
+    shifts = mode_input_shifts(plant, params, u_bar, report)
+    report.raise_errors()
+    points, u_lins, per_mode = _operating_points(plant, system, pvecs, u_bar, shifts, report)
     report.raise_errors()
     layout = Layout(states=list(system.states), inputs=list(system.inputs), outputs=list(system.outputs),
                     input_defaults=u_bar)
     check_size(plant, layout, report)
     dt = plant.dt / system.seconds_per_unit
     modes = []
-    for mode, env, p, x_bar in zip(plant.modes, params, pvecs, points):
+    for mode, env, p, x_bar, u_lin, shift in zip(plant.modes, params, pvecs, points, u_lins, shifts):
         process, measurement = mode_noise(plant, mode, env, report)
         m = ModeArrays.empty(layout, process, 0.0 if np.isnan(measurement) else measurement)
         f_x, f_u = system.jacobian("f_x", x_bar, u_lin, p), system.jacobian("f_u", x_bar, u_lin, p)
@@ -218,6 +220,7 @@ def linearise(plant: Plant, system: OdeSystem, report: Report) -> Model:
         m.A, m.F, m.f = zoh(f_x, f_u, c, dt)
         m.C, m.G = system.jacobian("h_x", x_bar, u_lin, p), system.jacobian("h_u", x_bar, u_lin, p)
         m.g = system.output(x_bar, u_lin, p) - m.C @ x_bar - m.G @ u_lin
+        shift_inputs(m, shift)  # the data's input u acts as u + shift in this mode
         settled = None if per_mode else steady_mean(m, u_bar)
         m.x0 = x_bar if settled is None else settled
         modes.append(m)
@@ -243,6 +246,13 @@ def mode_parameters(plant: Plant, system: OdeSystem, report: Report) -> tuple[li
     return params, np.array([[env[n] for n in system.params] for env in params]).reshape(len(params), -1)
 
 
+def mode_input_shifts(plant: Plant, params: list[dict], u_bar: np.ndarray, report: Report) -> np.ndarray:
+    """(K, n_inputs): how far each mode's own input values are from the declared ones; the equations of
+    mode k see the data's input u as u + shifts[k] (a nonlinear simulation must add them too)."""
+    return np.array([input_shifts(plant, mode, env, u_bar, report)
+                     for mode, env in zip(plant.modes, params)]).reshape(len(plant.modes), len(u_bar))
+
+
 def zoh(f_x: np.ndarray, f_u: np.ndarray, c: np.ndarray, dt: float):
     """Zero-order hold of dx/dt = f_x x + f_u u + c over dt: (A, F, f) from one matrix exponential."""
     nx, nu = f_u.shape
@@ -252,9 +262,10 @@ def zoh(f_x: np.ndarray, f_u: np.ndarray, c: np.ndarray, dt: float):
     return E[:nx, :nx], E[:nx, nx:nx + nu], E[:nx, -1]
 
 
-def _operating_points(plant: Plant, system: OdeSystem, pvecs, u_bar, report: Report):
+def _operating_points(plant: Plant, system: OdeSystem, pvecs, u_bar, shifts, report: Report):
     """Where each mode is linearised: (points, input values there, whether each mode has its own
-    steady state), per the `linearize` statement (default: the steady state of each mode)."""
+    steady state), per the `linearize` statement (default: the steady state of each mode). A mode's
+    inputs are the declared values shifted by the mode's own (`shifts`)."""
     spec = plant.spec
     for extra in spec.linearize[1:]:
         report.error(f"'linearize' is given more than once (first at line {spec.linearize[0].pos.line})", extra.pos)
@@ -262,19 +273,20 @@ def _operating_points(plant: Plant, system: OdeSystem, pvecs, u_bar, report: Rep
     K = len(plant.modes)
     if how.kind == "point":
         x, u = _given_point(plant, system, how, u_bar, report)
-        return [x] * K, u, False
+        return [x] * K, [u] * K, False
     guess = _guesses(plant, report)
     report.raise_errors()
+    u_modes = [u_bar + shift for shift in shifts]
     if how.kind == "each":
-        return [steady_state(system, guess, u_bar, p, mode.name, mode.pos, report)
-                for mode, p in zip(plant.modes, pvecs)], u_bar, True
+        return [steady_state(system, guess, u, p, mode.name, mode.pos, report)
+                for mode, p, u in zip(plant.modes, pvecs, u_modes)], u_modes, True
     names = [m.name for m in plant.modes]
     if how.mode.text not in names:
         report.error(f"unknown mode {how.mode.text!r}{suggest(how.mode.text, names)}", how.mode.pos)
-        return [guess] * K, u_bar, False
+        return [guess] * K, [u_bar] * K, False
     k = names.index(how.mode.text)
-    x = steady_state(system, guess, u_bar, pvecs[k], how.mode.text, how.mode.pos, report)
-    return [x] * K, u_bar, False
+    x = steady_state(system, guess, u_modes[k], pvecs[k], how.mode.text, how.mode.pos, report)
+    return [x] * K, [u_modes[k]] * K, False
 
 
 def _guesses(plant: Plant, report: Report) -> np.ndarray:
