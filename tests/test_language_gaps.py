@@ -239,6 +239,15 @@ def test_a_block_operating_point_moves_with_the_mode_input():
     close(m.A[1] @ m.mu0[1] + m.F[1] @ [230] + m.f[1], m.mu0[1])  # at rest under the declared supply
 
 
+def test_a_delayed_block_in_a_mode_with_its_own_input_starts_at_rest_with_shifted_registers():
+    text = DOC_BLOCKS["furnace"].replace("modes cold, hot", 'modes cold, hot, lean "fuel reads 5 % high": fuel = 35') \
+        + "mode lean like cold\n"
+    m = compiled_quietly(text)
+    close(m.mu0[2], [320 + 3.1 * (35 - 40), 35, 35, 35, 35])  # the output by K shift, the registers by the shift
+    close(m.A[2] @ m.mu0[2] + m.F[2] @ [40] + m.f[2], m.mu0[2])  # at rest with the fuel at its declared 40
+    close(m.f[2, 1:], [-5, 0, 0, 0])  # the first register holds the input the mode feels
+
+
 def test_a_mode_input_value_needs_a_declared_value():
     text = SUPPLY.replace("input  supply [V] = 230, load = 1", "input  supply [V], load = 1")
     assert_located(text, "press.jmlg", 10, 27, "mode 'sag' sets input 'supply', which has no declared value to "

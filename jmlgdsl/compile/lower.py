@@ -113,13 +113,14 @@ def _shift_mode_inputs(m: ModeArrays, layout: Layout, shift: np.ndarray):
     """A mode's own input values: its offsets act on the shifted inputs, and its blocks' operating points
     (their states' initial means) move by the steady-state change the shift causes."""
     shift_inputs(m, shift)
-    held = [layout.states.index(s) for names in layout.block_states.values() for s in names]
-    if not held or not shift.any():
+    if not shift.any():
         return
-    try:  # block rows use only block states and inputs, so their steady change is solved on its own
-        m.x0[held] += steady_state(m.A[np.ix_(held, held)], m.F[held], np.zeros(len(held)), shift)
-    except np.linalg.LinAlgError:
-        pass  # a block with no single steady state keeps its operating point
+    for names in layout.block_states.values():  # block rows use only their own states and the inputs
+        held = [layout.states.index(s) for s in names]
+        try:
+            m.x0[held] += steady_state(m.A[np.ix_(held, held)], m.F[held], np.zeros(len(held)), shift)
+        except np.linalg.LinAlgError:
+            pass  # a block with no single steady state (an integrator) keeps its operating point
 
 
 def _fill_initial_mean(m: ModeArrays, declared: np.ndarray, u_default: np.ndarray):
