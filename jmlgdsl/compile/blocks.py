@@ -322,27 +322,23 @@ class Lowering:
         """A block's keywords: with several inputs, the operating point is `u_ss [...], y_ss VALUE`."""
         return keys + OPERATING_KEYS if len(d.positional) > 1 else keys
 
-    def input_problem(self, d: Dist):
-        """What is wrong with the inputs a block names first, as (message, position); None if nothing."""
+    def _block_inputs(self, d: Dist) -> list[int] | None:
+        """Indices of the inputs a block names first, fopdt(u1, u2, ...); None, reported, if one is wrong."""
         if not d.positional or any(e.op != "var" for e in d.positional):
-            return f"{d.name.text} starts with the name of its input, e.g. {d.name.text}(u, ...)", d.name.pos
-        seen = set()
+            self.report.error(f"{d.name.text} starts with the name of its input, e.g. {d.name.text}(u, ...)",
+                              d.name.pos)
+            return None
+        ks = []
         for e in d.positional:
             name = e.args[0]
             if name not in self.layout.inputs:
-                return f"unknown input {name!r}{suggest(name, self.layout.inputs)}", e.pos
-            if name in seen:
-                return f"input {name!r} is named twice in the {d.name.text} block", e.pos
-            seen.add(name)
-        return None
-
-    def _block_inputs(self, d: Dist) -> list[int] | None:
-        """Indices of the inputs a block names first, fopdt(u1, u2, ...); None, reported, if one is wrong."""
-        problem = self.input_problem(d)
-        if problem is not None:
-            self.report.error(*problem)
-            return None
-        return [self.layout.inputs.index(e.args[0]) for e in d.positional]
+                self.report.error(f"unknown input {name!r}{suggest(name, self.layout.inputs)}", e.pos)
+                return None
+            if self.layout.inputs.index(name) in ks:
+                self.report.error(f"input {name!r} is named twice in the {d.name.text} block", e.pos)
+                return None
+            ks.append(self.layout.inputs.index(name))
+        return ks
 
     def _vector(self, expr: Expr, n: int, key: str, what: str) -> np.ndarray:
         """A keyword's value for each of a block's n inputs: one number for all of them, or one per input
@@ -534,12 +530,10 @@ class Lowering:
         """The internal states of a fopdt or arx block on output `out`, with their roles; None when the
         block is not well formed (reported here or by its lowering) or its dead time is beyond the limit."""
         kw = {k.text: (v, u) for k, v, u in d.keywords}
-        problem = self.input_problem(d)
-        if problem is not None:
-            self.report.error(*problem)
+        ks = self._block_inputs(d)
+        if ks is None:
             return None
-        inputs = [e.args[0] for e in d.positional]
-        n = len(inputs)
+        inputs, n = [self.layout.inputs[k] for k in ks], len(ks)
         if d.name.text == "fopdt" and "tau" in kw:
             tau, delay = self.fopdt_times(kw, n)
             if np.isnan(delay).any():
