@@ -9,7 +9,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .compile.ode import OdeSystem, check_ode_file, flow, linearise, mode_parameters, ode_system
+from .compile.ode import (OdeSystem, check_ode_file, flow, linearise, mode_input_shifts, mode_parameters,
+                          ode_system)
 from .errors import DataError
 from .model import Model
 from .simulate import Simulation, simulate
@@ -17,15 +18,19 @@ from .simulate import Simulation, simulate
 
 @dataclass(frozen=True)
 class NonlinearPlant:
-    """An ODE plant: its equations, the compiled mode bank, and each mode's parameter vector (K, np)."""
+    """An ODE plant: its equations, the compiled mode bank, each mode's parameter vector (K, np) and
+    the shift of each mode's own input values from the declared ones (K, nu)."""
 
     system: OdeSystem
     model: Model
     params: np.ndarray
+    shifts: np.ndarray
 
     def step(self, x: np.ndarray, u: np.ndarray, k: int) -> np.ndarray:
-        """The noise-free state one sample after x, with the input u held and mode k's parameters."""
-        end, why = flow(self.system, x, u, self.params[k], self.model.dt / self.system.seconds_per_unit)
+        """The noise-free state one sample after x, with the input u (shifted as mode k says) held and
+        mode k's parameters."""
+        end, why = flow(self.system, x, u + self.shifts[k], self.params[k],
+                        self.model.dt / self.system.seconds_per_unit)
         if end is None:
             raise DataError(f"the ODE integration failed in mode {self.model.modes[k]!r} from state "
                             f"{np.array2string(x, precision=6)}: {why}")
@@ -38,7 +43,8 @@ def load_nonlinear(path) -> NonlinearPlant:
     system = ode_system(plant, report)
     model = linearise(plant, system, report)
     report.finish()
-    return NonlinearPlant(system, model, mode_parameters(plant, system, report)[1])
+    params, vectors = mode_parameters(plant, system, report)
+    return NonlinearPlant(system, model, vectors, mode_input_shifts(plant, params, model.input_defaults, report))
 
 
 def simulate_nonlinear(plant, T: int | None = None, seed=None, modes=None, u=None) -> Simulation:

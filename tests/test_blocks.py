@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from jmlgdsl.compile.lower import compile_text
+from jmlgdsl.errors import SpecWarning
 
 
 def free_response(m, k, u, x0=None):
@@ -136,7 +137,8 @@ def test_matrices_with_eye_and_scalar_products():
 
 
 def test_declared_values_use_the_nominal_parameters_even_when_the_first_mode_overrides_them():
-    m = compile_text("""
+    with pytest.warns(SpecWarning, match="mode 'plain' compiles to exactly the same model as mode 'raised'"):
+        m = compile_text("""
 plant nominal
 sample 1 s
 param m0 = 1

@@ -9,6 +9,7 @@ import pytest
 from scipy.linalg import expm
 
 from jmlgdsl.compile.lower import compile_text
+from test_language_gaps import DOC_CHECKS
 
 DOC = pathlib.Path(__file__).resolve().parents[1] / "docs" / "language.md"
 BLOCKS = {re.search(r"plant (\w+)", b).group(1): b
@@ -174,6 +175,7 @@ def check_catch_all(m):
 
 
 CHECKS = {name[len("check_"):]: fn for name, fn in globals().items() if name.startswith("check_")}
+CHECKS.update(DOC_CHECKS)  # the examples of multi-input blocks, input values per mode and output sd
 
 
 def test_every_documented_spec_has_its_expected_matrices():
