@@ -214,12 +214,16 @@ def test_the_fitted_spec_keeps_the_text_and_compiles_to_the_fitted_model(fitted)
         np.testing.assert_allclose(getattr(model, name), getattr(fitted.model, name), rtol=1e-9)
 
 
-def test_unknowns_the_data_cannot_tell_apart_are_named():
+def test_unknowns_the_data_cannot_tell_apart_or_do_not_inform_are_named():
     text = DRYER.replace("param g ~ LogNormal(log(2), 0.3)", "let gh = g * h\n"
                                                              "param h ~ LogNormal(0, 1), g ~ LogNormal(log(2), 0.3)") \
-        .replace("gain g, tau tau s, at current 15 -> 50", "gain gh, tau tau s, at current 15 -> 50")
+        .replace("gain g, tau tau s, at current 15 -> 50", "gain gh, tau tau s, at current 15 -> 50") \
+        + "param spare ~ Normal(3, 1)   # nothing uses it\n"
     result = fit(parse_text(text), simulated(300))
     assert [note for note in result.notes if note.startswith("h and g are strongly correlated (-0.9")] != []
+    assert "the data say little about spare: its estimate and standard error are mostly its prior's" in result.notes
+    i = result.names.index("spare")
+    assert result.estimate[i] == pytest.approx(3, abs=1e-3) and result.se[i] == pytest.approx(1, rel=1e-3)
 
 
 def test_a_spec_without_unknowns_cannot_be_fitted():

@@ -29,6 +29,7 @@ HESSIAN_STEP = 0.3  # central-difference step for the curvature, in posterior st
 FIRST_STEP = 1e-3  # the step in z of the first, diagonal pass that finds those standard deviations
 CORRELATED = 0.95  # |correlation| beyond which two unknowns are reported as hard to tell apart
 AT_EDGE = 8.0  # |z| beyond which an unknown sits at an edge of its prior's support (Uniform, or 0)
+PRIOR_SHARE = 1.25  # posterior curvature below this multiple of the prior's: the data added little
 
 
 @dataclass
@@ -149,7 +150,7 @@ def fit(family: Family, datasets, algorithm: str = "imm", samples: int = 0, seed
     se = np.sqrt(np.where(np.diag(cov) >= 0, np.diag(cov), np.nan))
     with np.errstate(invalid="ignore", divide="ignore"):
         corr = cov_z / np.sqrt(np.outer(np.diag(cov_z), np.diag(cov_z)))
-    notes += _correlated(corr, family.names) + [
+    notes += _correlated(corr, family.names) + _uninformed(H, z, family) + [
         f"{n} sits at an edge of its prior ({p}): its standard error is not meaningful"
         for n, p, v in zip(family.names, family.priors, z) if abs(v) > AT_EDGE and p.family != "Normal"]
     if not result.success and "precision" not in result.message:
@@ -201,6 +202,18 @@ def _covariance(H: np.ndarray, names: list[str]) -> tuple[np.ndarray, list[str]]
         for i in idx:
             cov[i, :] = cov[:, i] = np.nan
     return cov, notes
+
+
+def _uninformed(H: np.ndarray, z: np.ndarray, family: Family) -> list[str]:
+    """Notes on unknowns whose curvature is mostly their prior's: the data hardly speak of them (a mode
+    that never occurs in the data, say), so their estimate and standard error are the prior's."""
+    notes = []
+    for name, prior, v, h in zip(family.names, family.priors, z, np.diag(H)):
+        own = _diagonal(lambda x: -prior.logpdf(prior.from_z(x[0])), np.array([v]), -prior.logpdf(prior.from_z(v)),
+                        np.array([FIRST_STEP]))[0]
+        if own > 0 and h < PRIOR_SHARE * own:
+            notes.append(f"the data say little about {name}: its estimate and standard error are mostly its prior's")
+    return notes
 
 
 def _correlated(corr: np.ndarray, names: list[str]) -> list[str]:
