@@ -192,10 +192,12 @@ def _check_mode_statements(plant: Plant, report: Report):
 
 # ------------------------------------------------------------------ per-mode linearisation
 
-def linearise(plant: Plant, system: OdeSystem, report: Report) -> Model:
-    """Linearise every mode of the plant at its operating point and discretise with a zero-order hold."""
+def linearise(plant: Plant, system: OdeSystem, report: Report, locate_divisors: bool = True) -> Model:
+    """Linearise every mode of the plant at its operating point and discretise with a zero-order hold.
+    A fit, which re-linearises a checked plant many times, skips locating zero divisors
+    (`locate_divisors=False`): the numbers they make are still refused as not finite."""
     params, pvecs = mode_parameters(plant, system, report)
-    for mode, env in zip(plant.modes, params):
+    for mode, env in zip(plant.modes, params) if locate_divisors else ():
         _check_divisors(plant, mode.name, env, report)
     u_bar = declared_values(plant, plant.inputs, report)
     for d, value in zip(plant.inputs, u_bar):

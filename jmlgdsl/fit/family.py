@@ -36,7 +36,8 @@ class Family:
         a mode without a steady state, a negative noise level)."""
         plant, report = check(self.spec, dict(zip(self.names, map(float, theta))))
         report.raise_errors()
-        return linearise(plant, self._system, report) if self._system else lower_linear(plant, report)
+        return linearise(plant, self._system, report, locate_divisors=False) if self._system \
+            else lower_linear(plant, report)
 
     def medians(self) -> np.ndarray:
         """Each unknown's prior median: what the spec runs with unfitted, and where a fit starts."""
