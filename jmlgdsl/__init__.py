@@ -18,6 +18,7 @@ _LAZY = {
     "Filter": "jmlgdsl.infer",
     "Result": "jmlgdsl.infer",
     "simulate_nonlinear": "jmlgdsl.nonlinear",
+    "fit": "jmlgdsl.fitting",
 }
 
 

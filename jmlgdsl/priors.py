@@ -2,7 +2,7 @@
 coordinate a fit moves in (identity on the real line, log on (0, inf), logit on an interval).
 
 A prior is small and numeric on purpose: the language evaluates its arguments (jmlgdsl.lang.unknowns)
-and the fit (jmlgdsl.fit) only needs log p(theta), the map theta <-> z and its derivative.
+and the fit (jmlgdsl.fitting) only needs log p(theta), the map theta <-> z and its derivative.
 """
 
 from __future__ import annotations

@@ -17,7 +17,7 @@ LAYERS = [
     {"lang"},
     {"compile"},
     {"infer", "simulate", "nonlinear"},
-    {"bench", "learn", "fit", "plots"},
+    {"bench", "learn", "fitting", "plots"},
     {"commands", "cli", "__main__", "jmlgdsl"},
 ]
 RANK = {name: rank for rank, names in enumerate(LAYERS) for name in names}

@@ -18,6 +18,10 @@ Cases:
 
 from __future__ import annotations
 
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # small matrices: threads only fight over the cores (BENCHMARKS.md)
+
 import argparse
 import json
 import time
@@ -30,7 +34,7 @@ import numpy as np
 
 import jmlgdsl
 from jmlgdsl.data import Data
-from jmlgdsl.fit import fit
+from jmlgdsl import fit
 
 ROOT = Path(__file__).resolve().parents[2]
 CSTR_TRUTH = {"k0": 1.43, "U": 1.2, "f1": 0.95, "f2": 0.90, "f3": 0.85}
@@ -123,8 +127,11 @@ def main():
     out.mkdir(parents=True, exist_ok=True)
     for case in args.case or list(CASES):
         start = time.perf_counter()
+        runs = []
         with ProcessPoolExecutor(args.jobs) as pool:
-            runs = list(pool.map(one, [case] * args.runs, range(1, args.runs + 1)))
+            for run in pool.map(one, [case] * args.runs, range(1, args.runs + 1)):
+                runs.append(run)
+                print(f"{case} {len(runs)}/{args.runs}: {run['seconds']:.1f} s", flush=True)
         summary = summarise(case, runs)
         (out / f"{case}.json").write_text(json.dumps({"summary": summary, "runs": runs}, indent=1))
         (out / f"{case}.md").write_text(table(summary) + "\n")

@@ -36,7 +36,7 @@ def register(subparsers):
 
 def main(args) -> int:
     from ..errors import JmlgError
-    from ..fit import fit
+    from ..fitting import fit
 
     if args.samples < 0:
         raise JmlgError(f"--samples must be 0 or more, got {args.samples}")
