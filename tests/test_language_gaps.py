@@ -396,13 +396,3 @@ def check_heater_sag(m):
 
 
 DOC_CHECKS = {name[len("check_"):]: fn for name, fn in globals().items() if name.startswith("check_")}
-
-
-@pytest.mark.parametrize("name", sorted(DOC_CHECKS))
-def test_documented_example_compiles_to_the_hand_computed_matrices(name):
-    DOC_CHECKS[name](compiled_quietly(DOC_BLOCKS[name], str(DOC)))
-
-
-@pytest.mark.parametrize("name", sorted(DOC_BLOCKS))
-def test_no_documented_example_warns(name):
-    compiled_quietly(DOC_BLOCKS[name], str(DOC))
