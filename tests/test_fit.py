@@ -14,7 +14,7 @@ from jmlgdsl.compile import compile_text
 from jmlgdsl.data import Data
 from jmlgdsl.errors import SpecError, SpecWarning
 from jmlgdsl.fitting import Family, FitError, fit
-from jmlgdsl.fitting.estimate import hessian
+from jmlgdsl.fitting.estimate import _covariance, hessian
 from jmlgdsl.fitting.likelihood import labelled_loglik
 from jmlgdsl.infer import filter as run_filter
 from jmlgdsl.lang.check import check
@@ -183,6 +183,18 @@ def test_the_curvature_of_a_quadratic_is_found_exactly():
         return 0.5 * d @ H_true @ d
 
     np.testing.assert_allclose(hessian(f, centre, f(centre)), H_true, rtol=1e-7, atol=1e-9)
+
+
+def test_a_flat_or_failed_curvature_leaves_those_unknowns_without_a_standard_error():
+    flat = np.array([[1.0, 1.0, 0.0], [1.0, 1.0, 0.0], [0.0, 0.0, 4.0]])  # only a + b is determined
+    cov, notes = _covariance(flat, ["a", "b", "c"])
+    assert notes == ["the data do not determine a and b: the posterior is flat along a combination of them "
+                     "(fix one, or give it a narrower prior)"]
+    assert np.isnan(cov[:2]).all() and cov[2, 2] == pytest.approx(0.25)
+    failed = np.array([[4.0, np.nan], [np.nan, 1.0]])
+    cov, notes = _covariance(failed, ["a", "b"])
+    assert notes == ["no standard error for a, b: the model cannot be built just beside the estimate"]
+    assert np.isnan(cov).all()
 
 
 @pytest.fixture(scope="module")

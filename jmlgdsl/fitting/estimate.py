@@ -9,6 +9,7 @@ d theta / d z alone (the delta method) and correlations are the same in both coo
 
 from __future__ import annotations
 
+import itertools
 import math
 import time
 from dataclasses import dataclass, field
@@ -132,11 +133,10 @@ def fit(family: Family, datasets, algorithm: str = "imm", samples: int = 0, seed
             cache[key] = post(z)
         return cache[key]
 
-    iteration = [0]
+    iterations = itertools.count(1)
 
     def report_iteration(z):
-        iteration[0] += 1
-        say(f"iteration {iteration[0]}: log posterior {-objective(z):.8g}")
+        say(f"iteration {next(iterations)}: log posterior {-objective(z):.8g}")
 
     result = minimize(objective, z0, jac=lambda z: post.gradient(z, objective(z)), method="BFGS",
                       callback=report_iteration, options={"gtol": GTOL, "maxiter": 200})
@@ -158,7 +158,8 @@ def fit(family: Family, datasets, algorithm: str = "imm", samples: int = 0, seed
     draws, acceptance = (None, math.nan)
     if samples:
         draws, acceptance = metropolis(post, z, cov_z, samples, generator(seed), say)
-    return Fit(list(family.names), list(family.priors), theta, se, corr, loglik_start, post.loglik(theta),
+    loglik = -objective(z) - sum(p.logpdf(t) for p, t in zip(family.priors, theta))
+    return Fit(list(family.names), list(family.priors), theta, se, corr, loglik_start, loglik,
                family.model(theta), notes, post.evaluations, time.perf_counter() - start, draws, acceptance)
 
 
@@ -187,7 +188,16 @@ def _diagonal(f, z: np.ndarray, f0: float, step: np.ndarray) -> np.ndarray:
 
 def _covariance(H: np.ndarray, names: list[str]) -> tuple[np.ndarray, list[str]]:
     """The inverse curvature, or, where the posterior is flat or bent the wrong way in some direction,
-    the pseudo-inverse of its positive part, with a note naming the unknowns that direction moves."""
+    the pseudo-inverse of its positive part, with a note naming the unknowns that direction moves.
+    Unknowns whose curvature could not be computed (the model fails next to the estimate) get NaN."""
+    bad = ~np.isfinite(H).all(axis=1)
+    if bad.any():
+        cov = np.full(H.shape, np.nan)
+        good = np.flatnonzero(~bad)
+        inner, notes = _covariance(H[np.ix_(good, good)], [names[i] for i in good])
+        cov[np.ix_(good, good)] = inner
+        missing = ", ".join(names[i] for i in np.flatnonzero(bad))
+        return cov, notes + [f"no standard error for {missing}: the model cannot be built just beside the estimate"]
     vals, vecs = np.linalg.eigh(0.5 * (H + H.T))
     flat = vals <= 1e-9 * max(vals.max(initial=0.0), 1e-300)
     notes = []
