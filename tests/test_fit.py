@@ -238,6 +238,34 @@ def test_unknowns_the_data_cannot_tell_apart_or_do_not_inform_are_named():
     assert result.estimate[i] == pytest.approx(3, abs=1e-3) and result.se[i] == pytest.approx(1, rel=1e-3)
 
 
+TANK = """plant tank
+sample 1 s
+input  q [l/s] = 2
+output h
+state  h = 10
+param  k = 0.5, area = 2
+ode
+  der(h) = (q - k * sqrt(h)) / area
+noise process 0.02, measurement 0.05
+modes normal, sag "the pump sags": q = 1.5
+transitions stay 0.99, otherwise uniform
+"""
+
+
+def test_an_ode_plant_is_re_linearised_at_each_try_and_its_parameter_recovered(tmp_path):
+    """Data from the integrated equations (k = 0.5); the spec with k unknown is fitted through its
+    bank, re-linearised at each mode's steady state for every value tried."""
+    truth = tmp_path / "tank.jmlg"
+    truth.write_text(TANK)
+    sim = quiet(jmlgdsl.simulate_nonlinear, str(truth), modes="1-300:normal,301-600:sag,601-900:normal", seed=2)
+    data = Data(time=None, y=sim.y, u=sim.u, modes=sim.modes, source="tank.csv")
+    result = fit(parse_text(TANK.replace("param  k = 0.5", "param  k ~ LogNormal(log(0.4), 0.3)")), data)
+    (k,), (se,) = result.estimate, result.se
+    assert abs(k - 0.5) < 3 * se and se < 0.01
+    steady = (1.5 / k) ** 2  # the sag mode's level, where its bank was linearised: sqrt(h) = q / k
+    assert result.model.mu0[1, 0] == pytest.approx(steady, rel=1e-9)
+
+
 def test_a_spec_without_unknowns_cannot_be_fitted():
     with pytest.raises(FitError, match="the spec has no unknowns to fit; give a parameter or a noise level a prior"):
         jmlgdsl.fit("specs/dryer.jmlg", "examples/dryer_seq1.csv")  # the package's own name for fitting.fit
