@@ -17,6 +17,7 @@ from jmlgdsl.fitting import Family, FitError, fit
 from jmlgdsl.fitting.estimate import _covariance, hessian
 from jmlgdsl.fitting.likelihood import labelled_loglik
 from jmlgdsl.infer import filter as run_filter
+from jmlgdsl.infer.engine import FilterError
 from jmlgdsl.lang.check import check
 from jmlgdsl.lang.parse import parse_text
 
@@ -266,9 +267,11 @@ def test_an_ode_plant_is_re_linearised_at_each_try_and_its_parameter_recovered(t
     assert result.model.mu0[1, 0] == pytest.approx(steady, rel=1e-9)
 
 
-def test_a_spec_without_unknowns_cannot_be_fitted():
+def test_a_spec_without_unknowns_or_an_unknown_filter_cannot_be_fitted():
     with pytest.raises(FitError, match="the spec has no unknowns to fit; give a parameter or a noise level a prior"):
         jmlgdsl.fit("specs/dryer.jmlg", "examples/dryer_seq1.csv")  # the package's own name for fitting.fit
+    with pytest.raises(FilterError, match="unknown filter 'kalman'; choose from pf, rbpf"):
+        jmlgdsl.fit("examples/fit/dryer_physical.jmlg", "examples/dryer_seq1.csv", algorithm="kalman")
 
 
 def test_posterior_draws_stay_in_the_support_and_repeat_with_the_seed():

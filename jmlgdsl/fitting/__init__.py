@@ -7,6 +7,8 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..data import Data, read_csv
+from ..infer.algorithms import ALGORITHMS
+from ..infer.engine import FilterError
 from ..lang.parse import parse_file
 from ..lang.syntax import Spec
 from .estimate import Fit
@@ -25,6 +27,8 @@ def fit(spec, data, *, algorithm: str = "imm", samples: int = 0, seed=None, prog
     likelihood; other recordings use the filter's (`algorithm`, IMM by default). `samples` > 0 adds
     posterior draws by random-walk Metropolis (seeded by `seed`). The returned Fit has the estimates,
     standard errors, the fitted Model, and `text`, the spec rewritten with the fitted values."""
+    if algorithm not in ALGORITHMS:
+        raise FilterError(f"unknown filter {algorithm!r}; choose from {', '.join(ALGORITHMS)}")
     spec = spec if isinstance(spec, Spec) else parse_file(spec)
     family = Family(spec)
     columns = family.model(family.medians())
