@@ -18,13 +18,14 @@ LOG_2PI = np.log(2.0 * np.pi)
 MAX_QUAD = 1e300
 
 
-def _t(M):
+def transpose(M):
+    """Transpose over the last two axes (a stack of matrices, matrix by matrix)."""
     return np.swapaxes(M, -1, -2)
 
 
 def predict_cov(Sig, A, Q):
     """Covariance time update A Sig A' + Q (it never depends on the data)."""
-    return symmetrize(A @ Sig @ _t(A) + Q)
+    return symmetrize(A @ Sig @ transpose(A) + Q)
 
 
 def predict(mu, Sig, A, b, Q):
@@ -36,7 +37,7 @@ def predict(mu, Sig, A, b, Q):
 def innovation_cov(Sig_p, C, R):
     """Innovation covariance S = C Sig_p C' + R and C Sig_p (for the gain)."""
     CS = C @ Sig_p
-    return symmetrize(CS @ _t(C) + R), CS
+    return symmetrize(CS @ transpose(C) + R), CS
 
 
 def innovation(mu_p, Sig_p, C, c, R):
@@ -112,7 +113,7 @@ def update(mu_p, Sig_p, y_pred, S, CS, y, mask):
     z = np.einsum("...ij,...j->...i", Linv, y - y_pred)  # whitened innovation
     W = Linv @ CS  # whitened C Sig_p: the gain is W' Linv, and C' S^-1 C = W' W
     mu = mu_p + np.einsum("...ji,...j->...i", W, z)
-    Sig = symmetrize(Sig_p - _t(W) @ W)
+    Sig = symmetrize(Sig_p - transpose(W) @ W)
     quad = quad_form(z)
     return mu, Sig, log_density(quad, logdet, y.shape[-1]), quad
 

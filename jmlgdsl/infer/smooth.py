@@ -28,6 +28,7 @@ import numpy as np
 from ..errors import JmlgError
 from ..gaussian import symmetrize
 from . import kalman
+from .kalman import transpose
 
 # Exact smoothing keeps every history's Kalman statistics at every step: up to twice this many
 # Gaussians in memory, and as many small Rauch-Tung-Striebel steps per smoothed row.
@@ -49,11 +50,6 @@ class Smoothed:
 
 
 # ----------------------------------------------------------------------------- shared pieces
-def _t(M):
-    """Transpose over the last two axes."""
-    return M.swapaxes(-1, -2)
-
-
 def _check(model, y, u, lag):
     """y and u as float arrays of the model's sizes, and the lag (None or a whole number >= 0)."""
     y = np.asarray(y, dtype=float)
@@ -88,7 +84,7 @@ def _mixture(w, means, covs):
 
 def _rts_gain(Sig_f, A, Sig_p):
     """Smoother gain Sig_f A' Sig_p^+ (pseudo-inverse: a noiseless direction makes Sig_p singular)."""
-    return Sig_f @ _t(A) @ np.linalg.pinv(Sig_p, hermitian=True)
+    return Sig_f @ transpose(A) @ np.linalg.pinv(Sig_p, hermitian=True)
 
 
 # ----------------------------------------------------------------------------- exact
@@ -163,7 +159,7 @@ def _exact_backward(K, levels, s, first):
             level, parent = levels[t], levels[t - 1]
             J = level.gain[ancestor]
             mean = parent.mean[ancestor // K] + (J @ (mean - level.pred_mean[ancestor])[..., None])[..., 0]
-            cov = symmetrize(parent.cov[ancestor // K] + J @ (cov - level.pred_cov[ancestor]) @ _t(J))
+            cov = symmetrize(parent.cov[ancestor // K] + J @ (cov - level.pred_cov[ancestor]) @ transpose(J))
 
 
 # ----------------------------------------------------------------------------- imm
@@ -271,11 +267,11 @@ def _update(mean_p, cov_p, C, R, target):
     """Measurement update of each mode's prediction and log p(y | mode, past), through the inverse
     Cholesky factor of the innovation covariance; `target` is y minus the output offset."""
     CS = C @ cov_p
-    Linv = np.linalg.inv(np.linalg.cholesky(CS @ _t(C) + R))
+    Linv = np.linalg.inv(np.linalg.cholesky(CS @ transpose(C) + R))
     z = (Linv @ (target - (C @ mean_p[..., None])[..., 0])[..., None])[..., 0]
-    Wt = _t(Linv @ CS)  # the gain is Wt Linv
+    Wt = transpose(Linv @ CS)  # the gain is Wt Linv
     ll = kalman.whitened_log_normal(z, -2.0 * np.log(np.diagonal(Linv, axis1=-2, axis2=-1)).sum(-1))
-    return mean_p + (Wt @ z[..., None])[..., 0], symmetrize(cov_p - Wt @ _t(Wt)), ll
+    return mean_p + (Wt @ z[..., None])[..., 0], symmetrize(cov_p - Wt @ transpose(Wt)), ll
 
 
 def _kim_pairs(model, fwd: _ModeGaussians, b) -> _Pairs:
@@ -284,7 +280,7 @@ def _kim_pairs(model, fwd: _ModeGaussians, b) -> _Pairs:
     mu, Sig = fwd.mean[:-1, :, None], fwd.cov[:-1, :, None]
     pred_mean, pred_cov = kalman.predict(mu, Sig, model.A, b[1:, None], model.Q)
     gain = _rts_gain(Sig, model.A, pred_cov)
-    rest = symmetrize(Sig - gain @ pred_cov @ _t(gain))
+    rest = symmetrize(Sig - gain @ pred_cov @ transpose(gain))
     log_pred = np.logaddexp.reduce(fwd.log_w[:-1, :, None] + model.logP, axis=1)
     return _Pairs(log_pred, pred_mean, gain, rest)
 
@@ -308,7 +304,7 @@ def _kim_step(logP, filt: _ModeGaussians, pairs: _Pairs, nxt: _ModeGaussians) ->
     log_w, cond = _kim_modes(logP, filt.log_w, pairs.log_pred, nxt.log_w)
     dx = nxt.mean[..., None, :, :] - pairs.pred_mean
     means = filt.mean[..., :, None, :] + (pairs.gain @ dx[..., None])[..., 0]
-    covs = pairs.rest + pairs.gain @ nxt.cov[..., None, :, :, :] @ _t(pairs.gain)
+    covs = pairs.rest + pairs.gain @ nxt.cov[..., None, :, :, :] @ transpose(pairs.gain)
     mean, cov = _mixture(cond, means, covs)
     return _ModeGaussians(log_w, mean, cov)
 
