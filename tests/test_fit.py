@@ -14,7 +14,7 @@ from jmlgdsl.compile import compile_text
 from jmlgdsl.data import Data
 from jmlgdsl.errors import SpecError, SpecWarning
 from jmlgdsl.fitting import Family, FitError, fit
-from jmlgdsl.fitting.estimate import _covariance, hessian
+from jmlgdsl.fitting.estimate import _covariance, _look_alike, hessian
 from jmlgdsl.fitting.likelihood import labelled_loglik
 from jmlgdsl.infer import filter as run_filter
 from jmlgdsl.infer.engine import FilterError
@@ -184,6 +184,17 @@ def test_the_curvature_of_a_quadratic_is_found_exactly():
         return 0.5 * d @ H_true @ d
 
     np.testing.assert_allclose(hessian(f, centre, f(centre)), H_true, rtol=1e-7, atol=1e-9)
+
+
+def test_modes_alike_where_the_fit_starts_are_named_for_unlabelled_data():
+    text = DRYER.replace("fan: g ~ Normal(1.5, 0.3)", "fan: g ~ LogNormal(log(2), 0.3)") \
+        .replace("at current 15 -> 44", "at current 15 -> 50")
+    family = Family(parse_text(text))
+    assert _look_alike(family.model(family.medians())) == [
+        "at the priors' medians modes 'normal' and 'fan' are the same model: data without a mode column cannot say "
+        "which is which, and the fit may swap or merge them; give their unknowns priors with different medians, "
+        "or label some of the data"]
+    assert _look_alike(Family(parse_text(DRYER)).model(Family(parse_text(DRYER)).medians())) == []
 
 
 def test_a_flat_or_failed_curvature_leaves_those_unknowns_without_a_standard_error():

@@ -177,12 +177,21 @@ def initial_sd(plant: Plant, layout: Layout, report: Report) -> np.ndarray:
 def _warn_identical(plant: Plant, arrays: list[list[np.ndarray]], report: Report):
     """Warn about a mode whose matrices and initial mean are exactly those of an earlier mode: what it
     changes reaches no matrix (a parameter or input that nothing uses), so no data can tell them apart."""
-    first: dict[bytes, str] = {}
-    for mode, mats in zip(plant.modes, arrays):
-        digest = hashlib.sha256(b"".join((np.asarray(M, float) + 0.0).tobytes() for M in mats)).digest()  # -0.0 is 0.0
+    for later, earlier in twins(arrays):
+        report.warn(f"mode {plant.modes[later].name!r} compiles to exactly the same model as mode "
+                    f"{plant.modes[earlier].name!r} (the same matrices and initial mean): what it changes reaches "
+                    "no matrix, so the data cannot tell the two apart", plant.modes[later].pos)
+
+
+def twins(arrays: list[list[np.ndarray]]) -> list[tuple[int, int]]:
+    """(later, earlier) pairs of modes whose arrays (one list per mode) are exactly equal, each later
+    mode paired with the first one it equals; -0.0 counts as 0.0."""
+    first: dict[bytes, int] = {}
+    pairs = []
+    for k, mats in enumerate(arrays):
+        digest = hashlib.sha256(b"".join((np.asarray(M, float) + 0.0).tobytes() for M in mats)).digest()
         if digest in first:
-            report.warn(f"mode {mode.name!r} compiles to exactly the same model as mode {first[digest]!r} (the same "
-                        "matrices and initial mean): what it changes reaches no matrix, so the data cannot tell "
-                        "the two apart", mode.pos)
+            pairs.append((k, first[digest]))
         else:
-            first[digest] = mode.name
+            first[digest] = k
+    return pairs

@@ -18,11 +18,12 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import minimize
 
+from ..compile.assemble import twins
 from ..errors import JmlgError
 from ..model import Model
 from ..random import generator
 from .family import Family, FitError
-from .likelihood import loglik
+from .likelihood import labelled, loglik
 
 GRADIENT_STEP = 1e-6  # forward-difference step in z (relative change of a positive unknown)
 GTOL = 1e-3  # BFGS stops when no z-gradient entry exceeds this (far below one posterior sd's worth)
@@ -125,6 +126,9 @@ def fit(family: Family, datasets, algorithm: str = "imm", samples: int = 0, seed
     if not math.isfinite(loglik_start):
         raise FitError("the spec makes no model at the priors' medians, or the data have no likelihood under it")
     say = progress or (lambda text: None)
+    alike = _look_alike(family.model(post.theta(z0))) if not all(map(labelled, datasets)) else []
+    for note in alike:
+        say(f"note: {note}")
     cache = {}
 
     def objective(z):
@@ -150,7 +154,7 @@ def fit(family: Family, datasets, algorithm: str = "imm", samples: int = 0, seed
     se = np.sqrt(np.where(np.diag(cov) >= 0, np.diag(cov), np.nan))
     with np.errstate(invalid="ignore", divide="ignore"):
         corr = cov_z / np.sqrt(np.outer(np.diag(cov_z), np.diag(cov_z)))
-    notes += _correlated(corr, family.names) + _uninformed(H, z, family) + [
+    notes = alike + notes + _correlated(corr, family.names) + _uninformed(H, z, family) + [
         f"{n} sits at an edge of its prior ({p}): its standard error is not meaningful"
         for n, p, v in zip(family.names, family.priors, z) if abs(v) > AT_EDGE and p.family != "Normal"]
     if not result.success and "precision" not in result.message:
@@ -212,6 +216,16 @@ def _covariance(H: np.ndarray, names: list[str]) -> tuple[np.ndarray, list[str]]
         for i in idx:
             cov[i, :] = cov[:, i] = np.nan
     return cov, notes
+
+
+def _look_alike(model: Model) -> list[str]:
+    """Notes on modes that are the same model where the fit starts: unlabelled data cannot say which is
+    which, so the fit may swap or merge them (the label switching of every mixture)."""
+    arrays = [[getattr(model, name)[k] for name in ("A", "B", "C", "D", "F", "G", "f", "g", "mu0")]
+              for k in range(model.K)]
+    return [f"at the priors' medians modes {model.modes[b]!r} and {model.modes[a]!r} are the same model: data "
+            "without a mode column cannot say which is which, and the fit may swap or merge them; give their "
+            "unknowns priors with different medians, or label some of the data" for a, b in twins(arrays)]
 
 
 def _uninformed(H: np.ndarray, z: np.ndarray, family: Family) -> list[str]:
