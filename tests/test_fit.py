@@ -99,6 +99,14 @@ def test_a_prior_that_makes_no_distribution_is_located(written, message, column)
     assert (d.line, d.column) == (5, column) and d.message.startswith(message)
 
 
+def test_an_unknown_given_two_priors_is_an_error():
+    text = DRYER + "mode fan { g ~ Normal(1.5, 0.3) }\n"
+    with pytest.raises(SpecError) as info:
+        quiet(compile_text, text.replace("mode fan:    temp ~ fopdt(current, gain g, tau tau s, at current 15 -> 44)\n",
+                                         ""), "dryer.jmlg")
+    assert "fan.g already has a prior at line 6" in [d.message for d in info.value.diagnostics]
+
+
 def test_a_mode_block_may_give_an_override_a_prior_and_a_like_mode_shares_it():
     text = """plant p
 sample 1 s

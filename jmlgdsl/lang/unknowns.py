@@ -58,6 +58,11 @@ def resolve(spec: S.Spec, values: dict | None, report: Report) -> tuple[S.Spec, 
         return spec, []
     resolver = _Resolver(spec, values, report)
     spec = resolver.run()
+    seen: dict[str, Unknown] = {}
+    for u in resolver.unknowns:
+        if u.name in seen:
+            report.error(f"{u.name} already has a prior at line {seen[u.name].pos.line}", u.pos)
+        seen.setdefault(u.name, u)
     if values is None:
         for u in resolver.unknowns:
             report.warn(f"{u.name} is unknown: the spec runs with its prior's median {u.prior.median:.6g} "
