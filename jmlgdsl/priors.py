@@ -120,3 +120,14 @@ class Prior:
             lo, hi = self.args
             return math.log(hi - lo) - np.logaddexp(0.0, z) - np.logaddexp(0.0, -z)
         return z
+
+    def draw(self, rng: np.random.Generator) -> float:
+        """One value from the prior (where a fit's extra starts begin)."""
+        a = self.args
+        if self.family == "Normal":
+            return float(rng.normal(a[0], a[1]))
+        if self.family == "LogNormal":
+            return math.exp(rng.normal(a[0], a[1]))
+        if self.family == "HalfNormal":
+            return abs(float(rng.normal(0.0, a[0])))
+        return float(rng.uniform(a[0], a[1]))

@@ -293,6 +293,23 @@ def test_a_spec_without_unknowns_or_an_unknown_filter_cannot_be_fitted():
         jmlgdsl.fit("examples/fit/dryer_physical.jmlg", "examples/dryer_seq1.csv", algorithm="kalman")
 
 
+def test_more_starts_keep_the_highest_peak_and_repeat_with_the_seed():
+    data = simulated(300)
+    one = fit(parse_text(DRYER), data)
+    three = fit(parse_text(DRYER), data, starts=3, seed=5)
+    again = fit(parse_text(DRYER), data, starts=3, seed=5)
+    np.testing.assert_array_equal(three.estimate, again.estimate)
+    best = [n for n in three.notes if n.startswith("the best of 3 starts (their log posteriors: ")]
+    assert len(best) == 1
+    peaks = [float(v) for v in best[0].split(": ")[1].rstrip(")").split(", ")]
+    assert len(peaks) == 3 and peaks[0] == pytest.approx(one.loglik + sum(
+        p.logpdf(v) for p, v in zip(one.priors, one.estimate)), rel=1e-7)
+    assert three.loglik + sum(p.logpdf(v) for p, v in zip(three.priors, three.estimate)) == \
+        pytest.approx(max(peaks), rel=1e-7)
+    with pytest.raises(FitError, match="samples must be 0 or more and starts 1 or more, got 0 and 0"):
+        fit(parse_text(DRYER), data, starts=0)
+
+
 def test_posterior_draws_stay_in_the_support_and_repeat_with_the_seed():
     text = DRYER.replace("measurement ~ HalfNormal(0.1)", "measurement 0.05") \
         .replace("modes normal, fan: g ~ Normal(1.5, 0.3)", "modes normal, fan: g = 1.44")

@@ -2,6 +2,7 @@
 
 import math
 
+import numpy as np
 import pytest
 from scipy import stats
 
@@ -51,3 +52,15 @@ def test_outside_the_support_the_density_is_zero():
 def test_arguments_that_make_no_distribution_are_refused(family, args, message):
     with pytest.raises(PriorError, match=message.replace("(", r"\(").replace(")", r"\)")):
         Prior(family, args)
+
+
+@pytest.mark.parametrize("prior, reference", CASES, ids=lambda c: getattr(c, "family", ""))
+def test_draws_have_the_priors_median(prior, reference):
+    """The median of n draws lies within 4 of its standard errors, 1 / (2 f(median) sqrt(n)), of the
+    prior's median."""
+    rng = np.random.default_rng(11)
+    n = 4000
+    draws = np.array([prior.draw(rng) for _ in range(n)])
+    se = 1 / (2 * reference.pdf(reference.median()) * math.sqrt(n))
+    assert abs(np.median(draws) - prior.median) < 4 * se
+    assert all(prior.contains(d) for d in draws)

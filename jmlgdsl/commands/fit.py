@@ -29,20 +29,21 @@ def register(subparsers):
     p.add_argument("--samples", type=int, default=0, metavar="N",
                    help="also draw N values from the posterior by random-walk Metropolis (one likelihood "
                         "evaluation each) and report their means and 95 %% intervals")
-    p.add_argument("--seed", type=int, help="random seed for --samples (the same seed gives the same draws)")
+    p.add_argument("--starts", type=int, default=1, metavar="N",
+                   help="search from the priors' medians and from N-1 draws of the priors, keeping the highest "
+                        "peak: a guard against local optima, at N times the cost (default 1)")
+    p.add_argument("--seed", type=int, help="random seed for --samples and --starts (the same seed gives the same "
+                                            "result)")
     p.add_argument("-q", "--quiet", action="store_true", help="do not show the optimiser's progress")
     p.set_defaults(func=main)
 
 
 def main(args) -> int:
-    from ..errors import JmlgError
     from ..fitting import fit
 
-    if args.samples < 0:
-        raise JmlgError(f"--samples must be 0 or more, got {args.samples}")
     progress = None if args.quiet else (lambda text: print(text, file=sys.stderr, flush=True))
-    result = fit(args.spec, args.data, algorithm=args.filter, samples=args.samples, seed=args.seed,
-                 progress=progress)
+    result = fit(args.spec, args.data, algorithm=args.filter, samples=args.samples, starts=args.starts,
+                 seed=args.seed, progress=progress)
     print(result.report(), file=sys.stderr)
     if args.output == "-":
         sys.stdout.write(result.text)

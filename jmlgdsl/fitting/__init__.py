@@ -19,14 +19,18 @@ from .rewrite import fitted_text
 __all__ = ["fit", "Fit", "Family", "FitError"]
 
 
-def fit(spec, data, *, algorithm: str = "imm", samples: int = 0, seed=None, progress=None) -> Fit:
+def fit(spec, data, *, algorithm: str = "imm", samples: int = 0, starts: int = 1, seed=None,
+        progress=None) -> Fit:
     """Fit a spec's unknowns to data.
 
     spec: a .jmlg path or a parsed Spec. data: a CSV path, a jmlgdsl.data.Data, or a list of them
     (several recordings of the same plant). Rows whose every `mode` cell is filled give an exact
     likelihood; other recordings use the filter's (`algorithm`, IMM by default). `samples` > 0 adds
-    posterior draws by random-walk Metropolis (seeded by `seed`). The returned Fit has the estimates,
+    posterior draws by random-walk Metropolis; `starts` > 1 also starts the search from starts - 1 draws
+    of the priors and keeps the highest peak (both seeded by `seed`). The returned Fit has the estimates,
     standard errors, the fitted Model, and `text`, the spec rewritten with the fitted values."""
+    if samples < 0 or starts < 1:
+        raise FitError(f"samples must be 0 or more and starts 1 or more, got {samples} and {starts}")
     if algorithm not in ALGORITHMS:
         raise FilterError(f"unknown filter {algorithm!r}; choose from {', '.join(ALGORITHMS)}")
     spec = spec if isinstance(spec, Spec) else parse_file(spec)
@@ -36,7 +40,7 @@ def fit(spec, data, *, algorithm: str = "imm", samples: int = 0, seed=None, prog
                   for d in (data if isinstance(data, (list, tuple)) else [data])]
     if not recordings:
         raise FitError("no data to fit to")
-    result = _fit(family, recordings, algorithm, samples, seed, progress)
+    result = _fit(family, recordings, algorithm, samples, seed, progress, starts)
     sources = ", ".join(Path(d.source).name for d in recordings)
     result.text = fitted_text(spec, family.unknowns, result.estimate, result.se,
                               f"Fitted by 'jmlgdsl fit' to {sources}: log-likelihood {result.loglik_start:.6g} "

@@ -115,11 +115,14 @@ class Posterior:
         return np.array([(self(z + s) - f0) / GRADIENT_STEP for s in steps])
 
 
-def fit(family: Family, datasets, algorithm: str = "imm", samples: int = 0, seed=None, progress=None) -> Fit:
+def fit(family: Family, datasets, algorithm: str = "imm", samples: int = 0, seed=None, progress=None,
+        starts: int = 1) -> Fit:
     """The maximum a posteriori values of the family's unknowns given the datasets (jmlgdsl.data.Data),
-    with Laplace standard errors; `samples` > 0 adds that many Metropolis draws. `progress(text)`
-    hears of each optimiser iteration."""
+    with Laplace standard errors; `samples` > 0 adds that many Metropolis draws. The search starts at
+    the priors' medians and, with `starts` > 1, also at starts - 1 draws from the priors, keeping the
+    highest peak found. `progress(text)` hears of each optimiser iteration."""
     start = time.perf_counter()
+    rng = generator(seed)
     post = Posterior(family, datasets, algorithm)
     z0 = np.array([p.to_z(p.median) for p in family.priors])
     loglik_start = post.loglik(post.theta(z0))
@@ -142,8 +145,14 @@ def fit(family: Family, datasets, algorithm: str = "imm", samples: int = 0, seed
     def report_iteration(z):
         say(f"iteration {next(iterations)}: log posterior {-objective(z):.8g}")
 
-    result = minimize(objective, z0, jac=lambda z: post.gradient(z, objective(z)), method="BFGS",
-                      callback=report_iteration, options={"gtol": GTOL, "maxiter": 200})
+    results = []
+    for i in range(starts):
+        z_start = z0 if i == 0 else np.array([p.to_z(p.draw(rng)) for p in family.priors])
+        if starts > 1:
+            say(f"start {i + 1} of {starts}" + (" (the priors' medians)" if i == 0 else " (drawn from the priors)"))
+        results.append(minimize(objective, z_start, jac=lambda z: post.gradient(z, objective(z)), method="BFGS",
+                                callback=report_iteration, options={"gtol": GTOL, "maxiter": 200}))
+    result = min(results, key=lambda r: r.fun)
     z = result.x
     say("curvature at the estimate (Laplace)")
     H = hessian(post, z, objective(z))
@@ -159,9 +168,12 @@ def fit(family: Family, datasets, algorithm: str = "imm", samples: int = 0, seed
         for n, p, v in zip(family.names, family.priors, z) if abs(v) > AT_EDGE and p.family != "Normal"]
     if not result.success and "precision" not in result.message:
         notes.append(f"the optimiser stopped early: {result.message}")
+    if starts > 1:
+        peaks = ", ".join(f"{-r.fun:.8g}" for r in results)
+        notes.append(f"the best of {starts} starts (their log posteriors: {peaks})")
     draws, acceptance = (None, math.nan)
     if samples:
-        draws, acceptance = metropolis(post, z, cov_z, samples, generator(seed), say)
+        draws, acceptance = metropolis(post, z, cov_z, samples, rng, say)
     loglik = -objective(z) - sum(p.logpdf(t) for p, t in zip(family.priors, theta))
     return Fit(list(family.names), list(family.priors), theta, se, corr, loglik_start, loglik,
                family.model(theta), notes, post.evaluations, time.perf_counter() - start, draws, acceptance)
