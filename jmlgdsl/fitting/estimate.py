@@ -132,26 +132,8 @@ def fit(family: Family, datasets, algorithm: str = "imm", samples: int = 0, seed
     alike = _look_alike(family.model(post.theta(z0))) if not all(map(labelled, datasets)) else []
     for note in alike:
         say(f"note: {note}")
-    cache = {}
-
-    def objective(z):
-        key = z.tobytes()
-        if key not in cache:
-            cache[key] = post(z)
-        return cache[key]
-
-    iterations = itertools.count(1)
-
-    def report_iteration(z):
-        say(f"iteration {next(iterations)}: log posterior {-objective(z):.8g}")
-
-    results = []
-    for i in range(starts):
-        z_start = z0 if i == 0 else np.array([p.to_z(p.draw(rng)) for p in family.priors])
-        if starts > 1:
-            say(f"start {i + 1} of {starts}" + (" (the priors' medians)" if i == 0 else " (drawn from the priors)"))
-        results.append(minimize(objective, z_start, jac=lambda z: post.gradient(z, objective(z)), method="BFGS",
-                                callback=report_iteration, options={"gtol": GTOL, "maxiter": 200}))
+    objective = _Cached(post)
+    results = _search(post, objective, z0, starts, rng, say)
     result = min(results, key=lambda r: r.fun)
     z = result.x
     say("curvature at the estimate (Laplace)")
@@ -177,6 +159,36 @@ def fit(family: Family, datasets, algorithm: str = "imm", samples: int = 0, seed
     loglik = -objective(z) - sum(p.logpdf(t) for p, t in zip(family.priors, theta))
     return Fit(list(family.names), list(family.priors), theta, se, corr, loglik_start, loglik,
                family.model(theta), notes, post.evaluations, time.perf_counter() - start, draws, acceptance)
+
+
+class _Cached:
+    """The posterior's objective, remembered for the points BFGS asks about more than once."""
+
+    def __init__(self, post: Posterior):
+        self.post, self.values = post, {}
+
+    def __call__(self, z) -> float:
+        key = z.tobytes()
+        if key not in self.values:
+            self.values[key] = self.post(z)
+        return self.values[key]
+
+
+def _search(post: Posterior, objective, z0: np.ndarray, starts: int, rng: np.random.Generator, say) -> list:
+    """BFGS from z0 and from starts - 1 draws of the priors: one scipy result per start."""
+    iterations = itertools.count(1)
+
+    def report_iteration(z):
+        say(f"iteration {next(iterations)}: log posterior {-objective(z):.8g}")
+
+    results = []
+    for i in range(starts):
+        z_start = z0 if i == 0 else np.array([p.to_z(p.draw(rng)) for p in post.family.priors])
+        if starts > 1:
+            say(f"start {i + 1} of {starts}" + (" (the priors' medians)" if i == 0 else " (drawn from the priors)"))
+        results.append(minimize(objective, z_start, jac=lambda z: post.gradient(z, objective(z)), method="BFGS",
+                                callback=report_iteration, options={"gtol": GTOL, "maxiter": 200}))
+    return results
 
 
 def hessian(f, z: np.ndarray, f0: float) -> np.ndarray:
