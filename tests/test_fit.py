@@ -7,6 +7,7 @@ import warnings
 import numpy as np
 import pytest
 from scipy.stats import multivariate_normal
+from test_language_gaps import TANK  # a one-tank ODE plant with a sag mode that sets its own input
 
 import jmlgdsl
 from jmlgdsl.cli import main
@@ -256,20 +257,6 @@ def test_unknowns_the_data_cannot_tell_apart_or_do_not_inform_are_named():
     assert "the data say little about spare: its estimate and standard error are mostly its prior's" in result.notes
     i = result.names.index("spare")
     assert result.estimate[i] == pytest.approx(3, abs=1e-3) and result.se[i] == pytest.approx(1, rel=1e-3)
-
-
-TANK = """plant tank
-sample 1 s
-input  q [l/s] = 2
-output h
-state  h = 10
-param  k = 0.5, area = 2
-ode
-  der(h) = (q - k * sqrt(h)) / area
-noise process 0.02, measurement 0.05
-modes normal, sag "the pump sags": q = 1.5
-transitions stay 0.99, otherwise uniform
-"""
 
 
 def test_an_ode_plant_is_re_linearised_at_each_try_and_its_parameter_recovered(tmp_path):
