@@ -273,6 +273,24 @@ def test_an_ode_plant_is_re_linearised_at_each_try_and_its_parameter_recovered(t
     assert result.model.mu0[1, 0] == pytest.approx(steady, rel=1e-9)
 
 
+@pytest.mark.parametrize("name, unknowns, alike", [
+    # the three fouling fractions share one prior: unfitted, the fouling modes are one model
+    ("cstr10_unknown", ["k0", "U", "f1", "f2", "f3"], ["fouling2", "fouling3"]),
+    ("dryer_unknown", [f"{kind}_{mode}" for mode in ("normal", "fan", "grill", "both") for kind in ("g", "tau")], []),
+    ("dryer_physical", [f"T_{mode}" for mode in ("normal", "fan", "grill", "both")]
+     + [f"tau_{mode}" for mode in ("normal", "fan", "grill", "both")], []),
+])
+def test_the_bundled_specs_with_unknowns_compile_warning_of_them(name, unknowns, alike):
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        jmlgdsl.load(f"examples/fit/{name}.jmlg")
+    messages = [str(w.message).split("warning: ")[1] for w in caught]
+    assert [m.split(" is unknown")[0] for m in messages if " is unknown: " in m] == unknowns
+    assert [m.split("'")[1] for m in messages if " is unknown: " not in m] == alike
+    assert all("compiles to exactly the same model as mode 'fouling1'" in m for m in messages
+               if " is unknown: " not in m)
+
+
 def test_a_spec_without_unknowns_or_an_unknown_filter_cannot_be_fitted():
     with pytest.raises(FitError, match="the spec has no unknowns to fit; give a parameter or a noise level a prior"):
         jmlgdsl.fit("specs/dryer.jmlg", "examples/dryer_seq1.csv")  # the package's own name for fitting.fit
