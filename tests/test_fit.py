@@ -342,3 +342,6 @@ def test_the_command_writes_a_spec_that_checks_and_runs(tmp_path, capsys):
     assert main(["check", str(out)]) == 0
     assert main(["run", str(out), str(data)]) == 0
     assert main(["fit", str(spec), str(data), "--samples", "-1"]) == 2
+    capsys.readouterr()
+    assert main(["fit", str(spec), str(data), "-o", str(spec)]) == 2  # refused before any work
+    assert "is also an input" in capsys.readouterr().err and spec.read_text() == DRYER
