@@ -43,20 +43,20 @@ def labelled_loglik(model: Model, y: np.ndarray, u: np.ndarray, modes: np.ndarra
     mu, Sig = model.mu0[modes[0]], model.Sigma0
     masks = ~np.isnan(y)
     complete = masks.all(axis=1)
-    total, steady = 0.0, None  # steady: (mode, gain, whitening factor, log-density constant) once settled
+    total, steady = 0.0, None  # steady: (mode, gain', whitening factor, log-density constant) once settled
     for t, k in enumerate(modes):
         if steady is not None and steady[0] == k and complete[t]:
-            _, gain, Linv, constant = steady
+            _, gain_t, Linv, constant = steady
             r = y[t] - C[k] @ (mu_p := A[k] @ mu + b[t, k]) - c[t, k]
             z = Linv @ r
-            mu = mu_p + gain @ r
+            mu = mu_p + gain_t.T @ r
             total += constant - 0.5 * min(float(z @ z), kalman.MAX_QUAD)
             continue
         mu_p, Sig_p = kalman.predict(mu, Sig, A[k], b[t, k], Q[k])
         y_pred, S, CS = kalman.innovation(mu_p, Sig_p, C[k], c[t, k], R[k])
         mu, Sig_new, ll, _ = kalman.update(mu_p, Sig_p, y_pred, S, CS, y[t], masks[t])
         total += float(ll)
-        settled = complete[t] and np.abs(Sig_new - Sig).max() <= 1e-13 * np.abs(Sig_new).max()
+        settled = complete[t] and np.abs(Sig_new - Sig).max() <= kalman.SETTLED * np.abs(Sig_new).max()
         steady = _steady(k, S, CS) if settled else None
         Sig = Sig_new
     with np.errstate(divide="ignore"):
@@ -65,8 +65,7 @@ def labelled_loglik(model: Model, y: np.ndarray, u: np.ndarray, modes: np.ndarra
 
 
 def _steady(k: int, S: np.ndarray, CS: np.ndarray):
-    """The settled update of mode k: its gain Sig_p C' S^-1, the whitening factor of S and the
+    """The settled update of mode k: its gain' S^-1 C Sig_p, the whitening factor of S and the
     constant part of the log-density."""
-    Linv, logdet = kalman.inverse_cholesky(S)
-    gain = (Linv @ CS).T @ Linv
-    return k, gain, Linv, -0.5 * (logdet + len(S) * kalman.LOG_2PI)
+    gain_t, Linv, logdet = kalman.gain(S, CS)
+    return k, gain_t, Linv, -0.5 * (logdet + len(S) * kalman.LOG_2PI)

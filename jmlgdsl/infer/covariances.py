@@ -135,8 +135,7 @@ class CovarianceGraph:
         Sig_p = kalman.predict_cov(Sig[:, None], model.A, model.Q)
         C = model.C[:, mask, :]
         S, CS = kalman.innovation_cov(Sig_p, C, model.R[:, mask][:, :, mask])
-        Linv, logdet = kalman.inverse_cholesky(S)
-        gain_t = np.swapaxes(Linv, -1, -2) @ (Linv @ CS)  # S^-1 C Sig_p
+        gain_t, Linv, logdet = kalman.gain(S, CS)  # gain_t = S^-1 C Sig_p
         Sig_f = kalman.symmetrize(Sig_p - np.swapaxes(CS, -1, -2) @ gain_t)
         rows.extend(Linv, logdet, gain_t, Sig_f)
 

@@ -16,6 +16,9 @@ LOG_2PI = np.log(2.0 * np.pi)
 # Squared Mahalanobis distances are capped here, so an absurd outlier gets a tiny but finite
 # log-density (the same for every hypothesis) instead of -inf, which would turn weights into NaN.
 MAX_QUAD = 1e300
+# Kalman covariances count as settled when a step changes them by less than this, relative: they never
+# depend on the data, so a filter that follows fixed matrices may keep its gain from then on.
+SETTLED = 1e-13
 
 
 def transpose(M):
@@ -76,6 +79,16 @@ def _positive_definite(S):
     vals, vecs = np.linalg.eigh(symmetrize(S))
     floor = np.maximum(1e-12 * np.abs(vals).max(axis=-1, keepdims=True), np.finfo(float).tiny)
     return symmetrize((vecs * np.maximum(vals, floor)[..., None, :]) @ np.swapaxes(vecs, -1, -2))
+
+
+def gain(S, CS):
+    """(gain', Linv, log det S): gain' = S^-1 C Sig_p (..., ny, nx) from the innovation covariance S and
+    C Sig_p, with the inverse Cholesky factor of S (to whiten innovations) and its log-determinant,
+    all from one factorisation of S; kept where one gain serves many steps or particles."""
+    if S.shape[-1] == 0:  # nothing measured
+        return CS, S, np.zeros(S.shape[:-2])
+    Linv, logdet = inverse_cholesky(S)
+    return transpose(Linv) @ (Linv @ CS), Linv, logdet
 
 
 def quad_form(z):

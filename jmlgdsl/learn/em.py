@@ -16,12 +16,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..infer import kalman
+from ..infer.kalman import SETTLED
 from .statespace import StateSpace
 
 #: Eigenvalues of fitted covariances are kept at least this fraction of the largest one.
 SPD_FLOOR = 1e-10
-#: Kalman covariances count as settled when a step changes them by less than this, relative.
-SETTLED = 1e-13
 
 
 @dataclass(frozen=True)
@@ -137,7 +136,7 @@ def forward(ss: StateSpace, y, u) -> Filtered:
         else:
             Sig_p[t] = kalman.predict_cov(Sig_f[t], ss.A, ss.Q)
             S, CS = kalman.innovation_cov(Sig_p[t], ss.C[m], ss.R if full[t] else ss.R[np.ix_(m, m)])
-            gain_t, Linv, logdet = _gain(S, CS)
+            gain_t, Linv, logdet = kalman.gain(S, CS)
             Sig_f[t + 1] = kalman.symmetrize(Sig_p[t] - CS.T @ gain_t)
             steady = None
             if full[t] and t and full[t - 1] and (np.abs(Sig_p[t] - Sig_p[t - 1]).max()
@@ -151,15 +150,6 @@ def forward(ss: StateSpace, y, u) -> Filtered:
         quad += z @ z
         loglik -= 0.5 * (logdet + len(r) * kalman.LOG_2PI)
     return Filtered(mu_p, Sig_p, mu_f, Sig_f, innov, loglik - 0.5 * quad, settled)
-
-
-def _gain(S, CS):
-    """gain' = S^-1 C Sig_p, the inverse Cholesky factor of S (to whiten innovations) and log det S,
-    all from one Cholesky factorisation of the innovation covariance S."""
-    if not len(S):
-        return CS, S, 0.0
-    Linv, logdet = kalman.inverse_cholesky(S)
-    return Linv.T @ (Linv @ CS), Linv, logdet
 
 
 def smooth(ss: StateSpace, y, u) -> Smoothed:
