@@ -108,6 +108,19 @@ class Model:
         with np.errstate(divide="ignore"):
             return _readonly(np.log(self.P))
 
+    @cached_property
+    def output_states(self) -> slice | None:
+        """The states the outputs read, as a slice, when every mode's C is the same run of identity
+        rows (y_i = x_(start+i) + ...; learned banks are), else None: the Kalman kernel then takes
+        views of covariances instead of multiplying by C."""
+        if self.ny == 0:
+            return None
+        start = int(self.C[0, 0].argmax())
+        picks = slice(start, start + self.ny)
+        if start + self.ny <= self.nx and (self.C == np.eye(self.nx)[picks]).all():
+            return picks
+        return None
+
     def mode_index(self, name: str) -> int:
         """Index of a mode by name; ModelError naming the known modes otherwise."""
         try:

@@ -24,6 +24,7 @@ class IMM:
             self.log_mu = np.log(model.p0)
         self.means = model.mu0.copy()
         self.covs = np.broadcast_to(model.Sigma0, (model.K,) + model.Sigma0.shape).copy()
+        self._C = model.C if model.output_states is None else model.output_states  # see kalman
 
     def step(self, y, mask, u, gate=OPEN) -> Estimate:
         model = self.model
@@ -41,7 +42,7 @@ class IMM:
         spread = np.swapaxes(d * mix.T[:, :, None], 1, 2) @ d
         covs = (mix.T @ self.covs.reshape(K, nx * nx)).reshape(K, nx, nx) + spread
         mu_p, Sig_p = kalman.predict(mixed, covs, model.A, b, model.Q)
-        y_pred, S, CS = kalman.innovation(mu_p, Sig_p, model.C, c, model.R)
+        y_pred, S, CS = kalman.innovation(mu_p, Sig_p, self._C, c, model.R)
         means, covs, ll, quad = kalman.update(mu_p, Sig_p, y_pred, S, CS, y, mask)
         flagged = None
         if quad.min() > gate.bound:
