@@ -173,6 +173,21 @@ def test_reusing_settled_covariances_changes_nothing_but_rounding(monkeypatch):
     monkeypatch.setattr(em_module, "SETTLED", -1.0)
     assert not forward(truth, y, u).settled.any()
     full = smooth(truth, y, u)
-    for name in ("mean", "cov", "cross"):
-        assert np.allclose(getattr(fast, name), getattr(full, name), rtol=1e-9, atol=1e-12), name
+    assert np.allclose(fast.mean, full.mean, rtol=1e-9, atol=1e-12)
+    for name in ("cov", "cross"):  # every step's matrix, read through the runs
+        assert np.allclose(getattr(fast, name)[:], getattr(full, name)[:], rtol=1e-9, atol=1e-12), name
     assert fast.loglik == pytest.approx(full.loglik, rel=1e-12)
+    # settled stretches are stored once: about a hundred distinct covariances for 601 steps
+    assert len(fast.cov.distinct) < 120 and len(full.cov.distinct) == 601
+
+
+def test_runs_store_repeated_matrices_once():
+    a, b, c = (np.full((2, 2), v) for v in (1.0, 2.0, 3.0))
+    runs = em_module.Runs.of([a, b, c], np.array([True, False, False, True, True, False]))
+    assert np.array_equal(runs.index, [0, 0, 0, 1, 2, 2])
+    assert np.array_equal(runs[:], [a, a, a, b, c, c]) and np.array_equal(runs[3], b)
+    assert np.array_equal(runs.sum(), 3 * a + b + 2 * c)
+    assert np.array_equal(runs.sum(where=np.array([1, 0, 0, 1, 0, 1], bool)), a + b + c)
+    tail = runs.part(slice(2, None))
+    both = em_module.Runs.concatenate([tail, runs.part(slice(None, 1))])
+    assert np.array_equal(both[:], [a, b, c, c, a]) and np.array_equal(both.sum(), 2 * a + b + 2 * c)

@@ -24,13 +24,50 @@ SPD_FLOOR = 1e-10
 
 
 @dataclass(frozen=True)
+class Runs:
+    """Per-step matrices kept once per run of equal ones: step t's matrix is distinct[index[t]].
+    Settled Kalman covariances repeat for most steps, so storing, reading and summing them costs
+    per run, not per step (at 50 states a step's covariance is 20 kB)."""
+
+    distinct: np.ndarray  # (runs, a, b)
+    index: np.ndarray  # (T,) non-decreasing
+
+    @classmethod
+    def of(cls, distinct, new) -> "Runs":
+        """Runs from the distinct matrices and a mask (T,) that is True where a new one starts."""
+        return cls(np.asarray(distinct), np.cumsum(new) - 1)
+
+    @classmethod
+    def concatenate(cls, parts) -> "Runs":
+        """The steps of several Runs one after another."""
+        offsets = np.cumsum([0] + [len(p.distinct) for p in parts[:-1]])
+        return cls(np.concatenate([p.distinct for p in parts]), np.concatenate([p.index + o for p, o in zip(parts, offsets)]))
+
+    def __len__(self) -> int:
+        return len(self.index)
+
+    def __getitem__(self, t) -> np.ndarray:
+        """Step t's matrix (or the stacked matrices of a slice or mask of steps)."""
+        return self.distinct[self.index[t]]
+
+    def part(self, steps: slice) -> "Runs":
+        """The same matrices for a slice of the steps."""
+        return Runs(self.distinct, self.index[steps])
+
+    def sum(self, where=None) -> np.ndarray:
+        """The sum of the steps' matrices (of the steps where `where` is True)."""
+        counts = np.bincount(self.index if where is None else self.index[where], minlength=len(self.distinct))
+        return np.tensordot(counts.astype(float), self.distinct, 1)
+
+
+@dataclass(frozen=True)
 class Smoothed:
     """E-step output: smoothed means (T+1, nx) and covariances of x_0..x_T, lag-one
     cross-covariances Cov(x_t, x_{t-1}) for t = 1..T, and the log-likelihood log p(y_1:T)."""
 
     mean: np.ndarray
-    cov: np.ndarray
-    cross: np.ndarray
+    cov: Runs
+    cross: Runs
     loglik: float
 
 
@@ -42,10 +79,10 @@ class Moments:
     log-likelihood."""
 
     prev: np.ndarray
-    prev_cov: np.ndarray
+    prev_cov: Runs
     mean: np.ndarray
-    cov: np.ndarray
-    cross: np.ndarray
+    cov: Runs
+    cross: Runs
     first: np.ndarray
     first_cov: np.ndarray
     loglik: float
@@ -53,9 +90,9 @@ class Moments:
     @classmethod
     def of(cls, parts: list[Smoothed]) -> "Moments":
         """The moments of segments smoothed one by one."""
-        return cls(np.concatenate([e.mean[:-1] for e in parts]), np.concatenate([e.cov[:-1] for e in parts]),
-                   np.concatenate([e.mean[1:] for e in parts]), np.concatenate([e.cov[1:] for e in parts]),
-                   np.concatenate([e.cross for e in parts]), np.array([e.mean[0] for e in parts]),
+        return cls(np.concatenate([e.mean[:-1] for e in parts]), Runs.concatenate([e.cov.part(slice(None, -1)) for e in parts]),
+                   np.concatenate([e.mean[1:] for e in parts]), Runs.concatenate([e.cov.part(slice(1, None)) for e in parts]),
+                   Runs.concatenate([e.cross for e in parts]), np.array([e.mean[0] for e in parts]),
                    np.array([e.cov[0] for e in parts]), sum(e.loglik for e in parts))
 
     def initial(self) -> tuple[np.ndarray, np.ndarray]:
@@ -87,9 +124,9 @@ class Filtered:
     whose covariances were reused once settled."""
 
     mean_pred: np.ndarray
-    cov_pred: np.ndarray
+    cov_pred: Runs
     mean: np.ndarray
-    cov: np.ndarray
+    cov: Runs
     innovation: np.ndarray
     loglik: float
     settled: np.ndarray
@@ -113,78 +150,88 @@ def forward(ss: StateSpace, y, u) -> Filtered:
 
     The covariances do not depend on the data, only on which outputs are measured: once a fully
     measured step leaves the predicted covariance unchanged to SETTLED relative, the filter reuses
-    that step's covariances, gain and innovation factor until an output goes missing.
+    that step's covariances, gain and innovation factor until an output goes missing. The means
+    then follow x_t|t = M x_t-1|t-1 + d_t with M and the gain fixed over each run of reused steps,
+    so a step costs one matrix-vector product.
     """
     y = np.asarray(y, float)
     T, nx = len(y), ss.nx
     b = u @ ss.F.T + ss.f
     c = u @ ss.G.T + ss.g
-    mu_p, Sig_p = np.empty((T, nx)), np.empty((T, nx, nx))
-    mu_f, Sig_f = np.empty((T + 1, nx)), np.empty((T + 1, nx, nx))
-    mu_f[0], Sig_f[0] = ss.mu0, ss.Sigma0
-    innov = np.full(y.shape, np.nan)
     measured = ~np.isnan(y)
     full = measured.all(axis=1)
-    settled = np.zeros(T, bool)
-    steady = None
-    quad, loglik = 0.0, 0.0
+    new = np.ones(T, bool)  # step t's covariance work was done afresh (else: as at t - 1)
+    pred, filt, pieces = [], [np.asarray(ss.Sigma0, float)], []
+    steady = False
     for t in range(T):
-        m = slice(None) if full[t] else measured[t]  # a view, not a copy, when every output is measured
-        if steady is not None and full[t]:
-            Sig_p[t], Sig_f[t + 1], gain_t, Linv, logdet = steady
-            settled[t] = True
-        else:
-            Sig_p[t] = kalman.predict_cov(Sig_f[t], ss.A, ss.Q)
-            S, CS = kalman.innovation_cov(Sig_p[t], ss.C[m], ss.R if full[t] else ss.R[np.ix_(m, m)])
-            gain_t, Linv, logdet = kalman.gain(S, CS)
-            Sig_f[t + 1] = kalman.symmetrize(Sig_p[t] - CS.T @ gain_t)
-            steady = None
-            if full[t] and t and full[t - 1] and (np.abs(Sig_p[t] - Sig_p[t - 1]).max()
-                                                  <= SETTLED * np.abs(Sig_p[t]).max()):
-                steady = Sig_p[t], Sig_f[t + 1], gain_t, Linv, logdet
-        mu_p[t] = ss.A @ mu_f[t] + b[t]
-        r = y[t, m] - ss.C[m] @ mu_p[t] - c[t, m]
-        innov[t, m] = r
-        mu_f[t + 1] = mu_p[t] + gain_t.T @ r
-        z = Linv @ r
-        quad += z @ z
-        loglik -= 0.5 * (logdet + len(r) * kalman.LOG_2PI)
-    return Filtered(mu_p, Sig_p, mu_f, Sig_f, innov, loglik - 0.5 * quad, settled)
+        if steady and full[t]:
+            new[t] = False
+            continue
+        m = measured[t]
+        Sig_p = kalman.predict_cov(filt[-1], ss.A, ss.Q)
+        S, CS = kalman.innovation_cov(Sig_p, ss.C[m], ss.R if full[t] else ss.R[np.ix_(m, m)])
+        gain_t, Linv, logdet = kalman.gain(S, CS)
+        steady = bool(full[t] and t and full[t - 1] and np.abs(Sig_p - pred[-1]).max() <= SETTLED * np.abs(Sig_p).max())
+        pred.append(Sig_p)
+        filt.append(kalman.symmetrize(Sig_p - CS.T @ gain_t))
+        pieces.append((m, gain_t.T, Linv, logdet))
+    starts = np.flatnonzero(new)
+    runs = list(zip(starts, np.r_[starts[1:], T], pieces))
+    mu_f = np.empty((T + 1, nx))
+    mu_f[0] = ss.mu0
+    for s, e, (m, G, _, _) in runs:
+        Cm = ss.C[m]
+        M = ss.A - G @ (Cm @ ss.A)
+        d = b[s:e] + (y[s:e, m] - c[s:e, m] - b[s:e] @ Cm.T) @ G.T
+        for t in range(s, e):
+            mu_f[t + 1] = M @ mu_f[t] + d[t - s]
+    mu_p = mu_f[:-1] @ ss.A.T + b
+    innov = y - mu_p @ ss.C.T - c  # NaN where not measured
+    loglik = 0.0
+    for s, e, (m, _, Linv, logdet) in runs:
+        z = innov[s:e, m] @ Linv.T
+        loglik -= 0.5 * (np.einsum("ij,ij->", z, z) + (e - s) * (logdet + int(m.sum()) * kalman.LOG_2PI))
+    return Filtered(mu_p, Runs.of(pred, new), mu_f, Runs.of(filt, np.r_[True, new]), innov, loglik, ~new)
 
 
 def smooth(ss: StateSpace, y, u) -> Smoothed:
     """Rauch-Tung-Striebel smoother over the forward pass for y (T, ny) and inputs u (T, nu).
 
     Where the forward covariances have settled, the smoothed covariance settles too (going back
-    from the end); once it stops changing it is reused like the forward ones.
+    from the end); once it stops changing it is reused like the forward ones, and the means follow
+    x_t|T = J x_t+1|T + e_t with the smoother gain J fixed over each run.
     """
     fw = forward(ss, y, u)
+    T = len(fw.mean_pred)
     constant = fw.settled & np.r_[False, fw.settled[:-1]]  # Sig_f[t], Sig_p[t] and so J[t] as at t - 1
-    # Smoother gains J_t = Sig_f[t] A' Sig_p[t]^-1 (Sig_p symmetric), solved at once where they change.
-    J = np.empty_like(fw.cov_pred)
-    solve = ~constant
-    J[solve] = np.swapaxes(np.linalg.solve(fw.cov_pred[solve], ss.A @ fw.cov[:-1][solve]), 1, 2)
-    J[constant] = J[np.maximum.accumulate(np.where(solve, np.arange(len(J)), 0))[constant]]
-    mu_s, Sig_s = fw.mean.copy(), fw.cov.copy()
-    reused = np.zeros(len(J) + 1, bool)  # Sig_s[t] copied from the settled one
-    steady = None
-    for t in range(len(J) - 1, -1, -1):
-        mu_s[t] = fw.mean[t] + J[t] @ (mu_s[t + 1] - fw.mean_pred[t])
-        if steady is not None and constant[t]:
-            Sig_s[t], reused[t] = steady, True
+    # Smoother gains J_t = Sig_f[t] A' Sig_p[t]^-1 (Sig_p symmetric), one per run, solved at once.
+    starts = np.flatnonzero(~constant)
+    J = np.swapaxes(np.linalg.solve(fw.cov_pred[starts], ss.A @ fw.cov[starts]), 1, 2)
+    gains = Runs.of(J, ~constant)
+    mu_s = fw.mean.copy()
+    for k, (s, e) in reversed(list(enumerate(zip(starts, np.r_[starts[1:], T])))):
+        Jk = J[k]
+        offset = fw.mean[s:e] - fw.mean_pred[s:e] @ Jk.T
+        for t in range(e - 1, s - 1, -1):
+            mu_s[t] = Jk @ mu_s[t + 1] + offset[t - s]
+    smoothed = [fw.cov[T]]  # Sig_s[T], then each one computed going back, as distinct values
+    computed = np.zeros(T + 1, bool)  # else Sig_s[t] == Sig_s[t + 1], reused
+    computed[T] = True
+    steady = False
+    for t in range(T - 1, -1, -1):
+        if steady and constant[t]:
             continue
-        Sig_s[t] = kalman.symmetrize(fw.cov[t] + J[t] @ (Sig_s[t + 1] - fw.cov_pred[t]) @ J[t].T)
-        steady = None
-        if constant[t] and t + 1 < len(J) and constant[t + 1] and (
-                np.abs(Sig_s[t] - Sig_s[t + 1]).max() <= SETTLED * np.abs(Sig_s[t]).max()):
-            steady = Sig_s[t]
-    # Cov(x_{t+1}, x_t) = Sig_s[t+1] J_t': the same wherever both factors are the settled ones.
-    same = constant & reused[1:] & np.r_[constant[1:] & reused[2:], False]
-    cross = np.empty_like(J)
-    cross[~same] = Sig_s[1:][~same] @ np.swapaxes(J[~same], 1, 2)
-    later = np.minimum.accumulate(np.where(same, len(J), np.arange(len(J)))[::-1])[::-1]
-    cross[same] = cross[later[same]]
-    return Smoothed(mu_s, Sig_s, cross, fw.loglik)
+        Jt, later = gains[t], smoothed[-1]
+        smoothed.append(kalman.symmetrize(fw.cov[t] + Jt @ (later - fw.cov_pred[t]) @ Jt.T))
+        computed[t] = True
+        steady = bool(constant[t] and t + 1 < T and constant[t + 1]
+                      and np.abs(smoothed[-1] - later).max() <= SETTLED * np.abs(smoothed[-1]).max())
+    cov = Runs.of(smoothed[::-1], np.r_[True, computed[:-1]])
+    # Cov(x_{t+1}, x_t) = Sig_s[t+1] J_t': one per run of equal factors.
+    pairs = np.stack([cov.index[1:], gains.index])
+    changes = np.diff(pairs, axis=1, prepend=-1).any(axis=0)
+    cross = cov.distinct[pairs[0, changes]] @ np.swapaxes(J[pairs[1, changes]], 1, 2)
+    return Smoothed(mu_s, cov, Runs.of(cross, changes), fw.loglik)
 
 
 def m_step(ss: StateSpace, y, u, e: Moments, offset=True, feedthrough=True) -> StateSpace:
@@ -198,13 +245,13 @@ def m_step(ss: StateSpace, y, u, e: Moments, offset=True, feedthrough=True) -> S
     # State equation: x_t on z_t = [x_{t-1}, u_t, 1].
     Z = np.hstack([e.prev, u, ones])
     X = e.mean - (0 if offset else ss.f)
-    W, Q = regress(X, Z, e.cov.sum(0), e.prev_cov.sum(0), e.cross.sum(0))
+    W, Q = regress(X, Z, e.cov.sum(), e.prev_cov.sum(), e.cross.sum())
     nx, nu = ss.nx, u.shape[1]
     A, F = W[:, :nx], W[:, nx:nx + nu]
     f = W[:, nx + nu] if offset else ss.f
     # Output equation on the fully measured steps: y_t on r_t = [x_t, u_t, 1] (or x_t alone).
     o = ~np.isnan(y).any(axis=1)
-    xs, Sx = e.mean[o], e.cov[o].sum(0)
+    xs, Sx = e.mean[o], e.cov.sum(where=o)
     if feedthrough:
         H, R = regress(y[o] - (0 if offset else ss.g), np.hstack([xs, u[o], ones[o]]), None, Sx, None)
         C, G = H[:, :nx], H[:, nx:nx + nu]

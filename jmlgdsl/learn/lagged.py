@@ -147,15 +147,14 @@ def m_step(ss: StateSpace, y, v, e, free) -> StateSpace:
     ny, nx = ss.C.shape
     k = int(free[:nx].sum())  # the free output lags come first
     Z = np.hstack([e.prev, v, np.ones((len(v), 1))])[:, free]
-    W, Q = regress(e.mean[:, :ny], Z, e.cov[:, :ny, :ny].sum(0), e.prev_cov[:, :k, :k].sum(0),
-                   e.cross[:, :ny, :k].sum(0))
+    W, Q = regress(e.mean[:, :ny], Z, e.cov.sum()[:ny, :ny], e.prev_cov.sum()[:k, :k], e.cross.sum()[:ny, :k])
     coef = np.zeros((ny, len(free)))
     coef[:, free] = W
     A, F, f = ss.A.copy(), ss.F.copy(), ss.f.copy()
     A[:ny], F[:ny], f[:ny] = coef[:, :nx], coef[:, nx:-1], coef[:, -1]
     o = ~np.isnan(y).any(axis=1)
     r = y[o] - e.mean[o][:, :ny]
-    R = spd((r.T @ r + e.cov[o][:, :ny, :ny].sum(0)) / max(int(o.sum()), 1))
+    R = spd((r.T @ r + e.cov.sum(where=o)[:ny, :ny]) / max(int(o.sum()), 1))
     mu0, Sigma0 = e.initial()
     return ss.replace(A=A, F=F, f=f, Q=block_diag(Q, np.zeros((nx - ny,) * 2)), R=R, mu0=mu0, Sigma0=Sigma0)
 
