@@ -3,6 +3,7 @@ jmlgdsl.grammars; a syntax error becomes a located SpecError saying what was exp
 
 from __future__ import annotations
 
+import re
 from functools import lru_cache
 from importlib.resources import files
 from pathlib import Path
@@ -20,6 +21,7 @@ _READABLE = {
     "NAME": "a name", "NUMBER": "a number", "SIGNED_NUMBER": "a number", "INT": "a whole number",
     "STRING": "a quoted description", "UNIT": "a unit in brackets", "INDEXED": "a reference like h[t]",
     "$END": "end of file",
+    "NUMERIC_MATRIX": "'['",  # a matrix of numbers only: expected wherever '[' is, and shown as it
 }
 
 
@@ -28,6 +30,32 @@ def grammar() -> Lark:
     """The LALR parser for the language, built once per process from the packaged grammar file."""
     text = files("jmlgdsl.grammars").joinpath("jmlg.lark").read_text(encoding="utf-8")
     return Lark(text, parser="lalr", lexer="contextual", propagate_positions=True, maybe_placeholders=False)
+
+
+@lru_cache(maxsize=1)
+def _number_or_semicolon() -> re.Pattern:
+    """The entries and row breaks of a NUMERIC_MATRIX token: the grammar's SIGNED_NUMBER, or `;`."""
+    return re.compile(f"(?:{grammar().get_terminal('SIGNED_NUMBER').pattern.to_regexp()})|;")
+
+
+def _one_token(children) -> bool:
+    """Whether a `matrix` node's children are a single NUMERIC_MATRIX token rather than rows."""
+    return bool(children) and isinstance(children[0], Token)
+
+
+def _numeric_rows(tok: Token) -> tuple:
+    """The rows of a NUMERIC_MATRIX token as the `row` rule gives them: number entries, each placed at
+    its own column of the token's line (the token holds no newline)."""
+    line, column = tok.line, tok.column
+    rows, row = [], []
+    for m in _number_or_semicolon().finditer(tok):
+        if m.group() == ";":
+            rows.append(tuple(row))
+            row = []
+        else:
+            row.append(S.Expr("number", (float(m.group()),), S.Pos(line, column + m.start())))
+    rows.append(tuple(row))
+    return tuple(rows)
 
 
 # Rules that nest one expression inside another: the depth MAX_NESTING counts.
@@ -77,6 +105,10 @@ def _too_deep(tree: Tree) -> tuple[int, int] | None:
             depth += 1
             if depth > MAX_NESTING:
                 return node.meta.line, node.meta.column
+            if depth == MAX_NESTING and node.data == "matrix" and _one_token(node.children):
+                # a one-token matrix stands for its rows, one level deeper: the last is walked first
+                pos = _numeric_rows(node.children[0])[-1][0].pos
+                return pos.line, pos.column
         stack.extend((child, depth) for child in node.children if isinstance(child, Tree))
     return None
 
@@ -208,7 +240,8 @@ class _Builder(Transformer):
         return tuple(c)
 
     def matrix(self, meta, c):
-        return S.Expr("matrix", tuple(c), _pos(meta))
+        rows = _numeric_rows(c[0]) if _one_token(c) else tuple(c)
+        return S.Expr("matrix", rows, _pos(meta))
 
     # ---------------------------------------------------------------- declarations
     def plant(self, meta, c):
