@@ -95,6 +95,8 @@ def numeric(node: Expr, lookup):
     if op in BINARY:
         return _fold(node, lambda e: numeric(e, lookup), _numeric_binary)
     if op == "matrix":
+        if _plain(args):
+            return np.array([[e.args[0] for e in row] for row in args], float)
         rows = [[numeric(e, lookup) for e in row] for row in args]
         try:
             return np.block([[np.atleast_2d(np.asarray(v, float)) for v in row] for row in rows]) if rows else np.zeros((0, 0))
@@ -123,6 +125,13 @@ def numeric(node: Expr, lookup):
     if np.ndim(a) or np.ndim(b):
         raise EvalError("powers of matrices are not supported", node)
     return np.power(float(a), float(b))  # real: NaN for a negative base and a fractional power
+
+
+def _plain(rows) -> bool:
+    """Whether a matrix literal's rows are all numbers, in rows of one length: the array np.block would
+    make of it is then one np.array call instead of a numeric() and a block per entry."""
+    return (bool(rows) and len({len(row) for row in rows}) == 1
+            and all(e.op == "number" for row in rows for e in row))
 
 
 def _numeric_binary(node: Expr, a, b):
