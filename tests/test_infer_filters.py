@@ -270,3 +270,30 @@ def test_compacting_the_covariance_graph_changes_nothing(monkeypatch, algorithm)
     compacted = jmlgdsl.filter(model, y, algorithm=algorithm, particles=20, seed=1)
     np.testing.assert_allclose(compacted.mode_posterior, kept.mode_posterior, atol=1e-9)
     np.testing.assert_allclose(compacted.state_mean, kept.state_mean, atol=1e-9)
+
+
+def test_imm_keeps_settled_kalman_pieces_without_changing_the_result(monkeypatch):
+    """Once the posterior sits on one mode the mixed covariances repeat and IMM keeps each mode's
+    Kalman pieces; the result equals recomputing them at every step (SURE < 0: never sure) to
+    rounding, through switches and partly and fully missing readings."""
+    from jmlgdsl.infer import imm
+    from jmlgdsl.simulate import simulate
+
+    model = random_model(np.random.default_rng(8), K=3, nx=3, ny=6, stay=0.98)
+    sim = simulate(model, modes=np.repeat([0, 1, 2, 0], 60), seed=4)
+    y = sim.y.copy()
+    y[100, :2] = np.nan
+    y[170] = np.nan
+    calls = []
+    step = kalman.covariance_step
+    monkeypatch.setattr(kalman, "covariance_step", lambda *a: calls.append(len(a[0])) or step(*a))
+    kept = jmlgdsl.filter(model, y, sim.u, algorithm="imm")
+    assert sum(calls) < 0.5 * 3 * len(y)  # most steps computed no mode's pieces
+    monkeypatch.setattr(imm, "SURE", -1.0)
+    calls.clear()
+    fresh = jmlgdsl.filter(model, y, sim.u, algorithm="imm")
+    assert sum(calls) == 3 * len(y)
+    np.testing.assert_allclose(kept.mode_posterior, fresh.mode_posterior, atol=1e-9)
+    np.testing.assert_allclose(kept.state_mean, fresh.state_mean, atol=1e-9)
+    np.testing.assert_allclose(kept.loglik_steps, fresh.loglik_steps, rtol=1e-9)
+    assert kept.diagnosis_error(sim.modes) < 5.0

@@ -132,12 +132,7 @@ class CovarianceGraph:
         """Append the Kalman pieces of covariances Sig (n, nx, nx) under every mode to `rows`
         (the update of kalman.update, kept in factored form for reuse across particles)."""
         model = self.model
-        Sig_p = kalman.predict_cov(Sig[:, None], model.A, model.Q)
-        C = model.C[:, mask, :]
-        S, CS = kalman.innovation_cov(Sig_p, C, model.R[:, mask][:, :, mask])
-        gain_t, Linv, logdet = kalman.gain(S, CS)  # gain_t = S^-1 C Sig_p
-        Sig_f = kalman.symmetrize(Sig_p - np.swapaxes(CS, -1, -2) @ gain_t)
-        rows.extend(Linv, logdet, gain_t, Sig_f)
+        rows.extend(*kalman.covariance_step(Sig[:, None], model.A, model.Q, model.C, model.R, mask))
 
     def children(self, rows: _Rows, node, mode) -> np.ndarray:
         """Nodes of the filtered covariances reached from `node` (n,) by `mode` (n,) under `rows`' mask."""

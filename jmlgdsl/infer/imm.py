@@ -2,6 +2,11 @@
 
 The classical deterministic baseline: K Kalman steps per time step, no sampling, but biased because
 the mixture over histories is collapsed to one Gaussian per mode at every step.
+
+The covariance half of those Kalman steps never sees the data. Once the mode posterior is sure of
+its mode and the filters have settled, a mode's mixed covariance repeats from step to step (to
+kalman.SETTLED), so its factor, gain and filtered covariance are kept and a step costs the mixing
+and the means: on a wide bank most steps then skip the O(K nx^3) work.
 """
 
 from __future__ import annotations
@@ -10,9 +15,11 @@ import numpy as np
 
 from . import kalman
 from .engine import OPEN, Estimate, mixture_moments, offsets, screen
+from .resample import normalize
 
 LOG_FLOOR = np.finfo(float).min  # below every finite log-probability
-from .resample import normalize
+# Mass off the most probable mode below which the mixed covariances may repeat to kalman.SETTLED.
+SURE = 1e-12
 
 
 class IMM:
@@ -25,6 +32,32 @@ class IMM:
         self.means = model.mu0.copy()
         self.covs = np.broadcast_to(model.Sigma0, (model.K,) + model.Sigma0.shape).copy()
         self._C = model.C if model.output_states is None else model.output_states  # see kalman
+        # per mode, the mixed covariance and mask of the last Kalman pieces computed, and the pieces
+        self._kept = None
+        self._sure = False  # the last posterior put all but SURE of its mass on one mode
+
+    def _pieces(self, covs, mask):
+        """(Linv, log det S, gain', filtered covariance) per mode for mixed covariances covs, computed
+        afresh only for the modes whose covariance or mask moved since they were last computed. A
+        covariance can only repeat when the last posterior sat on one mode (else the spread of the
+        means, which follows the data, enters the mixing), so only then is it compared."""
+        kept, model = self._kept, self.model
+        if self._sure and kept is not None and np.array_equal(kept[1], mask):
+            fresh = ~kalman.settled(covs, kept[0])
+            if not fresh.any():
+                return kept[2]
+            if not fresh.all():
+                C = self._C if kalman.picks(self._C) else self._C[fresh]
+                new = kalman.covariance_step(covs[fresh], model.A[fresh], model.Q[fresh], C, model.R[fresh], mask)
+                base, pieces = kept[0].copy(), tuple(p.copy() for p in kept[2])
+                base[fresh] = covs[fresh]
+                for p, n in zip(pieces, new):
+                    p[fresh] = n
+                self._kept = base, kept[1], pieces
+                return pieces
+        pieces = kalman.covariance_step(covs, model.A, model.Q, self._C, model.R, mask)
+        self._kept = covs, mask.copy(), pieces
+        return pieces
 
     def step(self, y, mask, u, gate=OPEN) -> Estimate:
         model = self.model
@@ -41,17 +74,21 @@ class IMM:
         # loops in C without BLAS: most of a step with 50 states)
         spread = np.swapaxes(d * mix.T[:, :, None], 1, 2) @ d
         covs = (mix.T @ self.covs.reshape(K, nx * nx)).reshape(K, nx, nx) + spread
-        mu_p, Sig_p = kalman.predict(mixed, covs, model.A, b, model.Q)
-        y_pred, S, CS = kalman.innovation(mu_p, Sig_p, self._C, c, model.R)
-        means, covs, ll, quad = kalman.update(mu_p, Sig_p, y_pred, S, CS, y, mask)
+        Linv, logdet, gain_t, covs = self._pieces(covs, mask)
+        mu_p = (model.A @ mixed[:, :, None])[:, :, 0] + b
+        y_pred = (mu_p[:, self._C] if kalman.picks(self._C) else (self._C @ mu_p[:, :, None])[:, :, 0]) + c
+        r = y - y_pred if mask.all() else y[mask] - y_pred[:, mask]
+        z = (Linv @ r[:, :, None])[:, :, 0]  # whitened innovations
+        quad = kalman.quad_form(z)
         flagged = None
         if quad.min() > gate.bound:
-            sd = np.sqrt(np.maximum(np.diagonal(S, axis1=1, axis2=2)[:, mask], 0.0))  # rounding can make it < 0
-            screened, flagged = screen(self, y, mask, u, gate, y[mask] - y_pred[:, mask], sd)
+            screened, flagged = screen(self, y, mask, u, gate, r, kalman.standard_deviations(Linv))
             if screened is not None:
                 return screened
-        post, loglik = normalize(log_pred + ll)
+        means = mu_p + (r[:, None, :] @ gain_t)[:, 0, :]
+        post, loglik = normalize(log_pred + kalman.log_density(quad, logdet, r.shape[1]))
         self.log_mu = np.log(post, out=np.full_like(post, -np.inf), where=post > 0)
+        self._sure = post.max() >= 1.0 - SURE
         self.means, self.covs = means, covs
         mean, cov = mixture_moments(post, means, (post @ covs.reshape(len(post), -1)).reshape(covs.shape[1:]))
         return Estimate(post, mean, cov, np.exp(log_pred) @ y_pred, loglik, np.nan, flagged=flagged)

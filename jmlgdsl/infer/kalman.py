@@ -139,6 +139,23 @@ def gain(S, CS):
     return transpose(Linv) @ (Linv @ CS), Linv, logdet
 
 
+def covariance_step(Sig, A, Q, C, R, mask):
+    """The half of a Kalman step that never sees the data: from filtered covariances Sig (..., nx, nx),
+    for the outputs where mask (ny,) is True, (Linv, log det S, gain' = S^-1 C Sig_p (..., m, nx),
+    the next filtered covariance). Filters that meet the same covariance again keep these."""
+    Sig_p = predict_cov(Sig, A, Q)
+    S, CS = innovation_cov(Sig_p, C, R)
+    if not mask.all():
+        S, CS = S[..., mask, :][..., :, mask], CS[..., mask, :]
+    gain_t, Linv, logdet = gain(S, CS)
+    return Linv, logdet, gain_t, symmetrize(Sig_p - transpose(CS) @ gain_t)
+
+
+def settled(new, old):
+    """(...) True where covariances new (..., n, n) equal old to SETTLED, relative to their largest entry."""
+    return np.abs(new - old).max(axis=(-2, -1)) <= SETTLED * np.abs(new).max(axis=(-2, -1))
+
+
 def quad_form(z):
     """Squared length of whitened residuals z (..., n): the Mahalanobis distance r' S^-1 r."""
     return np.einsum("...i,...i->...", z, z)
