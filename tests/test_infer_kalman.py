@@ -129,3 +129,13 @@ def test_outputs_that_read_a_run_of_states_filter_as_their_matrices():
     np.testing.assert_allclose(a.mode_posterior, b.mode_posterior, atol=1e-10)
     np.testing.assert_allclose(a.loglik_steps, b.loglik_steps, rtol=1e-10)
     np.testing.assert_allclose(a.state_mean[:, order], b.state_mean, atol=1e-9)
+
+
+def test_settled_holds_each_entry_to_its_own_scale():
+    """A covariance of states in units a million apart: a change in the small state's variance
+    counts, however small beside the large state's, and rounding-sized changes do not."""
+    Sig = np.array([[1e12, 1e5], [1e5, 1.0]])
+    assert kalman.settled(Sig, Sig * (1 + 1e-15))
+    assert not kalman.settled(Sig, Sig + np.array([[0.0, 0.0], [0.0, 1e-3]]))
+    assert not kalman.settled(Sig, Sig + np.array([[0.0, 1e-3], [1e-3, 0.0]]))
+    assert list(kalman.settled(np.stack([Sig, Sig]), np.stack([Sig, 2 * Sig]))) == [True, False]

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from scipy.stats import multivariate_normal
 
+from jmlgdsl.infer import kalman
 from jmlgdsl.learn import em as em_module
 from jmlgdsl.learn.em import em, forward, smooth
 from jmlgdsl.learn.statespace import StateSpace
@@ -170,7 +171,7 @@ def test_reusing_settled_covariances_changes_nothing_but_rounding(monkeypatch):
     y[400, 0] = np.nan
     fast = smooth(truth, y, u)
     assert forward(truth, y, u).settled.sum() > 500
-    monkeypatch.setattr(em_module, "SETTLED", -1.0)
+    monkeypatch.setattr(kalman, "SETTLED", -1.0)
     assert not forward(truth, y, u).settled.any()
     full = smooth(truth, y, u)
     assert np.allclose(fast.mean, full.mean, rtol=1e-9, atol=1e-12)

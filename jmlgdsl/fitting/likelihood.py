@@ -56,7 +56,7 @@ def labelled_loglik(model: Model, y: np.ndarray, u: np.ndarray, modes: np.ndarra
         y_pred, S, CS = kalman.innovation(mu_p, Sig_p, C[k], c[t, k], R[k])
         mu, Sig_new, ll, _ = kalman.update(mu_p, Sig_p, y_pred, S, CS, y[t], masks[t])
         total += float(ll)
-        settled = complete[t] and np.abs(Sig_new - Sig).max() <= kalman.SETTLED * np.abs(Sig_new).max()
+        settled = complete[t] and kalman.settled(Sig_new, Sig)
         steady = _steady(k, S, CS) if settled else None
         Sig = Sig_new
     with np.errstate(divide="ignore"):

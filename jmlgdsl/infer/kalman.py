@@ -152,8 +152,10 @@ def covariance_step(Sig, A, Q, C, R, mask):
 
 
 def settled(new, old):
-    """(...) True where covariances new (..., n, n) equal old to SETTLED, relative to their largest entry."""
-    return np.abs(new - old).max(axis=(-2, -1)) <= SETTLED * np.abs(new).max(axis=(-2, -1))
+    """(...) True where covariances new (..., n, n) equal old to SETTLED, each entry relative to
+    sqrt(new_ii new_jj): a state in small units keeps its own precision beside one in large units."""
+    sd = np.sqrt(np.abs(np.diagonal(new, axis1=-2, axis2=-1)))
+    return (np.abs(new - old) <= SETTLED * (sd[..., :, None] * sd[..., None, :])).all(axis=(-2, -1))
 
 
 def quad_form(z):

@@ -16,7 +16,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..infer import kalman
-from ..infer.kalman import SETTLED
 from .statespace import StateSpace
 
 #: Eigenvalues of fitted covariances are kept at least this fraction of the largest one.
@@ -149,7 +148,7 @@ def forward(ss: StateSpace, y, u) -> Filtered:
     """Kalman filter with NaN-masked outputs over y (T, ny) with inputs u (T, nu).
 
     The covariances do not depend on the data, only on which outputs are measured: once a fully
-    measured step leaves the predicted covariance unchanged to SETTLED relative, the filter reuses
+    measured step leaves the predicted covariance unchanged (`kalman.settled`), the filter reuses
     that step's covariances, gain and innovation factor until an output goes missing. The means
     then follow x_t|t = M x_t-1|t-1 + d_t with M and the gain fixed over each run of reused steps,
     so a step costs one matrix-vector product.
@@ -171,7 +170,7 @@ def forward(ss: StateSpace, y, u) -> Filtered:
         Sig_p = kalman.predict_cov(filt[-1], ss.A, ss.Q)
         S, CS = kalman.innovation_cov(Sig_p, ss.C[m], ss.R if full[t] else ss.R[np.ix_(m, m)])
         gain_t, Linv, logdet = kalman.gain(S, CS)
-        steady = bool(full[t] and t and full[t - 1] and np.abs(Sig_p - pred[-1]).max() <= SETTLED * np.abs(Sig_p).max())
+        steady = bool(full[t] and t and full[t - 1] and kalman.settled(Sig_p, pred[-1]))
         pred.append(Sig_p)
         filt.append(kalman.symmetrize(Sig_p - CS.T @ gain_t))
         pieces.append((m, gain_t.T, Linv, logdet))
@@ -225,7 +224,7 @@ def smooth(ss: StateSpace, y, u) -> Smoothed:
         smoothed.append(kalman.symmetrize(fw.cov[t] + Jt @ (later - fw.cov_pred[t]) @ Jt.T))
         computed[t] = True
         steady = bool(constant[t] and t + 1 < T and constant[t + 1]
-                      and np.abs(smoothed[-1] - later).max() <= SETTLED * np.abs(smoothed[-1]).max())
+                      and kalman.settled(smoothed[-1], later))
     cov = Runs.of(smoothed[::-1], np.r_[True, computed[:-1]])
     # Cov(x_{t+1}, x_t) = Sig_s[t+1] J_t': one per run of equal factors.
     pairs = np.stack([cov.index[1:], gains.index])
