@@ -96,9 +96,12 @@ def test_one_token_and_general_path_give_the_same_nodes_and_errors(literal):
     assert outcome(spec_with(literal)) == outcome(spec_with(general))
 
 
-def test_an_overflowing_entry_is_reported_at_the_matrix():
+def test_an_overflowing_entry_is_reported_at_the_entry():
     found = [(d.line, d.column) for d in errors_of(spec_with("[1 1e999; 0 1]"), "p.jmlg") if "finite" in d.message]
-    assert found == [(8, 7)]
+    assert found == [(8, 10)]
+    nested = [(d.line, d.column) for d in errors_of(spec_with("[1 (2 * 1e308 * 10); 0 1]"), "p.jmlg")
+              if "finite" in d.message]
+    assert nested == [(8, 11)]  # the product inside the parentheses
 
 
 def test_a_transition_row_is_reported_at_its_first_entry():

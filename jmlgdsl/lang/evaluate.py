@@ -257,9 +257,19 @@ def finite_numeric(node: Expr, lookup):
 
     with np.errstate(all="ignore"):
         value = numeric(node, watched)
-    if not inherited and not np.all(np.isfinite(value)):
-        raise EvalError(NOT_FINITE, node)
+        if not inherited and not np.all(np.isfinite(value)):
+            raise EvalError(NOT_FINITE, _first_not_finite(node, watched))
     return value
+
+
+def _first_not_finite(node: Expr, lookup) -> Expr:
+    """The entry of a matrix literal (within matrices, the innermost) whose value is not finite, so
+    the error points at what to fix; the node itself when it is no matrix (or no entry alone is)."""
+    if node.op == "matrix":
+        for entry in (e for row in node.args for e in row):
+            if not np.all(np.isfinite(numeric(entry, lookup))):
+                return _first_not_finite(entry, lookup)
+    return node
 
 
 NOT_FINITE = ("this is not a finite real number (an overflow, a division by zero, or a log, root or power "
