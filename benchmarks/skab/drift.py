@@ -12,7 +12,6 @@ stay 0.999; the alarm is P(anomaly) > 0.5 for 3 rows, the setting cross-validati
 
 from __future__ import annotations
 
-import argparse
 import sys
 import warnings
 from pathlib import Path
@@ -28,7 +27,7 @@ from jmlgdsl.learn.bank import default_transitions
 from jmlgdsl.metrics import Scores, score
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from run import DEFAULT_DATA, REPO, SENSORS, TRAIN, files  # noqa: E402
+from run import SENSORS, TRAIN, data_folder, files, results_parser  # noqa: E402
 
 TEMPERATURES = (SENSORS.index("Temperature"), SENSORS.index("Thermocouple"))
 # (bias sd a step, sensors): none, then the temperatures at four walk speeds, then every sensor
@@ -57,11 +56,9 @@ def bank(learned: Model, sd: float, sensors) -> Model:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--data", type=Path)
-    parser.add_argument("--results", type=Path, default=REPO / "benchmarks" / "skab" / "results")
+    parser = results_parser(__doc__)
     args = parser.parse_args(argv)
-    data = args.data or next(d for d in DEFAULT_DATA if d.is_dir())
+    data = data_folder(parser, args.data)
     pooled = {s: [] for s in SETTINGS}
     for path in files(data):
         with warnings.catch_warnings():

@@ -10,7 +10,6 @@ noise scale 3 and stay 0.99) changed to the setting cross-validation chose for t
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 import tempfile
@@ -21,18 +20,16 @@ from jmlgdsl import plots
 from jmlgdsl.data import Columns, read_csv
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from run import DEFAULT_DATA, REPO, SENSORS  # noqa: E402
+from run import REPO, SENSORS, data_folder, results_parser  # noqa: E402
 
 FIGURES = REPO / "docs" / "figures"
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = results_parser(__doc__)
     parser.add_argument("files", nargs="*", default=["valve1_3", "valve2_1", "other_11"])
-    parser.add_argument("--data", type=Path)
-    parser.add_argument("--results", type=Path, default=REPO / "benchmarks" / "skab" / "results")
     args = parser.parse_args(argv)
-    data = args.data or next(d for d in DEFAULT_DATA if d.is_dir())
+    data = data_folder(parser, args.data)
     chosen = json.loads((args.results / "strict" / "summary.json").read_text())["chosen"]
     for stem in args.files:
         folder, name = stem.split("_", 1)

@@ -10,7 +10,6 @@ Needs the specs benchmarks/skab/run.py wrote (RESULTS/strict/*.jmlg, with the a 
 
 from __future__ import annotations
 
-import argparse
 import sys
 import tempfile
 import warnings
@@ -24,17 +23,15 @@ from jmlgdsl.data import Columns, read_csv
 from jmlgdsl.metrics import Scores, score
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from run import DEFAULT_DATA, REPO, SENSORS, TRAIN, files  # noqa: E402
+from run import SENSORS, TRAIN, data_folder, files, results_parser  # noqa: E402
 
 LAGS = (0, 2, 5, 10, 20)
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--data", type=Path)
-    parser.add_argument("--results", type=Path, default=REPO / "benchmarks" / "skab" / "results")
+    parser = results_parser(__doc__)
     args = parser.parse_args(argv)
-    data = args.data or next(d for d in DEFAULT_DATA if d.is_dir())
+    data = data_folder(parser, args.data)
     rule = AlarmRule(("normal",), 0.5, 3)
     pooled = {lag: [] for lag in LAGS}
     for path in files(data):

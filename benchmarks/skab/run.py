@@ -65,6 +65,23 @@ LEADERBOARD_NAB = [("MSCRED", 32.42, 16.53, 40.28, 55, 342), ("Isolation forest"
                    ("MSET", 13.84, 10.22, 17.37, 96, 66)]
 
 
+def results_parser(doc: str) -> argparse.ArgumentParser:
+    """The options of the scripts that read what this one wrote (lag.py, drift.py, figures.py)."""
+    parser = argparse.ArgumentParser(description=doc, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--data", type=Path, help="the SKAB data folder (valve1/, valve2/, other/)")
+    parser.add_argument("--results", type=Path, default=REPO / "benchmarks" / "skab" / "results",
+                        help="the --out folder of benchmarks/skab/run.py")
+    return parser
+
+
+def data_folder(parser: argparse.ArgumentParser, given: Path | None) -> Path:
+    """The SKAB data folder: --data, else the first default that exists; a usage error if none does."""
+    data = given or next((d for d in DEFAULT_DATA if d.is_dir()), None)
+    if data is None or not data.is_dir():
+        parser.error("no SKAB data folder found; give --data DIR (the public SKAB repository's data/ folder)")
+    return data
+
+
 def files(data: Path) -> list[Path]:
     return sorted(p for folder in FOLDERS for p in (data / folder).glob("*.csv"))
 
@@ -229,9 +246,7 @@ def main(argv=None) -> int:
     parser.add_argument("--no-gate", action="store_true", help="switch the gross-error gate off")
     parser.add_argument("--workers", type=int, default=2)
     args = parser.parse_args(argv)
-    data = args.data or next((d for d in DEFAULT_DATA if d.is_dir()), None)
-    if data is None or not data.is_dir():
-        parser.error("no SKAB data folder found; give --data DIR (the public SKAB repository's data/ folder)")
+    data = data_folder(parser, args.data)
     for setting in ("strict", "leave-file-out") if args.setting == "both" else (args.setting,):
         run_setting(setting, data, args)
     return 0
