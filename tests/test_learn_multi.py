@@ -67,6 +67,10 @@ def test_cli_learns_several_sensors_from_rows_labelled_by_mode(runs, tmp_path, c
     for name in model.modes:
         argv += ["--mode", f"{name}={tmp_path / 'run0.csv'}", "--mode", f"{name}={tmp_path / 'run1.csv'}"]
     assert main(argv) == 0
+    progress = [line for line in capsys.readouterr().err.splitlines() if line.startswith("learned mode")]
+    assert [line.split(" iterations")[0].rsplit(" ", 1)[0] for line in progress] == [
+        "learned mode 1 of 2, normal: ARX(1,1,0), EM", "learned mode 2 of 2, fault: ARX(1,1,0), EM"]
+    assert main(argv + ["--quiet", "--max-iter", "2"]) == 0 and "learned mode" not in capsys.readouterr().err
     learned = jmlgdsl.load(spec)
     assert learned.outputs == ("volts", "flow") and learned.states == ("volts_lag1", "flow_lag1")
     assert learned.modes == ("normal", "fault") and np.allclose(learned.p0, [0.99, 0.01])

@@ -46,6 +46,7 @@ def register(subparsers):
     p.add_argument("--max-iter", type=int, default=100, help="EM iteration cap (default 100)")
     p.add_argument("--tol", type=float, default=1e-5, help="EM relative log-likelihood tolerance (default 1e-5)")
     p.add_argument("--figures", metavar="DIR", help="write validation (and step-fit) figures here")
+    p.add_argument("-q", "--quiet", action="store_true", help="do not report each mode as it is learned")
     p.add_argument("-o", "--output-spec", dest="spec_out", default="-", metavar="FILE", help="spec file to write (default: standard output)")
     p.set_defaults(func=main)
 
@@ -204,8 +205,9 @@ def main(args) -> int:
                     modes=modes, dt=frame["dt"])
     experiments = {mode: [run for path in paths[mode] for run in runs(read_csv(path, names), mode, k)]
                    for k, mode in enumerate(modes)}
+    progress = None if args.quiet else (lambda text: print(text, file=sys.stderr, flush=True))
     learned = bank.learn_modes(experiments, order, args.fopdt, frame["dt"], args.max_order, args.max_delay,
-                               args.criterion, args.max_iter, args.tol)
+                               args.criterion, args.max_iter, args.tol, progress)
     defaults = frame["input_defaults"]
     model = bank.assemble(learned, operating_input=defaults if np.isfinite(defaults).all() else None, **frame)
     text = write_spec(model, header(args, paths, learned))

@@ -4,10 +4,12 @@ assembled Model, whose modes all speak of the same states (see `lagged`)."""
 
 from __future__ import annotations
 
+import time
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.linalg import solve_discrete_lyapunov
+from scipy.linalg import LinAlgWarning, solve_discrete_lyapunov
 
 from ..errors import DataError
 from ..lang.probabilities import otherwise_uniform
@@ -77,7 +79,7 @@ class LearnedMode:
 
 
 def learn_modes(experiments: dict, order="auto", fopdt=False, dt=1.0, max_order=4, max_delay=0,
-                criterion="bic", max_iter=100, tol=1e-5) -> list[LearnedMode]:
+                criterion="bic", max_iter=100, tol=1e-5, progress=None) -> list[LearnedMode]:
     """Fit every mode: `experiments` maps a mode's name to its Experiment, or to a list of them (runs
     of the same mode, pooled: their equations in least squares, their moments in EM). Structure:
     ARX order (na, nb, nk), "auto", or FOPDT step tests (one per mode).
@@ -86,6 +88,8 @@ def learn_modes(experiments: dict, order="auto", fopdt=False, dt=1.0, max_order=
     nk <= max_delay) bounds the order from above, since ARX spends extra lags imitating measurement
     noise; EM then fits orders 1..that bound to each mode and keeps, mode by mode, the one with
     the least criterion (the shared basis lets modes of different orders sit in one bank).
+
+    `progress(text)`, when given, hears of each mode as it is learned (a bank can take minutes).
     """
     runs = {k: tuple(v) if isinstance(v, (list, tuple)) else (v,) for k, v in experiments.items()}
     for name, exps in runs.items():
@@ -101,16 +105,30 @@ def learn_modes(experiments: dict, order="auto", fopdt=False, dt=1.0, max_order=
             if len(exps) != 1 or exps[0].u.shape[1] != 1 or exps[0].y.shape[1] != 1:
                 raise DataError(f"{exps[0].source}: a mode's step test is one experiment with one input and one output")
         fits = {k: _located(e, steptest.fit, e.y[:, 0], e.u[:, 0], dt) for k, (e,) in runs.items()}
-        return [_fit(k, exps, fits[k].lagged(), f"FOPDT gain {fits[k].gain:.4g}, tau {fits[k].tau:.4g} s, "
-                                                f"dead time {fits[k].delay * fits[k].dt:g} s", max_iter, tol, fits[k])
-                for k, exps in runs.items()]
-    if order != "auto":
-        return [_fit_arx(k, exps, order, max_iter, tol) for k, exps in runs.items()]
-    na, nb, nk = arx.select_order([(e.y, e.u) for exps in runs.values() for e in exps], max_order, max_order,
-                                  max_delay, criterion)
-    orders = range(1, max(na, nk + nb) + 1)
-    return [min((_fit_arx(k, exps, (n, n, 0), max_iter, tol) for n in orders), key=lambda lm: lm.criterion(criterion))
-            for k, exps in runs.items()]
+
+        def learn(k, exps):
+            return _fit(k, exps, fits[k].lagged(), f"FOPDT gain {fits[k].gain:.4g}, tau {fits[k].tau:.4g} s, "
+                                                   f"dead time {fits[k].delay * fits[k].dt:g} s", max_iter, tol, fits[k])
+    elif order != "auto":
+        def learn(k, exps):
+            return _fit_arx(k, exps, order, max_iter, tol)
+    else:
+        na, nb, nk = arx.select_order([(e.y, e.u) for exps in runs.values() for e in exps], max_order, max_order,
+                                      max_delay, criterion)
+        orders = range(1, max(na, nk + nb) + 1)
+
+        def learn(k, exps):
+            return min((_fit_arx(k, exps, (n, n, 0), max_iter, tol) for n in orders),
+                       key=lambda lm: lm.criterion(criterion))
+    learned = []
+    start = time.perf_counter()
+    for i, (k, exps) in enumerate(runs.items(), 1):
+        learned.append(learn(k, exps))
+        if progress is not None:
+            lm = learned[-1]
+            progress(f"learned mode {i} of {len(runs)}, {k}: {lm.structure}, EM {lm.em.iterations} iterations "
+                     f"({time.perf_counter() - start:.1f} s so far)")
+    return learned
 
 
 def _fit_arx(name, exps, order, max_iter, tol) -> LearnedMode:
@@ -170,8 +188,11 @@ def assemble(learned: list[LearnedMode], *, P, p0, operating_input=None, **names
         m = lm.mode.statespace(u_op, n)
         mods.append(m)
         x0.append(m.steady_state(u_op) if _stable(m) else m.mu0)
-        spread.append(np.diag(solve_discrete_lyapunov(m.A, m.Q)) if _stable(m)
-                      else np.r_[np.tile(np.diag(lm.mode.Q), n), np.zeros((n - 1) * nu)])
+        with warnings.catch_warnings():
+            # near a unit root the Lyapunov system is ill-conditioned; its answer is only a starting spread
+            warnings.simplefilter("ignore", LinAlgWarning)
+            spread.append(np.diag(solve_discrete_lyapunov(m.A, m.Q)) if _stable(m)
+                          else np.r_[np.tile(np.diag(lm.mode.Q), n), np.zeros((n - 1) * nu)])
     spread = np.max(spread, axis=0)
     spread[n * ny:] = np.tile(np.max([lm.inputs.var(0) for lm in learned], axis=0), n - 1)
     B = np.stack([np.vstack([np.linalg.cholesky(m.Q[:ny, :ny]), np.zeros((m.nx - ny, ny))]) for m in mods])
