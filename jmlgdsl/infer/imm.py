@@ -32,7 +32,8 @@ class IMM:
         self.means = model.mu0.copy()
         self.covs = np.broadcast_to(model.Sigma0, (model.K,) + model.Sigma0.shape).copy()
         self._C = model.C if model.output_states is None else model.output_states  # see kalman
-        # per mode, the mixed covariance and mask of the last Kalman pieces computed, and the pieces
+        # per mode, the mixed covariance and mask of the last Kalman pieces computed, the pieces, and
+        # how far each covariance may move and still count as the same (kalman.tolerance)
         self._kept = None
         self._sure = False  # the last posterior put all but SURE of its mass on one mode
 
@@ -43,20 +44,21 @@ class IMM:
         means, which follows the data, enters the mixing), so only then is it compared."""
         kept, model = self._kept, self.model
         if self._sure and kept is not None and np.array_equal(kept[1], mask):
-            fresh = ~kalman.settled(covs, kept[0])
+            base, _, pieces, tol = kept
+            fresh = ~kalman.settled(covs, base, tol)
             if not fresh.any():
-                return kept[2]
+                return pieces
             if not fresh.all():
                 C = self._C if kalman.picks(self._C) else self._C[fresh]
                 new = kalman.covariance_step(covs[fresh], model.A[fresh], model.Q[fresh], C, model.R[fresh], mask)
-                base, pieces = kept[0].copy(), tuple(p.copy() for p in kept[2])
-                base[fresh] = covs[fresh]
+                base, tol, pieces = base.copy(), tol.copy(), tuple(p.copy() for p in pieces)
+                base[fresh], tol[fresh] = covs[fresh], kalman.tolerance(covs[fresh])
                 for p, n in zip(pieces, new):
                     p[fresh] = n
-                self._kept = base, kept[1], pieces
+                self._kept = base, mask.copy(), pieces, tol
                 return pieces
         pieces = kalman.covariance_step(covs, model.A, model.Q, self._C, model.R, mask)
-        self._kept = covs, mask.copy(), pieces
+        self._kept = covs, mask.copy(), pieces, kalman.tolerance(covs)
         return pieces
 
     def step(self, y, mask, u, gate=OPEN) -> Estimate:

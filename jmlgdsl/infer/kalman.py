@@ -144,11 +144,18 @@ def covariance_step(Sig, A, Q, C, R, mask):
     return Linv, logdet, gain_t, symmetrize(Sig_p - transpose(CS) @ gain_t)
 
 
-def settled(new, old):
-    """(...) True where covariances new (..., n, n) equal old to SETTLED, each entry relative to
-    sqrt(new_ii new_jj): a state in small units keeps its own precision beside one in large units."""
-    sd = np.sqrt(np.abs(np.diagonal(new, axis1=-2, axis2=-1)))
-    return (np.abs(new - old) <= SETTLED * (sd[..., :, None] * sd[..., None, :])).all(axis=(-2, -1))
+def tolerance(Sig):
+    """How far each entry of covariances Sig (..., n, n) may move and still count as the same:
+    SETTLED * sqrt(Sig_ii Sig_jj), so a state in small units keeps its own precision beside one in
+    large units."""
+    sd = np.sqrt(np.abs(np.diagonal(Sig, axis1=-2, axis2=-1)))
+    return SETTLED * (sd[..., :, None] * sd[..., None, :])
+
+
+def settled(new, old, tol=None):
+    """(...) True where covariances new (..., n, n) equal old to their `tolerance` (of new, unless
+    given: a filter comparing many covariances with the same old ones keeps it)."""
+    return (np.abs(new - old) <= (tolerance(new) if tol is None else tol)).all(axis=(-2, -1))
 
 
 def quad_form(z):
