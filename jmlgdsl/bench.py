@@ -12,8 +12,6 @@ import csv
 import functools
 import math
 import os
-import sys
-import time
 import zlib
 from dataclasses import dataclass
 
@@ -26,6 +24,7 @@ from .metrics import changepoints, score, switch_delays
 from .model import Model
 from .output import check_count
 from .prefilter import moving_average
+from .progress import Progress
 from .simulate import simulate
 
 DEFAULT_PARTICLES = (1, 4, 10, 25, 50, 100, 200, 400, 800, 1600)
@@ -184,38 +183,6 @@ def make_jobs(model, sources, filters=DEFAULT_FILTERS, particles=DEFAULT_PARTICL
             jobs += [Job(model, source, algorithm, n, run, data_seed, filter_seed, prefilter, lag)
                      for lag in lags for source in sources]
     return jobs
-
-
-class Progress:
-    """A plain-text progress bar on a stream: done/total, elapsed time and an estimate of the rest."""
-
-    def __init__(self, total, stream=sys.stderr, width=30):
-        self.total, self.stream, self.width = total, stream, width
-        self.done, self.start, self.shown = 0, time.perf_counter(), -1
-        self.live = hasattr(stream, "isatty") and stream.isatty()
-
-    def update(self, n=1):
-        """Count n more finished runs; redraw on a terminal, else print at every further 10 %."""
-        self.done += n
-        percent = 100 * self.done // self.total
-        if not self.live and percent < self.shown + 10 and self.done < self.total:
-            return
-        self.shown = percent
-        elapsed = time.perf_counter() - self.start
-        left = elapsed * (self.total - self.done) / self.done
-        bar = "#" * (self.width * self.done // self.total)
-        line = (f"[{bar:<{self.width}}] {self.done}/{self.total} runs, {_clock(elapsed)} elapsed, "
-                f"~{_clock(left)} left")
-        self.stream.write(("\r" + line) if self.live else line + "\n")
-        if self.live and self.done == self.total:
-            self.stream.write("\n")
-        self.stream.flush()
-
-
-def _clock(seconds):
-    """Seconds as minutes and seconds, e.g. 2m05s."""
-    minutes, seconds = divmod(int(round(seconds)), 60)
-    return f"{minutes}m{seconds:02d}s"
 
 
 def execute(jobs, workers=None, scheduler=None, progress=None) -> list[dict]:

@@ -12,6 +12,7 @@ from jmlgdsl import bench
 from jmlgdsl.cli import main
 from jmlgdsl.data import write_columns
 from jmlgdsl.errors import DataError
+from jmlgdsl.progress import Progress
 from jmlgdsl.simulate import simulate
 
 SHORT = "1-20:normal,21-40:fan,41-60:grill"
@@ -176,12 +177,43 @@ def test_table_and_record_csv_files(tmp_path):
 
 def test_progress_bar_reports_runs_done_on_a_plain_stream():
     stream = io.StringIO()
-    bar = bench.Progress(20, stream)
+    bar = Progress(20, stream)
     for _ in range(20):
         bar.update()
     lines = stream.getvalue().splitlines()
     assert len(lines) == 10  # one line per tenth on a stream that is not a terminal
     assert lines[-1].startswith("[" + "#" * 30 + "] 20/20 runs")
+
+
+class Terminal(io.StringIO):
+    def isatty(self):
+        return True
+
+
+def test_a_count_without_total_redraws_once_a_second_on_a_terminal_only():
+    """`run` reads rows whose number it cannot know: on a terminal their count and rate are redrawn
+    in place at most once a second and finished with a newline; elsewhere nothing is written."""
+    now = [0.0]
+    terminal = Terminal()
+    count = Progress(None, terminal, "rows", clock=lambda: now[0])
+    for i in range(1, 2501):  # 2.5 s at 1,000 rows a second
+        now[0] = i / 1000
+        count.update()
+    count.close()
+    assert terminal.getvalue() == ("\r1000 rows, 0m01s elapsed, 1000 rows/s\r2000 rows, 0m02s elapsed, 1000 rows/s"
+                                   "\r2500 rows, 0m02s elapsed, 1000 rows/s\n")
+    short = Terminal()
+    brief = Progress(None, short, "rows", clock=lambda: now[0])
+    now[0] += 0.5
+    brief.update(500)
+    brief.close()
+    assert short.getvalue() == ""  # under a second: nothing to watch
+    plain = io.StringIO()
+    quiet = Progress(None, plain, "rows")
+    for _ in range(2500):
+        quiet.update()
+    quiet.close()
+    assert plain.getvalue() == ""
 
 
 @pytest.fixture(scope="module")

@@ -32,7 +32,8 @@ def register(subparsers):
                     "truth (a 'mode' column of true mode names, or 0/1 'anomaly' and 'changepoint' "
                     "columns) the summary adds the diagnosis error, the confusion matrix and the "
                     "detection metrics: detection rate, FAR, MAR, F1, detection delay, false alarms "
-                    "per hour and the NAB scores.")
+                    "per hour and the NAB scores. On a terminal a run of more than a second shows "
+                    "its count of rows and their rate on standard error as it goes.")
     p.add_argument("spec", help="plant spec (.jmlg) or compiled model (.json/.npz)")
     p.add_argument("data", help="CSV data file, or - to read rows from standard input as they arrive")
     p.add_argument("--filter", default=DEFAULT_ALGORITHM, choices=list(ALGORITHMS),
@@ -160,6 +161,7 @@ def diagnose(args, on_step=None):
     from ..infer.table import TableWriter
     from ..output import FIGURE, check_count, check_file
     from ..prefilter import MovingAverage, parse
+    from ..progress import Progress
 
     check_file(args.output, inputs=[args.spec, args.data])
     check_file(args.plot, inputs=[args.spec, args.data], suffixes=FIGURE, option="--plot")
@@ -180,6 +182,7 @@ def diagnose(args, on_step=None):
     stream = open_source(args.data)
     out = writer = None
     rows = deque()  # data rows whose records the filter still holds back (with a lag)
+    ticker = Progress(None, sys.stderr, "rows")  # a running count, on a terminal only
 
     def record(step):
         """Everything that happens to one finished record: alarm, summary, labels, table row."""
@@ -204,6 +207,7 @@ def diagnose(args, on_step=None):
             step = f.step(row.y if smooth is None else smooth(row.y), row.u)
             if step is not None:
                 record(step)
+            ticker.update()
         for step in f.flush():
             record(step)
         scale.finish()
@@ -212,6 +216,7 @@ def diagnose(args, on_step=None):
             out.discard()  # a run stopped by an error leaves the old table as it was
         raise
     finally:
+        ticker.close()
         if stream is not sys.stdin:
             stream.close()
         if out not in (None, sys.stdout):
