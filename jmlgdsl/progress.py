@@ -10,7 +10,8 @@ import time
 class Progress:
     """Counts finished units of work and shows them. On a terminal the line is redrawn in place (a
     count without a total at most once a second); on any other stream a bar prints a line at every
-    further 10 %, and a count without a total prints nothing (it would only fill a log)."""
+    further 10 %, and a count without a total prints nothing (it would only fill a log). With no
+    stream (None) nothing is shown."""
 
     def __init__(self, total=None, stream=sys.stderr, unit="runs", width=30, clock=time.perf_counter):
         self.total, self.stream, self.unit, self.width, self.clock = total, stream, unit, width, clock
@@ -21,6 +22,8 @@ class Progress:
     def update(self, n=1):
         """Count n more finished units."""
         self.done += n
+        if self.stream is None:
+            return
         if self.total is None:
             if self.live and self.clock() - self.drawn >= 1.0:
                 self._count()

@@ -182,7 +182,8 @@ def diagnose(args, on_step=None):
     stream = open_source(args.data)
     out = writer = None
     rows = deque()  # data rows whose records the filter still holds back (with a lag)
-    ticker = Progress(None, sys.stderr, "rows")  # a running count, on a terminal only
+    # a running count on a terminal, unless the table itself is streaming to the screen
+    ticker = Progress(None, None if args.output == "-" else sys.stderr, "rows")
 
     def record(step):
         """Everything that happens to one finished record: alarm, summary, labels, table row."""
