@@ -214,6 +214,10 @@ def test_a_count_without_total_redraws_once_a_second_on_a_terminal_only():
         quiet.update()
     quiet.close()
     assert plain.getvalue() == ""
+    silent = Progress(20, None)  # no stream: nothing shown, bar or count
+    for _ in range(20):
+        silent.update()
+    assert silent.done == 20
 
 
 @pytest.fixture(scope="module")
