@@ -21,7 +21,7 @@ from .engine import FilterError, Gate, Resampler, offsets
 from .lagged import Genealogies, ImmWindow
 from .resample import SCHEMES
 from .result import Result, Step
-from .smooth import smooth_exact, smooth_imm
+from .smooth import ModeGaussians, kim_smooth, smooth_exact
 
 # Readings this large (or infinite) cannot be measurements: their squares would overflow the
 # Kalman arithmetic, so they are treated as not measured.
@@ -186,10 +186,20 @@ def smooth(model: Model, y, u=None, *, algorithm: str = DEFAULT_ALGORITHM, lag: 
                       ess_threshold=ess_threshold)
     y, u = _arrays(model, y, u)
     if algorithm == "exact" or (algorithm == "imm" and lag is not None):
-        result = filter(model, y, u, algorithm=algorithm, seed=seed)
-        start = time.perf_counter()
-        used = np.where(result.rejected, np.nan, y)  # readings rejected as gross errors stay out
-        smoothed = (smooth_exact if algorithm == "exact" else smooth_imm)(model, used, u, lag)
+        if algorithm == "imm":  # one filter pass, its per-mode output kept for Kim's pass
+            f, fwd = Filter(model, algorithm), ModeGaussians.empty(len(y), model)
+            steps = []
+            for t, (y_t, u_t) in enumerate(zip(y, u)):
+                steps.append(f.step(y_t, u_t))
+                fwd.record(t, f.engine)
+            result = Result.from_steps(model, algorithm, f.particles, steps, f.seconds)
+            start = time.perf_counter()
+            smoothed = kim_smooth(model, fwd, u, lag)
+        else:
+            result = filter(model, y, u, algorithm=algorithm, seed=seed)
+            start = time.perf_counter()
+            used = np.where(result.rejected, np.nan, y)  # readings rejected as gross errors stay out
+            smoothed = smooth_exact(model, used, u, lag)
         return dataclasses.replace(result, mode_posterior=smoothed.mode_posterior, state_mean=smoothed.state_mean,
                                    state_cov=smoothed.state_cov, lag=lag,
                                    seconds=result.seconds + time.perf_counter() - start)

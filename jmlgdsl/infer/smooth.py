@@ -28,6 +28,7 @@ import numpy as np
 from ..errors import JmlgError
 from ..gaussian import symmetrize
 from . import kalman
+from .imm import IMM
 from .kalman import transpose
 
 # Exact smoothing keeps every history's Kalman statistics at every step: up to twice this many
@@ -164,19 +165,28 @@ def _exact_backward(K, levels, s, first):
 
 # ----------------------------------------------------------------------------- imm
 @dataclass(frozen=True)
-class _ModeGaussians:
+class ModeGaussians:
     """Log mode probabilities and one Gaussian per mode, over any leading axes (steps, windows)."""
 
     log_w: np.ndarray  # (..., K)
     mean: np.ndarray  # (..., K, nx)
     cov: np.ndarray  # (..., K, nx, nx)
 
-    def take(self, index) -> "_ModeGaussians":
-        return _ModeGaussians(self.log_w[index], self.mean[index], self.cov[index])
+    @classmethod
+    def empty(cls, T, model) -> "ModeGaussians":
+        """Room for T steps of the model's modes, filled by `record`."""
+        return cls(np.empty((T, model.K)), np.empty((T, model.K, model.nx)), np.empty((T, model.K, model.nx, model.nx)))
 
-    def then(self, later: "_ModeGaussians") -> "_ModeGaussians":
+    def record(self, t, engine):
+        """Keep an IMM engine's per-mode output after step t: log p(z_t | y_1:t) and filtered moments."""
+        self.log_w[t], self.mean[t], self.cov[t] = engine.log_mu, engine.means, engine.covs
+
+    def take(self, index) -> "ModeGaussians":
+        return ModeGaussians(self.log_w[index], self.mean[index], self.cov[index])
+
+    def then(self, later: "ModeGaussians") -> "ModeGaussians":
         """These steps followed by the later ones (along the leading axis)."""
-        return _ModeGaussians(*(np.concatenate(pair) for pair in
+        return ModeGaussians(*(np.concatenate(pair) for pair in
                                 zip((self.log_w, self.mean, self.cov), (later.log_w, later.mean, later.cov))))
 
 
@@ -201,9 +211,18 @@ def smooth_imm(model, y, u, lag=None) -> Smoothed:
     row, all windows batched into L numpy steps: O(T L K^2) work. Lag 0 is the IMM filter.
     """
     y, u = _check(model, y, u, lag)
-    T = len(y)
-    b, c = _offsets(model, u)
-    fwd = _imm_forward(model, y, b, c)
+    engine, fwd = IMM(model), ModeGaussians.empty(len(y), model)
+    for t in range(len(y)):
+        engine.step(y[t], ~np.isnan(y[t]), u[t])
+        fwd.record(t, engine)
+    return kim_smooth(model, fwd, u, lag)
+
+
+def kim_smooth(model, fwd: ModeGaussians, u, lag=None) -> Smoothed:
+    """Kim's backward pass (off-line, or over every row's window of `lag` rows) over the IMM filter's
+    per-mode output `fwd` at every step, under inputs u (T, nu)."""
+    T = len(fwd.log_w)
+    b, _ = _offsets(model, u)
     pairs = _kim_pairs(model, fwd, b)
     # Rows whose window reaches the last step see all the data: one off-line pass over them.
     first = 0 if lag is None else max(0, T - 1 - lag)
@@ -219,62 +238,13 @@ def kim(model, log_w, mean, cov, b) -> Smoothed:
     """Kim's fixed-interval pass over IMM filter outputs already at hand: per-mode log-probabilities
     log_w (n, K), moments mean (n, K, nx) and cov (n, K, nx, nx), and the state offsets b (n, K, nx)
     of those n steps; smoothed given the data up to the last of them (the on-line fixed-lag form)."""
-    fwd = _ModeGaussians(log_w, mean, cov)
+    fwd = ModeGaussians(log_w, mean, cov)
     smoothed = _kim_offline(model.logP, fwd, _kim_pairs(model, fwd, b), 0)
     post = np.exp(_log_normalize(smoothed.log_w))
     return Smoothed(post, *_mixture(post, smoothed.mean, smoothed.cov))
 
 
-def _imm_forward(model, y, b, c) -> _ModeGaussians:
-    """The IMM filter's per-mode output at every step: log p(z_t | y_1:t) and filtered moments."""
-    T, K = len(y), model.K
-    C, R, target = _measured(model, y, c)
-    out = _ModeGaussians(np.empty((T, K)), np.empty((T, K, model.nx)), np.empty((T, K, model.nx, model.nx)))
-    with np.errstate(divide="ignore"):
-        log_mu = np.log(model.p0)
-    mean, cov = model.mu0, np.broadcast_to(model.Sigma0, (K,) + model.Sigma0.shape)
-    for t in range(T):
-        log_pred, mean, cov = _imm_mix(model.logP, log_mu, mean, cov)
-        mean, cov = kalman.predict(mean, cov, model.A, b[t], model.Q)
-        mean, cov, ll = _update(mean, cov, C[t], R[t], target[t])
-        log_mu = _log_normalize(log_pred + ll)
-        out.log_w[t], out.mean[t], out.cov[t] = log_mu, mean, cov
-    return out
-
-
-def _imm_mix(logP, log_mu, mean, cov):
-    """IMM's interaction: log p(z_t = j | y_1:t-1) and each mode's moment-matched prior, the
-    mixture of the filtered modes i weighted by p(z_t-1 = i | z_t = j, y_1:t-1)."""
-    joint = log_mu[:, None] + logP
-    log_pred = np.logaddexp.reduce(joint, axis=0)
-    mix = np.exp(_log_ratio(joint, log_pred)).T  # (j, i)
-    mixed = mix @ mean
-    d = mean - mixed[:, None]
-    return log_pred, mixed, np.einsum("ji,iab->jab", mix, cov) + np.einsum("ji,jia,jib->jab", mix, d, d)
-
-
-def _measured(model, y, c):
-    """(C, R, y - c) per step (T, K, ...) that leave unmeasured outputs out of the update: their rows
-    of C and y - c are zero and R gives them unit variance uncorrelated with the rest, so each adds
-    a zero residual with no gain and the same factor N(0; 0, 1) to every mode's likelihood."""
-    miss = np.isnan(y)
-    C = np.where(miss[:, None, :, None], 0.0, model.C)
-    R = np.where(miss[:, None, :, None] | miss[:, None, None, :], np.eye(model.ny), model.R)
-    return C, R, np.where(miss[:, None], 0.0, y[:, None] - c)
-
-
-def _update(mean_p, cov_p, C, R, target):
-    """Measurement update of each mode's prediction and log p(y | mode, past), through the inverse
-    Cholesky factor of the innovation covariance; `target` is y minus the output offset."""
-    CS = C @ cov_p
-    Linv = np.linalg.inv(np.linalg.cholesky(CS @ transpose(C) + R))
-    z = (Linv @ (target - (C @ mean_p[..., None])[..., 0])[..., None])[..., 0]
-    Wt = transpose(Linv @ CS)  # the gain is Wt Linv
-    ll = kalman.whitened_log_normal(z, -2.0 * np.log(np.diagonal(Linv, axis1=-2, axis2=-1)).sum(-1))
-    return mean_p + (Wt @ z[..., None])[..., 0], symmetrize(cov_p - Wt @ transpose(Wt)), ll
-
-
-def _kim_pairs(model, fwd: _ModeGaussians, b) -> _Pairs:
+def _kim_pairs(model, fwd: ModeGaussians, b) -> _Pairs:
     """Every pair's one-step prediction from the filtered moments of mode i under mode j's dynamics,
     its smoother gain, and the predicted mode probabilities: all steps at once."""
     mu, Sig = fwd.mean[:-1, :, None], fwd.cov[:-1, :, None]
@@ -298,7 +268,7 @@ def _log_ratio(log_a, log_b):
     return log_a - np.maximum(log_b, _LOG_FLOOR)
 
 
-def _kim_step(logP, filt: _ModeGaussians, pairs: _Pairs, nxt: _ModeGaussians) -> _ModeGaussians:
+def _kim_step(logP, filt: ModeGaussians, pairs: _Pairs, nxt: ModeGaussians) -> ModeGaussians:
     """One backward step of Kim's smoother, batched over leading axes: from the smoothed mode
     probabilities and per-mode moments at t+1 to those at t."""
     log_w, cond = _kim_modes(logP, filt.log_w, pairs.log_pred, nxt.log_w)
@@ -306,10 +276,10 @@ def _kim_step(logP, filt: _ModeGaussians, pairs: _Pairs, nxt: _ModeGaussians) ->
     means = filt.mean[..., :, None, :] + (pairs.gain @ dx[..., None])[..., 0]
     covs = pairs.rest + pairs.gain @ nxt.cov[..., None, :, :, :] @ transpose(pairs.gain)
     mean, cov = _mixture(cond, means, covs)
-    return _ModeGaussians(log_w, mean, cov)
+    return ModeGaussians(log_w, mean, cov)
 
 
-def _kim_offline(logP, fwd: _ModeGaussians, pairs: _Pairs, first) -> _ModeGaussians:
+def _kim_offline(logP, fwd: ModeGaussians, pairs: _Pairs, first) -> ModeGaussians:
     """The fixed-interval backward pass from the last step down to step `first` (rows first..T-1).
 
     Kim's step is affine in the smoothed moments at t+1 once the mode recursion has fixed the
@@ -331,10 +301,10 @@ def _kim_offline(logP, fwd: _ModeGaussians, pairs: _Pairs, first) -> _ModeGaussi
     cov = filt.cov.copy()
     for t in range(n - 2, -1, -1):
         cov[t] = symmetrize(base[t] + np.einsum("ijab,jbc,ijdc->iad", CJ[t], cov[t + 1], pairs.gain[t]))
-    return _ModeGaussians(log_w, mean, cov)
+    return ModeGaussians(log_w, mean, cov)
 
 
-def _kim_windows(logP, fwd: _ModeGaussians, pairs: _Pairs, ends, lag) -> _ModeGaussians:
+def _kim_windows(logP, fwd: ModeGaussians, pairs: _Pairs, ends, lag) -> ModeGaussians:
     """Kim's backward pass over the windows ends-lag..ends, all batched: smoothed at ends - lag."""
     nxt = fwd.take(ends)
     for k in range(1, lag + 1):
