@@ -36,36 +36,29 @@ def labelled_loglik(model: Model, y: np.ndarray, u: np.ndarray, modes: np.ndarra
     measured, u (T, nu), modes (T,) indices.
 
     The covariance recursion does not depend on the data: once it has settled in a mode (to rounding,
-    while every output is measured) the gain is kept and each step costs a few matrix-vector products."""
+    while every output is measured) its Kalman pieces are kept and each step costs a few
+    matrix-vector products."""
     b = np.einsum("kij,tj->tki", model.F, u) + model.f  # F u_t + f per mode, for the whole record at once
     c = np.einsum("kij,tj->tki", model.G, u) + model.g
     A, Q, C, R = model.A, model.Q, model.C, model.R
     mu, Sig = model.mu0[modes[0]], model.Sigma0
     masks = ~np.isnan(y)
     complete = masks.all(axis=1)
-    total, steady = 0.0, None  # steady: (mode, gain', whitening factor, log-density constant) once settled
+    total, kept = 0.0, None  # kept: (mode, Linv, log det S, gain') of a settled covariance
     for t, k in enumerate(modes):
-        if steady is not None and steady[0] == k and complete[t]:
-            _, gain_t, Linv, constant = steady
-            r = y[t] - C[k] @ (mu_p := A[k] @ mu + b[t, k]) - c[t, k]
-            z = Linv @ r
-            mu = mu_p + gain_t.T @ r
-            total += constant - 0.5 * min(float(z @ z), kalman.MAX_QUAD)
-            continue
-        mu_p, Sig_p = kalman.predict(mu, Sig, A[k], b[t, k], Q[k])
-        y_pred, S, CS = kalman.innovation(mu_p, Sig_p, C[k], c[t, k], R[k])
-        mu, Sig_new, ll, _ = kalman.update(mu_p, Sig_p, y_pred, S, CS, y[t], masks[t])
-        total += float(ll)
-        settled = complete[t] and kalman.settled(Sig_new, Sig)
-        steady = _steady(k, S, CS) if settled else None
-        Sig = Sig_new
+        if kept is not None and kept[0] == k and complete[t]:
+            _, Linv, logdet, gain_t = kept
+        else:
+            Linv, logdet, gain_t, Sig_new = kalman.covariance_step(Sig, A[k], Q[k], C[k], R[k], masks[t])
+            kept = (k, Linv, logdet, gain_t) if complete[t] and kalman.settled(Sig_new, Sig) else None
+            Sig = Sig_new
+        mu_p = A[k] @ mu + b[t, k]
+        r = y[t] - C[k] @ mu_p - c[t, k]
+        if not complete[t]:
+            r = r[masks[t]]
+        mu = mu_p + gain_t.T @ r
+        z = Linv @ r
+        total += float(kalman.log_density(z @ z, logdet, len(r)))
     with np.errstate(divide="ignore"):
         log_chain = np.log(model.p0 @ model.P)[modes[0]] + model.logP[modes[:-1], modes[1:]].sum()
     return total + float(log_chain)
-
-
-def _steady(k: int, S: np.ndarray, CS: np.ndarray):
-    """The settled update of mode k: its gain' S^-1 C Sig_p, the whitening factor of S and the
-    constant part of the log-density."""
-    gain_t, Linv, logdet = kalman.gain(S, CS)
-    return k, gain_t, Linv, -0.5 * (logdet + len(S) * kalman.LOG_2PI)
