@@ -10,6 +10,7 @@ import numpy as np
 
 from ..data import Data
 from ..infer import kalman
+from ..infer.engine import offsets
 from ..infer.online import Filter
 from ..model import Model
 
@@ -38,8 +39,7 @@ def labelled_loglik(model: Model, y: np.ndarray, u: np.ndarray, modes: np.ndarra
     The covariance recursion does not depend on the data: once it has settled in a mode (to rounding,
     while every output is measured) its Kalman pieces are kept and each step costs a few
     matrix-vector products."""
-    b = np.einsum("kij,tj->tki", model.F, u) + model.f  # F u_t + f per mode, for the whole record at once
-    c = np.einsum("kij,tj->tki", model.G, u) + model.g
+    b, c = offsets(model, u)  # per step and mode, for the whole record at once
     A, Q, C, R = model.A, model.Q, model.C, model.R
     mu, Sig = model.mu0[modes[0]], model.Sigma0
     masks = ~np.isnan(y)

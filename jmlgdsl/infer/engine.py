@@ -13,7 +13,7 @@ import numpy as np
 
 from ..errors import JmlgError
 from . import kalman
-from .resample import ess, normalize
+from .resample import ess
 
 
 class FilterError(JmlgError, ValueError):
@@ -97,8 +97,12 @@ def screen(engine: Engine, y, mask, u, gate: Gate, r, sd):
 
 
 def offsets(model, u):
-    """Per-mode constant terms of the state and output equations for input u: (K, nx) and (K, ny)."""
-    return model.F @ u + model.f, model.G @ u + model.g
+    """Per-mode constant terms of the state and output equations F u + f and G u + g: (K, nx) and
+    (K, ny) for one input u (nu,), (T, K, nx) and (T, K, ny) for every step of u (T, nu)."""
+    if u.ndim == 1:
+        return model.F @ u + model.f, model.G @ u + model.g
+    u = u[:, None, :, None]
+    return (model.F @ u)[..., 0] + model.f, (model.G @ u)[..., 0] + model.g
 
 
 def mixture_moments(w, means, weighted_cov):

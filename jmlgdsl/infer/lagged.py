@@ -69,5 +69,5 @@ class ImmWindow:
     def rows(self, n):
         """(posteriors (n, K), means (n, nx), covariances (n, nx, nx)) of the last n rows, oldest first."""
         log_w, mean, cov, b = (np.array(part) for part in zip(*list(self.window)[-n:]))
-        out = smooth.kim(self.model, log_w, mean, cov, b)
+        out = smooth.kim_smooth(self.model, smooth.ModeGaussians(log_w, mean, cov), b)
         return out.mode_posterior, out.state_mean, out.state_cov

@@ -185,7 +185,7 @@ def smooth(model: Model, y, u=None, *, algorithm: str = DEFAULT_ALGORITHM, lag: 
         return filter(model, y, u, algorithm=algorithm, particles=particles, seed=seed, resampling=resampling,
                       ess_threshold=ess_threshold)
     y, u = _arrays(model, y, u)
-    if algorithm == "exact" or (algorithm == "imm" and lag is not None):
+    if algorithm in ("exact", "imm"):
         if algorithm == "imm":  # one filter pass, its per-mode output kept for Kim's pass
             f, fwd = Filter(model, algorithm), ModeGaussians.empty(len(y), model)
             steps = []
@@ -194,7 +194,7 @@ def smooth(model: Model, y, u=None, *, algorithm: str = DEFAULT_ALGORITHM, lag: 
                 fwd.record(t, f.engine)
             result = Result.from_steps(model, algorithm, f.particles, steps, f.seconds)
             start = time.perf_counter()
-            smoothed = kim_smooth(model, fwd, u, lag)
+            smoothed = kim_smooth(model, fwd, offsets(model, u)[0], lag)
         else:
             result = filter(model, y, u, algorithm=algorithm, seed=seed)
             start = time.perf_counter()

@@ -28,6 +28,7 @@ import numpy as np
 from ..errors import JmlgError
 from ..gaussian import symmetrize
 from . import kalman
+from .engine import offsets
 from .imm import IMM
 from .kalman import transpose
 
@@ -62,12 +63,6 @@ def _check(model, y, u, lag):
     if lag is not None and (isinstance(lag, bool) or not isinstance(lag, (int, np.integer)) or lag < 0):
         raise SmoothError(f"the lag must be None (off-line) or a whole number >= 0, got {lag!r}")
     return y, u
-
-
-def _offsets(model, u):
-    """Per-step, per-mode constant terms of the state and output equations: (T, K, nx), (T, K, ny)."""
-    return (np.einsum("kij,tj->tki", model.F, u) + model.f,
-            np.einsum("kij,tj->tki", model.G, u) + model.g)
 
 
 def _log_normalize(logw, axis=-1):
@@ -127,7 +122,7 @@ def _exact_forward(model, y, u) -> list:
     if K ** (T + 1) > MAX_HISTORIES:
         raise SmoothError(f"exact smoothing of {T} steps would carry {K}^{T + 1} = {K ** (T + 1)} mode "
                           f"histories, more than the limit of {MAX_HISTORIES}; use imm for longer data")
-    b, c = _offsets(model, u)
+    b, c = offsets(model, u)
     with np.errstate(divide="ignore"):
         levels = [_Level(np.log(model.p0), model.mu0, np.broadcast_to(model.Sigma0, (K,) + model.Sigma0.shape))]
     for s in range(T):
@@ -215,14 +210,13 @@ def smooth_imm(model, y, u, lag=None) -> Smoothed:
     for t in range(len(y)):
         engine.step(y[t], ~np.isnan(y[t]), u[t])
         fwd.record(t, engine)
-    return kim_smooth(model, fwd, u, lag)
+    return kim_smooth(model, fwd, offsets(model, u)[0], lag)
 
 
-def kim_smooth(model, fwd: ModeGaussians, u, lag=None) -> Smoothed:
+def kim_smooth(model, fwd: ModeGaussians, b, lag=None) -> Smoothed:
     """Kim's backward pass (off-line, or over every row's window of `lag` rows) over the IMM filter's
-    per-mode output `fwd` at every step, under inputs u (T, nu)."""
+    per-mode output `fwd` at every step, whose state offsets F u + f were b (T, K, nx)."""
     T = len(fwd.log_w)
-    b, _ = _offsets(model, u)
     pairs = _kim_pairs(model, fwd, b)
     # Rows whose window reaches the last step see all the data: one off-line pass over them.
     first = 0 if lag is None else max(0, T - 1 - lag)
@@ -232,16 +226,6 @@ def kim_smooth(model, fwd: ModeGaussians, u, lag=None) -> Smoothed:
     post = np.exp(_log_normalize(smoothed.log_w))
     mean, cov = _mixture(post, smoothed.mean, smoothed.cov)
     return Smoothed(post, mean, cov)
-
-
-def kim(model, log_w, mean, cov, b) -> Smoothed:
-    """Kim's fixed-interval pass over IMM filter outputs already at hand: per-mode log-probabilities
-    log_w (n, K), moments mean (n, K, nx) and cov (n, K, nx, nx), and the state offsets b (n, K, nx)
-    of those n steps; smoothed given the data up to the last of them (the on-line fixed-lag form)."""
-    fwd = ModeGaussians(log_w, mean, cov)
-    smoothed = _kim_offline(model.logP, fwd, _kim_pairs(model, fwd, b), 0)
-    post = np.exp(_log_normalize(smoothed.log_w))
-    return Smoothed(post, *_mixture(post, smoothed.mean, smoothed.cov))
 
 
 def _kim_pairs(model, fwd: ModeGaussians, b) -> _Pairs:
