@@ -81,16 +81,24 @@ class Filter:
         """
         start = time.perf_counter()
         model, t = self.model, self.t + 1
-        y = _vector(y, model.outputs, "outputs", t)
-        mask = np.abs(y) < MAX_READING  # False for NaN and for readings too large to be real
-        if not mask.all():
-            y = np.where(mask, y, np.nan)
-        u = model.input_defaults if u is None else _vector(u, model.inputs, "inputs", t)
-        if not np.isfinite(u).all():
-            u = np.where(np.isnan(u), model.input_defaults, u)
-            if not np.isfinite(u).all():
-                bad = [n for n, v in zip(model.inputs, u) if not np.isfinite(v)]
-                raise DataError(f"t={t}: no value and no default for input {', '.join(bad)}")
+        y, mask = _readings(_vector(y, model.outputs, "outputs", t))
+        u = _inputs(model, model.input_defaults if u is None else _vector(u, model.inputs, "inputs", t), t)
+        self.seconds += time.perf_counter() - start
+        return self._advance(y, mask, u)
+
+    def _feed(self, y, u):
+        """The records of whole arrays y (T, ny) and u (T, nu), checked all at once (as `step` checks a row)."""
+        start = time.perf_counter()
+        y, mask = _readings(y)
+        u = _inputs(self.model, u, self.t + 1)
+        self.seconds += time.perf_counter() - start
+        for row in zip(y, mask, u):
+            yield self._advance(*row)
+
+    def _advance(self, y, mask, u) -> Step | None:
+        """`step` on checked readings y (ny,), measured where mask (ny,) is True, and inputs u (nu,)."""
+        start = time.perf_counter()
+        t = self.t + 1
         est = self.engine.step(y, mask, u, self._gate)
         if not math.isfinite(est.loglik):  # NaN or infinite: the model's numbers overflowed
             raise FilterError(f"t={t}: the filter's arithmetic overflowed (log-likelihood {est.loglik}); the "
@@ -149,6 +157,27 @@ def _vector(values, names, what, t):
     return v.reshape(len(names))
 
 
+def _readings(y):
+    """(y, mask) for readings y (..., ny): mask is False where a reading is NaN, infinite or beyond
+    MAX_READING in size (not measured), and y is NaN there."""
+    mask = np.abs(y) < MAX_READING
+    return (y if mask.all() else np.where(mask, y, np.nan)), mask
+
+
+def _inputs(model: Model, u, t):
+    """Inputs u (..., nu) with NaN entries taking the spec's defaults; a DataError naming the first
+    row (u's first row is t) with an input that has neither a value nor a default."""
+    if np.isfinite(u).all():
+        return u
+    u = np.where(np.isnan(u), model.input_defaults, u)
+    bad = ~np.isfinite(np.atleast_2d(u))
+    if bad.any():
+        row = int(np.flatnonzero(bad.any(axis=1))[0])
+        names = [n for n, b in zip(model.inputs, bad[row]) if b]
+        raise DataError(f"t={t + row}: no value and no default for input {', '.join(names)}")
+    return u
+
+
 def _arrays(model: Model, y, u):
     """y as (T, ny) and u as (T, nu), checked against the model."""
     y = np.asarray(y, dtype=float)
@@ -165,7 +194,7 @@ def filter(model: Model, y, u=None, *, algorithm: str = DEFAULT_ALGORITHM, parti
     Row t of the result is p(z_t | y_1:t) and the matching state moments."""
     y, u = _arrays(model, y, u)
     f = Filter(model, algorithm, particles, seed, resampling, ess_threshold)
-    steps = [f.step(y_t, u_t) for y_t, u_t in zip(y, u)]
+    steps = list(f._feed(y, u))
     return Result.from_steps(model, algorithm, f.particles, steps, f.seconds)
 
 
@@ -189,8 +218,8 @@ def smooth(model: Model, y, u=None, *, algorithm: str = DEFAULT_ALGORITHM, lag: 
         if algorithm == "imm":  # one filter pass, its per-mode output kept for Kim's pass
             f, fwd = Filter(model, algorithm), ModeGaussians.empty(len(y), model)
             steps = []
-            for t, (y_t, u_t) in enumerate(zip(y, u)):
-                steps.append(f.step(y_t, u_t))
+            for t, record in enumerate(f._feed(y, u)):
+                steps.append(record)
                 fwd.record(t, f.engine)
             result = Result.from_steps(model, algorithm, f.particles, steps, f.seconds)
             start = time.perf_counter()
@@ -204,5 +233,5 @@ def smooth(model: Model, y, u=None, *, algorithm: str = DEFAULT_ALGORITHM, lag: 
                                    state_cov=smoothed.state_cov, lag=lag,
                                    seconds=result.seconds + time.perf_counter() - start)
     f = Filter(model, algorithm, particles, seed, resampling, ess_threshold, lag=lag)
-    steps = [s for y_t, u_t in zip(y, u) if (s := f.step(y_t, u_t)) is not None] + f.flush()
+    steps = [s for s in f._feed(y, u) if s is not None] + f.flush()
     return dataclasses.replace(Result.from_steps(model, algorithm, f.particles, steps, f.seconds), lag=lag)
