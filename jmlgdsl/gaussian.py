@@ -9,7 +9,10 @@ import numpy as np
 
 
 def symmetrize(S):
-    """(S + S') / 2 over the last two axes: keeps covariance updates exactly symmetric."""
+    """(S + S') / 2 over the last two axes: keeps covariance updates exactly symmetric (1 x 1
+    matrices already are, and come back as they are: a filter over one state does this at every step)."""
+    if S.shape[-1] == 1:
+        return S
     return 0.5 * (S + np.swapaxes(S, -1, -2))
 
 

@@ -138,9 +138,8 @@ class CovarianceGraph:
         """Nodes of the filtered covariances reached from `node` (n,) by `mode` (n,) under `rows`' mask."""
         child = rows.child.buffer[node, mode]
         missing = child < 0
-        if missing.any():
-            K = self.model.K
-            new_node, new_mode = np.divmod(np.unique(node[missing] * K + mode[missing]), K)
+        if missing.any():  # a pair met twice gets one node: `add` keeps equal covariances once
+            new_node, new_mode = node[missing], mode[missing]
             rows.child.buffer[new_node, new_mode] = self.add(rows.Sig_f(new_node, new_mode))
             child = rows.child.buffer[node, mode]
         return child

@@ -61,6 +61,11 @@ class Gate(NamedTuple):
         enforce = np.ones(limit.shape, dtype=bool) if enforce is None else enforce
         return cls(limit, enforce, float(limit.min()) ** 2 if limit.size else np.inf)
 
+    def closer_look(self, quad) -> bool:
+        """Whether a step whose squared Mahalanobis distances over the hypotheses are quad needs the
+        closer look of `screen` (never, and at no cost, when the gate is open)."""
+        return self.bound < np.inf and quad.min() > self.bound
+
 
 OPEN = Gate(np.empty(0), np.empty(0, dtype=bool), np.inf)  # nothing is ever flagged
 

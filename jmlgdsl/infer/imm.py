@@ -83,7 +83,7 @@ class IMM:
         z = (Linv @ r[:, :, None])[:, :, 0]  # whitened innovations
         quad = kalman.quad_form(z)
         flagged = None
-        if quad.min() > gate.bound:
+        if gate.closer_look(quad):
             screened, flagged = screen(self, y, mask, u, gate, r, kalman.standard_deviations(Linv))
             if screened is not None:
                 return screened

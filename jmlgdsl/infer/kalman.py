@@ -61,14 +61,6 @@ def innovation(mu_p, Sig_p, C, c, R):
     return y_pred, S, CS
 
 
-def log_normal(r, S):
-    """log N(r; 0, S) for residuals r (..., n) and covariances S (..., n, n), via Cholesky."""
-    if r.shape[-1] == 0:
-        return np.zeros(np.broadcast_shapes(r.shape[:-1], S.shape[:-2]))
-    Linv, logdet = inverse_cholesky(S)
-    return whitened_log_normal(np.einsum("...ij,...j->...i", Linv, r), logdet)
-
-
 def cholesky(S):
     """(L, log det S) for the lower Cholesky factor L of S (..., n, n): the one factorisation of an
     innovation covariance, for its density and its gain."""
@@ -160,17 +152,12 @@ def settled(new, old, tol=None):
 
 def quad_form(z):
     """Squared length of whitened residuals z (..., n): the Mahalanobis distance r' S^-1 r."""
-    return np.einsum("...i,...i->...", z, z)
+    return (z * z).sum(axis=-1)
 
 
 def log_density(quad, logdet, n):
-    """log N(r; 0, S) from quad = r' S^-1 r, log det S and the dimension n."""
+    """log N(r; 0, S) from quad = r' S^-1 r, log det S and the dimension n (quad capped at MAX_QUAD)."""
     return -0.5 * (np.minimum(quad, MAX_QUAD) + logdet + n * LOG_2PI)
-
-
-def whitened_log_normal(z, logdet):
-    """log N(r; 0, S) from the whitened residuals z = L^-1 r (..., n) and log det S."""
-    return log_density(quad_form(z), logdet, z.shape[-1])
 
 
 def standard_deviations(Linv):

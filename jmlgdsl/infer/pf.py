@@ -49,7 +49,7 @@ class BootstrapPF:
         white = np.einsum("nab,nb->na", Linv[z], r)
         quad = quad_form(white)
         flagged = None
-        if quad.min() > gate.bound:
+        if gate.closer_look(quad):
             screened, flagged = screen(self, y, mask, u, gate, *self._every_mode(y, mask, b, c))
             if screened is not None:
                 return screened

@@ -84,7 +84,7 @@ class RaoBlackwellised:
             pred = every
             at = self.node
             log_prior = (self.logw[:, None] + model.logP[self.z]).reshape(n * K)
-            prior = (np.exp(self.logw)[:, None] * model.P[self.z]).reshape(n * K)  # sums to 1: logw is normalised
+            prior = np.exp(log_prior)  # sums to 1: logw is normalised
         else:
             pred = pred[parent, mode]
             at = (self.node[parent], mode)
@@ -97,7 +97,7 @@ class RaoBlackwellised:
         z = (Linv @ r[:, :, None])[:, :, 0]
         quad = kalman.quad_form(z)
         flagged = None
-        if quad.min() > gate.bound:  # a closer look, under every mode of every particle
+        if gate.closer_look(quad):  # under every mode of every particle
             Linv_every = Linv if log_prop is None else rows.at(self.node)[0]
             screened, flagged = screen(self, y, mask, u, gate, y[mask] - every[:, nx:][:, mask],
                                        kalman.standard_deviations(Linv_every))
@@ -139,11 +139,12 @@ def merge_copies(key, chosen, logw, size, equal=False):
         first = np.empty(size, dtype=np.int64)
         first[key[::-1]] = chosen[::-1]  # the first chosen candidate with each key
         kept = first[distinct]
+    counts = counts[distinct]
     if equal:
-        return kept, np.log(counts[distinct]) + logw[0], counts[distinct]
+        return kept, np.log(counts) + logw[0], counts
     top = logw.max()
     summed = np.bincount(key, weights=np.exp(logw - top), minlength=size)[distinct]
-    return kept, np.log(summed, out=np.full(len(summed), -np.inf), where=summed > 0) + top, counts[distinct]
+    return kept, np.log(summed, out=np.full(len(summed), -np.inf), where=summed > 0) + top, counts
 
 
 class RBPF(RaoBlackwellised):

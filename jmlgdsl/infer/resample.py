@@ -9,6 +9,7 @@ most, systematic usually the least).
 from __future__ import annotations
 
 import functools
+import math
 
 import numpy as np
 
@@ -18,7 +19,7 @@ def normalize(logw):
     top = logw.max()
     w = np.exp(logw - top)
     total = w.sum()
-    return w / total, float(top + np.log(total))
+    return w / total, float(top) + math.log(total)
 
 
 def ess(w, copies=None):
