@@ -122,7 +122,8 @@ def sample_rows(probs, rng):
     with cdf_k > u for u uniform on [0, total), so a zero-probability category is never drawn."""
     cdf = probs.cumsum(axis=1)
     u = rng.random(len(probs)) * cdf[:, -1]
-    return (cdf[:, :-1] <= u[:, None]).sum(axis=1)  # at most K - 1, even where u rounds up to the total
+    cdf[:, -1] = np.inf  # at most K - 1, even where u rounds up to the total
+    return (cdf > u[:, None]).argmax(axis=1)
 
 
 class Resampler:

@@ -130,7 +130,7 @@ def merge_copies(key, chosen, logw, size, equal=False):
     is the same (as after resampling), so c copies weigh log c + logw[0].
     Returns (chosen, log-weights, copy counts)."""
     counts = np.bincount(key, minlength=size)
-    distinct = np.flatnonzero(counts)
+    distinct = counts.nonzero()[0]
     if len(distinct) == len(key):
         return chosen, logw, counts[key]
     if key is chosen:  # a candidate is its own key

@@ -32,7 +32,7 @@ def _inverse_cdf(w, points):
     """Indices i with cumsum(w)[i-1] <= point < cumsum(w)[i] for sorted points in [0, 1)."""
     cdf = w.cumsum()
     cdf[-1] = 1.0  # guard against round-off leaving the last point beyond the end
-    return np.searchsorted(cdf, points, side="right")
+    return cdf.searchsorted(points, side="right")
 
 
 def multinomial(w, n, rng):
@@ -83,7 +83,7 @@ def fearnhead_clifford(q, n, rng):
     The stratified walk runs over the rest in decreasing weight: on the dryer (4 particles, 60 seeds)
     that kept the error SD at 0.46 % against 1.59 % for a walk in candidate order.
     """
-    positive = np.flatnonzero(q > 0)
+    positive = (q > 0).nonzero()[0]
     if len(positive) <= n:
         return positive, q[positive]
     order = positive[np.argsort(-q[positive], kind="stable")]
