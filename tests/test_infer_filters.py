@@ -240,6 +240,30 @@ def test_user_errors_are_clear(small):
         Filter(model).step(y[0], [1.0, 2.0])
     with pytest.raises(DataError, match=r"y must have shape \(T, 2\)"):
         jmlgdsl.filter(model, np.zeros((4, 3)))
+    # a whole record is checked at once, and the error names the first row without an input
+    u = np.ones((len(y), 1))
+    u[[2, 4]] = np.nan
+    with pytest.raises(DataError, match="t=3: no value and no default for input u1"):
+        jmlgdsl.filter(model.replace(input_defaults=[np.nan]), y, u)
+
+
+@pytest.mark.parametrize("algorithm", ["imm", "la-rbpf"])
+def test_a_whole_record_filters_as_its_rows_do_one_at_a_time(small, algorithm):
+    # unmeasured (NaN), infinite and absurd readings, and inputs left to the spec's default
+    model, y, _ = small
+    y, u = y.copy(), np.full((len(y), 1), 0.3)
+    y[1, 0], y[2, 1], y[3] = np.nan, np.inf, [1e120, 0.5]
+    u[[0, 4]] = np.nan
+    model = model.replace(input_defaults=[0.3])
+    whole = jmlgdsl.filter(model, y, u, algorithm=algorithm, seed=4)
+    f = Filter(model, algorithm, seed=4)
+    rows = [f.step(y_t, u_t) for y_t, u_t in zip(y, u)]
+    np.testing.assert_array_equal(whole.mode_posterior, [r.mode_posterior for r in rows])
+    np.testing.assert_array_equal(whole.state_mean, [r.state_mean for r in rows])
+    np.testing.assert_array_equal(whole.residuals, [r.residual for r in rows])
+    assert np.isnan(whole.residuals[[1, 2, 3], [0, 1, 0]]).all()
+    np.testing.assert_array_equal(whole.loglik_steps,
+                                  jmlgdsl.filter(model, y, np.full_like(u, 0.3), algorithm=algorithm, seed=4).loglik_steps)
 
 
 def test_exact_refuses_too_many_gaussians(small, monkeypatch):
