@@ -89,8 +89,7 @@ class RaoBlackwellised:
             pred = pred[parent, mode]
             at = (self.node[parent], mode)
             log_prior = self.logw[parent] + model.logP[self.z[parent], mode] - log_prop
-            prior = np.exp(log_prior - log_prior.max())
-            prior /= prior.sum()
+            prior, _ = normalize(log_prior)
         mu_p, y_pred = pred[:, :nx], pred[:, nx:]
         Linv, logdet, gain_t, Sig_f = rows.at(at)
         r = y - y_pred if rows.complete else y[mask] - y_pred[:, mask]
