@@ -1,0 +1,35 @@
+"""The result table from Python: write_result writes what `run -o` writes, and read_table reads it back."""
+
+import csv
+
+import numpy as np
+
+import jmlgdsl
+from jmlgdsl.cli import main
+from jmlgdsl.data import read_csv, write_columns
+from jmlgdsl.infer.table import read_table, write_result
+from jmlgdsl.simulate import simulate
+
+
+def test_a_result_written_from_python_is_the_run_table(tmp_path, capsys):
+    model = jmlgdsl.load("specs/dryer.jmlg")
+    data = tmp_path / "seq.csv"
+    write_columns(data, simulate(model, modes="1-20:normal,21-40:fan", seed=3).columns())
+    ran = tmp_path / "from_run.csv"
+    assert main(["run", "specs/dryer.jmlg", str(data), "-o", str(ran)]) == 0
+    capsys.readouterr()
+    alarm = [int(row["alarm"]) for row in csv.DictReader(ran.open())]
+
+    d = read_csv(data, model)
+    result = jmlgdsl.filter(model, d.y, d.u)
+    out = tmp_path / "from_python.csv"
+    write_result(out, result, time=d.time, alarm=alarm)
+    assert out.read_text() == ran.read_text()  # the same columns and numbers, byte for byte
+
+    table = read_table(out)
+    assert table.modes == list(model.modes) and table.outputs == list(model.outputs)
+    assert table.given == "the data so far"
+    np.testing.assert_array_equal(table.t, np.arange(1, 41))
+    np.testing.assert_array_equal(table.time, d.time)
+    np.testing.assert_allclose(table.mode_posterior, result.mode_posterior, rtol=1e-9)
+    np.testing.assert_allclose(table.residuals, result.residuals, rtol=1e-9)
