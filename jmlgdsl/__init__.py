@@ -19,6 +19,7 @@ _LAZY = {
     "Result": "jmlgdsl.infer",
     "simulate_nonlinear": "jmlgdsl.nonlinear",
     "fit": "jmlgdsl.fitting",
+    "read_csv": "jmlgdsl.data",
 }
 
 

@@ -1,9 +1,47 @@
-"""Shared checks for the spec-error tests."""
+"""What every test shares: the installed jmlgdsl, not the checkout's, and the spec-error checks.
+
+The suite tests the package as a user has it. `python -m pytest` puts the working directory (the
+checkout) first on sys.path, where the source tree would shadow the installed distribution, so the
+checkout is taken off the path here before anything imports jmlgdsl, and a session whose jmlgdsl
+still comes from the checkout (an editable install) stops with a message. A developer iterating on
+the source may set JMLGDSL_TEST_SOURCE=1 to test the checkout instead; CI never does.
+"""
+
+import os
+import shutil
+import sys
+from pathlib import Path
 
 import pytest
 
-from jmlgdsl.compile.lower import compile_text
-from jmlgdsl.errors import SpecError
+ROOT = Path(__file__).resolve().parents[1]  # the checkout: its specs/ and examples/ are the tests' data
+SOURCE = os.environ.get("JMLGDSL_TEST_SOURCE") == "1"
+if SOURCE:
+    sys.path.insert(0, str(ROOT))
+else:
+    sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != ROOT]
+
+import jmlgdsl  # noqa: E402  (after the path is settled)
+
+if not SOURCE and Path(jmlgdsl.__file__).resolve().is_relative_to(ROOT):
+    raise pytest.UsageError(
+        f"jmlgdsl is imported from the checkout ({Path(jmlgdsl.__file__).parent}), not from an installed "
+        "distribution: install it with 'python -m pip install .[test]' (not -e), or set "
+        "JMLGDSL_TEST_SOURCE=1 to test the source tree on purpose")
+
+from jmlgdsl.compile.lower import compile_text  # noqa: E402
+from jmlgdsl.errors import SpecError  # noqa: E402
+
+
+def jmlgdsl_command() -> list[str]:
+    """The installed `jmlgdsl` console script (beside this Python), as a user runs it; with
+    JMLGDSL_TEST_SOURCE=1, the checkout's package through this Python."""
+    if SOURCE:
+        return [sys.executable, "-m", "jmlgdsl"]
+    script = shutil.which("jmlgdsl", path=str(Path(sys.executable).parent))
+    if script is None:
+        raise pytest.UsageError(f"no jmlgdsl console script beside {sys.executable}: install the package")
+    return [script]
 
 
 def errors_of(text, path):

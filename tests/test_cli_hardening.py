@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import jmlgdsl_command
 from infer_models import dryer
 
 from jmlgdsl import output
@@ -140,7 +141,8 @@ def test_a_closed_standard_input_is_a_clear_error(files, capsys, monkeypatch):
     spec, _, _ = files
     monkeypatch.setattr(sys, "stdin", None)
     fails(capsys, ["run", spec, "-"], "<stdin>: standard input is closed")
-    done = subprocess.run(f'"{sys.executable}" -m jmlgdsl run "{spec}" - <&-', shell=True, cwd=ROOT,
+    command = " ".join(f'"{part}"' for part in jmlgdsl_command())
+    done = subprocess.run(f'{command} run "{spec}" - <&-', shell=True, cwd=ROOT,
                           capture_output=True, text=True, timeout=60)
     assert done.returncode == 2 and done.stderr == "error: <stdin>: standard input is closed\n"
 

@@ -7,6 +7,7 @@ import threading
 from pathlib import Path
 
 import pytest
+from conftest import jmlgdsl_command
 from infer_models import DRYER_SEQ1, dryer
 
 from jmlgdsl.cli import main
@@ -96,7 +97,7 @@ def test_bad_schedule_is_a_clear_error(files, capsys):
 
 def test_standard_input_is_filtered_row_by_row(files):
     spec, _ = files
-    proc = subprocess.Popen([sys.executable, "-m", "jmlgdsl", "run", str(spec), "-", "-o", "-", "--seed", "2"],
+    proc = subprocess.Popen([*jmlgdsl_command(), "run", str(spec), "-", "-o", "-", "--seed", "2"],
                             stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     timer = threading.Timer(60, proc.kill)  # never hang the test run
     timer.start()
@@ -170,3 +171,22 @@ def test_run_rejects_a_malformed_prefilter(files, capsys):
     spec, data = files
     assert main(["run", str(spec), str(data), "--prefilter", "mean:3"]) == 2
     assert "write ma:K for a moving average over K readings" in capsys.readouterr().err
+
+
+def test_particles_for_a_filter_without_particles_is_refused(files, capsys):
+    spec, data = files
+    for algorithm in ("imm", "exact"):
+        assert main(["run", str(spec), str(data), "--filter", algorithm, "--particles", "50"]) == 2
+        err = capsys.readouterr().err
+        assert err == (f"error: --particles: the {algorithm} filter uses no particles (the particle filters "
+                       "are pf, rbpf, la-rbpf, fc-rbpf)\n")
+    assert main(["run", str(spec), str(data), "--filter", "rbpf", "--particles", "5", "--seed", "1"]) == 0
+    assert "filter rbpf with 5 particles" in capsys.readouterr().out
+
+
+def test_one_change_point_is_one(tmp_path, capsys):
+    data = tmp_path / "one.csv"
+    rows = ["time,temp,mode"] + [f"{t},{50.5 if t < 30 else 44.2},{'normal' if t < 30 else 'fan'}" for t in range(60)]
+    data.write_text("\n".join(rows) + "\n")
+    assert main(["run", str(ROOT / "specs" / "dryer.jmlg"), str(data)]) == 0
+    assert "NAB (1 change point): standard" in capsys.readouterr().out

@@ -35,7 +35,9 @@ def register(subparsers):
                     "per hour and the NAB scores. On a terminal a run of more than a second shows "
                     "its count of rows and their rate on standard error as it goes.")
     p.add_argument("spec", help="plant spec (.jmlg) or compiled model (.json/.npz)")
-    p.add_argument("data", help="CSV data file, or - to read rows from standard input as they arrive")
+    p.add_argument("data", help="CSV data file, or - to read rows from standard input as they arrive "
+                                "(each row's results are then written to standard output at once, "
+                                "the summary to standard error at the end)")
     p.add_argument("--filter", default=DEFAULT_ALGORITHM, choices=list(ALGORITHMS),
                    help=f"filtering algorithm (default {DEFAULT_ALGORITHM})")
     p.add_argument("--particles", type=int, help="number of particles (default depends on the filter)")
@@ -43,7 +45,8 @@ def register(subparsers):
     p.add_argument("--resampling", default="systematic", choices=list(SCHEMES), help="resampling scheme")
     p.add_argument("--ess-threshold", type=float, default=1.0,
                    help="resample when ESS < this fraction of the particles (1 = every step)")
-    p.add_argument("-o", "--output", help="write one CSV row per time step here (- = standard output)")
+    p.add_argument("-o", "--output", help="write one CSV row per time step here (- = standard output, "
+                                          "the default when the data come from standard input)")
     p.add_argument("--plot", metavar="FILE.png",
                    help="draw the mode posterior over time, the MAP and true modes, and measured vs "
                         "predicted outputs with residuals")
@@ -155,7 +158,7 @@ def diagnose(args, on_step=None):
     import jmlgdsl
 
     from ..data import iter_rows, open_source, open_target
-    from ..errors import DataError
+    from ..errors import DataError, JmlgError
     from ..infer import Filter
     from ..infer.result import Summary
     from ..infer.table import TableWriter
@@ -163,6 +166,9 @@ def diagnose(args, on_step=None):
     from ..prefilter import MovingAverage, parse
     from ..progress import Progress
 
+    streaming = args.data == "-"
+    if streaming and args.output is None:
+        args.output = "-"  # a stream's results come out row by row as its rows arrive
     check_file(args.output, inputs=[args.spec, args.data])
     check_file(args.plot, inputs=[args.spec, args.data], suffixes=FIGURE, option="--plot")
     window = parse(args.prefilter)
@@ -170,10 +176,14 @@ def diagnose(args, on_step=None):
     model = jmlgdsl.load(args.spec)
     if args.particles is not None:
         from ..bench import particle_bytes
+        from ..infer import ALGORITHMS
+
+        if not ALGORITHMS[args.filter].uses_particles:
+            raise JmlgError(f"--particles: the {args.filter} filter uses no particles (the particle filters "
+                             f"are {', '.join(n for n, a in ALGORITHMS.items() if a.uses_particles)})")
 
         check_count("--particles", args.particles, particle_bytes(model))
     rule = alarm_rule(args, model)
-    streaming = args.data == "-"
     source = "<stdin>" if streaming else args.data
     f = Filter(model, algorithm=args.filter, particles=args.particles, seed=args.seed,
                resampling=args.resampling, ess_threshold=args.ess_threshold, lag=None if args.smooth else args.lag or 0)
@@ -281,7 +291,7 @@ def alarm_report(rule, labelled, lag=0) -> list[str]:
         f"{e.mean_delay:.1f} s, median {e.median_delay:.1f} s; {e.false_alarms} false alarms "
         f"({e.false_alarms_per_hour:.2f} per hour)",
         f"rows: F1 {o.f1:.3f}, false-alarm rate {o.far:.2f} %, missed-alarm rate {o.mar:.2f} %",
-        f"NAB ({nab.windows} change points): standard {nab.score('standard'):.2f}, low FP "
+        f"NAB ({nab.windows} change point{'' if nab.windows == 1 else 's'}): standard {nab.score('standard'):.2f}, low FP "
         f"{nab.score('lowfp'):.2f}, low FN {nab.score('lowfn'):.2f}"]
     return lines
 
