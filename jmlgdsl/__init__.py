@@ -8,8 +8,7 @@ from pathlib import Path
 
 from .errors import DataError, Diagnostic, JmlgError, SpecError, SpecWarning
 from .model import Model, ModelError
-
-__version__ = "0.1.0"
+from .version import VERSION as __version__
 
 # Heavier parts load on first use, so `import jmlgdsl` and `jmlgdsl check` stay quick.
 _LAZY = {

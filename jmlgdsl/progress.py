@@ -42,6 +42,10 @@ class Progress:
             self.stream.write("\n")
         self.stream.flush()
 
+    def collect(self, _row):
+        """Count one finished row: a Progress is a sink of a diagnosis (jmlgdsl.diagnosis)."""
+        self.update()
+
     def close(self):
         """End a count shown on a terminal (its last line stays, finished)."""
         if self.total is None and self.live and self.drawn > self.start:

@@ -12,11 +12,12 @@ import pytest
 
 PACKAGE = Path(__file__).resolve().parents[1] / "jmlgdsl"
 LAYERS = [
-    {"errors", "names", "random", "gaussian", "output", "priors", "progress"},
+    {"errors", "names", "random", "gaussian", "output", "priors", "progress", "version"},
     {"model", "data", "prefilter", "metrics", "alarms"},
     {"lang"},
     {"compile"},
     {"infer", "simulate", "nonlinear"},
+    {"diagnosis"},
     {"bench", "learn", "fitting", "plots"},
     {"commands", "cli", "__main__", "jmlgdsl"},
 ]

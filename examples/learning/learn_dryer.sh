@@ -5,7 +5,7 @@
 # would come from running the PRBS on the heater in each condition.
 set -e
 cd "$(dirname "$0")"
-J="${JMLGDSL:-python -m jmlgdsl}"
+J="${JMLGDSL:-jmlgdsl}"
 SPEC=../../specs/dryer.jmlg
 
 # 1. Step tests: current 15 -> 20 % at t = 50 s, one per mode; FOPDT fits give gain, time constant

@@ -1,0 +1,182 @@
+"""`Diagnosis`: the diagnosis of a source of data rows, as one object that can be saved and resumed.
+
+It owns everything a diagnosis accumulates: the Filter (with its fixed-lag window), the pre-filter,
+the alarm rule's persistence counter, the summary, the truth scoring and the scale check. Each
+finished row goes to the sinks (`collect(row)`): a result table, a figure's record, a store.
+`checkpoint()` saves that whole state as bytes and `Diagnosis.resume` restores it in any process,
+which then continues bit for bit as the uninterrupted diagnosis would.
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import io
+import json
+import pickle
+from collections import deque
+from dataclasses import dataclass
+
+from ..alarms import AlarmRule
+from ..data import Row
+from ..errors import JmlgError
+from ..infer import DEFAULT_ALGORITHM, Filter
+from ..infer.result import Step, Summary
+from ..model import Model
+from ..prefilter import MovingAverage
+from ..version import VERSION
+from .scale import ScaleCheck
+from .truth import Truth
+
+MAX_SEGMENTS = 30  # mode segments the summary lists; the rest are counted
+CHECKPOINT = b"jmlgdsl-checkpoint\n"  # the first line of every checkpoint
+CHECKPOINT_FORMAT = 1
+
+
+class CheckpointError(JmlgError):
+    """Saved state that cannot be resumed here: not a checkpoint, another model or another version."""
+
+
+@dataclass(frozen=True)
+class Diagnosed:
+    """One finished row: the filter's record of it, the data row it came from and its alarm (0/1)."""
+
+    step: Step
+    row: Row
+    alarm: int
+
+
+class Diagnosis:
+    """Diagnose a model's data rows one at a time: `feed(row)` as rows arrive, `finish()` at the end.
+
+    The options are the Filter's (algorithm, particles, seed, resampling, ess_threshold, lag), the
+    causal moving-average window `prefilter` (None: off) and the alarm `rule` (None: the first mode
+    is healthy, threshold 0.5, persistence 1). Sinks see every finished row, in order.
+    """
+
+    def __init__(self, model: Model, *, algorithm: str = DEFAULT_ALGORITHM, particles: int | None = None,
+                 seed=None, resampling: str = "systematic", ess_threshold: float = 1.0, lag: int | None = 0,
+                 prefilter: int | None = None, rule: AlarmRule | None = None, sinks=()):
+        self.model = model
+        self.filter = Filter(model, algorithm, particles, seed, resampling, ess_threshold, lag)
+        self.prefilter = None if prefilter is None else MovingAverage(prefilter)
+        self.rule = AlarmRule((model.modes[0],)) if rule is None else rule
+        self.alarms = self.rule.stream(model.modes)  # an unknown healthy mode is an error before any data
+        self.summary = Summary(max_segments=MAX_SEGMENTS)
+        self.truth = Truth(self.alarms.faulty, model.dt)
+        self.scale = ScaleCheck(model)
+        self.sinks = list(sinks)
+        self._held = deque()  # data rows whose records the filter still holds back (with a lag)
+
+    def feed(self, row: Row) -> list[Diagnosed]:
+        """Diagnose one data row; the rows this finishes (none while a lag holds them back)."""
+        self._held.append(row)
+        step = self.filter.step(row.y if self.prefilter is None else self.prefilter(row.y), row.u)
+        return [] if step is None else [self._finished(step)]
+
+    def finish(self) -> list[Diagnosed]:
+        """The end of the data: the rows still held back, smoothed with what arrived."""
+        done = [self._finished(step) for step in self.filter.flush()]
+        self.scale.finish()
+        return done
+
+    def run(self, rows) -> "Diagnosis":
+        """Feed every row of an iterable, then finish; returns self (for its summary and report)."""
+        for row in rows:
+            self.feed(row)
+        self.finish()
+        return self
+
+    def _finished(self, step: Step) -> Diagnosed:
+        row = self._held.popleft()
+        alarm = self.alarms.step(step.mode_posterior)
+        self.summary.add(step, row.mode)
+        self.truth.add(row, alarm, step.t)
+        self.scale.add(step)
+        done = Diagnosed(step, row, alarm)
+        for sink in self.sinks:
+            sink.collect(done)
+        return done
+
+    def report(self) -> str:
+        """The terminal report: mode segments, the diagnosis error and confusion where the data carry
+        the true mode, the alarms and their detection scores, fit and speed."""
+        from .report import report
+
+        return report(self)
+
+    # ----------------------------------------------------------------- checkpoint and resume
+    def checkpoint(self) -> bytes:
+        """The whole state of the diagnosis as bytes: filter (particles, weights, Kalman moments,
+        covariance graph, random generator), fixed-lag window, pre-filter, alarm counter, summary,
+        truth and the rows held back. The model and the sinks are not in it: `resume` is given them."""
+        state = {key: value for key, value in vars(self).items() if key not in ("model", "sinks")}
+        buffer = io.BytesIO()
+        buffer.write(CHECKPOINT)
+        buffer.write(json.dumps(_identity(self.model)).encode() + b"\n")
+        _Pickler(buffer, self.model).dump(state)
+        return buffer.getvalue()
+
+    @classmethod
+    def resume(cls, saved: bytes, model: Model, sinks=()) -> "Diagnosis":
+        """The diagnosis saved by `checkpoint`, continuing with `model` (the one it was saved with)
+        and new sinks; a CheckpointError when the bytes are not such a state, or were saved from
+        another model or by another version of jmlgdsl."""
+        stream = io.BytesIO(saved)
+        if stream.readline() != CHECKPOINT:
+            raise CheckpointError("not a jmlgdsl checkpoint")
+        try:
+            identity = json.loads(stream.readline())
+        except ValueError:
+            raise CheckpointError("a damaged jmlgdsl checkpoint (its header is not readable)") from None
+        here = _identity(model)
+        if identity.get("format") != here["format"] or identity.get("version") != here["version"]:
+            raise CheckpointError(f"the checkpoint was saved by jmlgdsl {identity.get('version')} (format "
+                                  f"{identity.get('format')}); this is jmlgdsl {VERSION}, which cannot resume it")
+        if identity.get("model") != here["model"]:
+            raise CheckpointError(f"the checkpoint was saved from another model (plant {identity.get('plant')!r}, "
+                                  f"fingerprint {str(identity.get('model'))[:12]}) than this one (plant "
+                                  f"{model.name!r}, fingerprint {here['model'][:12]})")
+        diagnosis = cls.__new__(cls)
+        vars(diagnosis).update(_Unpickler(stream, model).load(), model=model, sinks=list(sinks))
+        return diagnosis
+
+
+@functools.lru_cache(maxsize=8)  # by identity: a monitor checkpoints the same model at every row
+def fingerprint(model: Model) -> str:
+    """A hash of everything a model holds (names, sample time, every matrix, exactly): two models
+    with the same fingerprint filter data identically."""
+    return hashlib.sha256(json.dumps(model.to_dict(), sort_keys=True).encode()).hexdigest()
+
+
+def _identity(model: Model) -> dict:
+    """What a checkpoint says of itself: its format, the version that wrote it and its model."""
+    return {"format": CHECKPOINT_FORMAT, "version": VERSION, "plant": model.name, "model": fingerprint(model)}
+
+
+class _Pickler(pickle.Pickler):
+    """Pickles a state that refers to `model` by reference: the model is the caller's to give back."""
+
+    def __init__(self, stream, model):
+        super().__init__(stream, protocol=pickle.HIGHEST_PROTOCOL)
+        self.model = model
+
+    def persistent_id(self, obj):
+        return "model" if obj is self.model else None
+
+
+class _Unpickler(pickle.Unpickler):
+    def __init__(self, stream, model):
+        super().__init__(stream)
+        self.model = model
+
+    def persistent_load(self, pid):
+        if pid != "model":
+            raise CheckpointError("a damaged jmlgdsl checkpoint")
+        return self.model
+
+
+def diagnose(model: Model, rows, *, sinks=(), **options) -> Diagnosis:
+    """Diagnose every row of an iterable of data rows (see `jmlgdsl.data.iter_rows`), handing each
+    finished row to the sinks; the finished Diagnosis (its summary, truth scores and report)."""
+    return Diagnosis(model, sinks=sinks, **options).run(rows)

@@ -1,0 +1,69 @@
+"""The terminal report of a diagnosis: mode segments, the diagnosis error and the confusion matrix
+where the data carry the true mode, the alarms and how well they detect, fit and speed."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..metrics import runs
+
+
+def plural(count: int, noun: str) -> str:
+    """'1 step', '2 steps'."""
+    return f"{count} {noun}{'' if count == 1 else 's'}"
+
+
+def smoothing(lag) -> str:
+    """How the reported posteriors were conditioned, for the report's first line."""
+    return "" if lag == 0 else ", smoothed off-line" if lag is None else f", smoothed with a lag of {lag} steps"
+
+
+def report(diagnosis) -> str:
+    """The whole report of a finished (or running) Diagnosis."""
+    f, summary, model = diagnosis.filter, diagnosis.summary, diagnosis.model
+    who = f"{f.algorithm}" + (f" with {f.particles} particles" if f.particles else "")
+    lines = [f"{model.name}: {summary.T} steps, filter {who}" + smoothing(f.lag),
+             "mode segments (most probable mode):"]
+    for a, b, k, total in summary.segments:
+        span = f"{a}" if a == b else f"{a}\u2013{b}"
+        lines.append(f"  t {span}: {model.modes[k]} (p\u0304 {total / (b - a + 1):.2f})")
+    if summary.more_segments:
+        lines.append(f"  \u2026 {summary.more_segments} more segments (see the output CSV)")
+    if summary.labelled:
+        lines.append(f"diagnosis error: {summary.diagnosis_error:.2f} % ({summary.wrong} of {summary.labelled} steps)")
+        lines += confusion_report(model.modes, summary.confusion)
+    lines += alarm_report(diagnosis)
+    lines.append(f"log-likelihood: {summary.loglik:.2f}")
+    lines.append(f"time per step: {1e3 * f.seconds / max(summary.T, 1):.3f} ms")
+    return "\n".join(lines)
+
+
+def confusion_report(modes, confusion) -> list[str]:
+    """The confusion matrix as text: a row per true mode, a column per diagnosed mode (steps)."""
+    width = max(6, *(len(m) for m in modes), len(str(int(confusion.max()))))
+    lines = ["confusion (rows: true mode, columns: diagnosed mode, steps):",
+             "  " + " " * width + " " + " ".join(f"{m:>{width}}" for m in modes)]
+    lines += [f"  {m:>{width}} " + " ".join(f"{int(c):>{width}}" for c in row) for m, row in zip(modes, confusion)]
+    return lines
+
+
+def alarm_report(diagnosis) -> list[str]:
+    """Lines on the alarms raised and, against the truth in the data, how well they detect."""
+    rule, truth, lag = diagnosis.rule, diagnosis.truth, diagnosis.filter.lag
+    raised = runs(truth.alarms())
+    lines = [f"alarms (healthy: {', '.join(rule.healthy)}; P(not healthy) > {rule.threshold:g} for "
+             f"{plural(rule.persistence, 'step')}): {len(raised)} raised"]
+    if lag:
+        lines[0] += f"; each is known {lag} steps after its row, later than the delays below"
+    scores = truth.scores()
+    if scores is None:
+        return lines
+    o, e, nab = scores.outlier, scores.events, scores.nab
+    lines += [
+        f"detection: {e.detected} of {e.episodes} anomaly episodes ({e.detection_rate:.1f} %), delay mean "
+        f"{e.mean_delay:.1f} s, median {e.median_delay:.1f} s; {plural(e.false_alarms, 'false alarm')} "
+        f"({e.false_alarms_per_hour:.2f} per hour)",
+        f"rows: F1 {o.f1:.3f}, false-alarm rate {o.far:.2f} %, missed-alarm rate {o.mar:.2f} %",
+        f"NAB ({plural(nab.windows, 'change point')}): standard {nab.score('standard'):.2f}, low FP "
+        f"{nab.score('lowfp'):.2f}, low FN {nab.score('lowfn'):.2f}"]
+    return lines

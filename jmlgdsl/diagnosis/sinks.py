@@ -1,0 +1,48 @@
+"""Sinks: where a diagnosis hands each finished row. A sink is any object with `collect(row)`, called
+with a `Diagnosed` row (step, data row, alarm) in order; it owns whatever it writes to."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from ..infer import Result
+from ..infer.table import TableWriter
+
+
+class TableSink:
+    """The result table (`jmlgdsl run -o`), written to a text stream row by row; flush=True sends each
+    row on at once (a stream's reader sees it as soon as it is computed). The header waits for the
+    first row, which says whether the data have a time column."""
+
+    def __init__(self, stream, model, lag=0, flush=False):
+        self.stream, self.model, self.lag, self.flush = stream, model, lag, flush
+        self._writer = None
+
+    def collect(self, done):
+        if self._writer is None:
+            self._writer = TableWriter(self.stream, self.model, done.row.time is not None, self.flush, lag=self.lag)
+        self._writer.write(done.step, done.row.time, done.alarm)
+
+
+class Kept:
+    """Every finished row kept in memory, for a figure or a Result (a stream of unbounded length
+    should not use it)."""
+
+    def __init__(self):
+        self.rows = []
+
+    def collect(self, done):
+        self.rows.append(done)
+
+    def result(self, diagnosis) -> Result:
+        """The kept rows as a Result of the diagnosis's filter."""
+        f = diagnosis.filter
+        return dataclasses.replace(Result.from_steps(f.model, f.algorithm, f.particles, [d.step for d in self.rows],
+                                                     f.seconds), lag=f.lag)
+
+    def true_modes(self) -> np.ndarray | None:
+        """(T,) the true mode of every kept row, or None unless every row has one."""
+        modes = [d.row.mode for d in self.rows]
+        return None if any(m is None for m in modes) else np.array(modes)
