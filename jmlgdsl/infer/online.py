@@ -100,9 +100,8 @@ class Filter:
         start = time.perf_counter()
         t = self.t + 1
         est = self.engine.step(y, mask, u, self._gate)
-        if not math.isfinite(est.loglik):  # NaN or infinite: the model's numbers overflowed
-            raise FilterError(f"t={t}: the filter's arithmetic overflowed (log-likelihood {est.loglik}); the "
-                              "model's numbers are too large for this data (an unstable mode, or a huge noise?)")
+        if not (math.isfinite(est.loglik) and np.isfinite(est.state_cov).all()):
+            raise _overflow(t, est)
         if est.flagged is not None or self._watching:
             self._count_flagged(est.flagged)
         self.t = t
@@ -145,6 +144,18 @@ class Filter:
         self._flagged = np.zeros_like(self._flagged) if flagged is None else np.where(flagged, self._flagged + 1, 0)
         self._watching = flagged is not None
         self._gate = Gate.of(self.model.outlier_gate, self._flagged < MAX_REJECTIONS)
+
+
+def _overflow(t, est) -> FilterError:
+    """The error of a step whose log-likelihood or state covariance is not finite: the model's numbers
+    overflowed. Both are checked because either can go alone: with no readings the log-likelihood
+    is 0 while an unstable state's variance runs away, and a state the readings never see runs away
+    while their log-likelihood stays finite. The covariance stands for the mean too: it is the
+    mixture's, built from every hypothesis's deviation from the mean (engine.mixture_moments), so it
+    is not finite whenever the mean is not."""
+    cov = "" if np.isfinite(est.state_cov).all() else ", state covariance not finite"
+    return FilterError(f"t={t}: the filter's arithmetic overflowed (log-likelihood {est.loglik}{cov}); the "
+                       "model's numbers are too large for this data (an unstable mode, or a huge noise?)")
 
 
 def _vector(values, names, what, t):
