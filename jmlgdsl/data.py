@@ -6,9 +6,10 @@ time stamps), `mode` (the true mode names) and 0/1 `anomaly` / `changepoint` lab
 any other column is ignored. Cells are separated by commas, or by semicolons when the header line
 has semicolons and no commas (as many loggers write). An empty cell (or NA / NaN) is a missing value:
 an output that was not measured, or an input that takes its default; a blank `mode` cell is a row
-without a label. Files are UTF-8 text. Every problem is a DataError naming the file, the CSV line and
-the column; a problem that leaves the data readable but probably not what was meant (an input column
-absent, a time column out of step, an output never measured) is a DataWarning naming the column.
+without a label. Files are UTF-8 text; lines end in LF, CR LF or CR. Every problem is a DataError
+naming the file, the CSV line and the column; a problem that leaves the data readable but probably
+not what was meant (an input column absent, a time column out of step, an output never measured) is
+a DataWarning naming the column.
 """
 
 from __future__ import annotations
@@ -100,33 +101,61 @@ _READING = weakref.WeakSet()  # the files open for reading, which no table may b
 class Source:
     """The lines of a data file or of standard input ('-'), decoded one at a time, so that a byte that
     is not UTF-8, a binary or UTF-16 file, or a closed standard input is a DataError naming the file
-    and line (and a pipe is still read line by line, as the rows arrive)."""
+    and line (and a pipe is still read line by line, as the rows arrive). A line ends at LF, CR LF or
+    a CR alone (as old Mac files have it), on a pipe too."""
 
     def __init__(self, path):
         self.name, self.line = ("<stdin>" if str(path) == "-" else str(path)), 0
+        self._lines, self._next, self._rest, self._after_cr = [], 0, bytearray(), False
         if str(path) == "-":
             if sys.stdin is None:
                 raise DataError("<stdin>: standard input is closed")
             self._stream, self._owned = getattr(sys.stdin, "buffer", sys.stdin), False
-            return
-        try:
-            self._stream, self._owned = open(path, "rb"), True
-        except OSError as exc:
-            raise DataError(f"cannot read {path}: {exc.strerror}") from None
-        _READING.add(self)
+        else:
+            try:
+                self._stream, self._owned = open(path, "rb"), True
+            except OSError as exc:
+                raise DataError(f"cannot read {path}: {exc.strerror}") from None
+            _READING.add(self)
+        # a pipe hands over what has arrived (read1); a stream without it is read a line at a time
+        self._read = getattr(self._stream, "read1", None) or (lambda size: self._stream.readline())
 
     def readline(self) -> str:
-        """The next line as text ('' at the end)."""
-        try:
-            raw = self._stream.readline()
-        except (OSError, ValueError) as exc:
-            raise DataError(f"{self.name}: cannot read: {getattr(exc, 'strerror', None) or exc}") from None
+        """The next line as text, ending in the line end it had ('' at the end)."""
+        raw = self._raw()
         if not raw:
             return ""
         self.line += 1
-        return raw if isinstance(raw, str) else self._decode(raw)
+        return self._decode(raw)
 
-    def _decode(self, raw: bytes) -> str:
+    def _raw(self):
+        """The bytes of the next line, with its line end (b'' at the end)."""
+        while self._next == len(self._lines):
+            try:
+                chunk = self._read(1 << 16)
+            except (OSError, ValueError) as exc:
+                reason = getattr(exc, "strerror", None) or exc
+                raise DataError(f"{self.name}: cannot read: {reason}") from None
+            if isinstance(chunk, str):  # a text stream in place of standard input
+                chunk = chunk.encode("utf-8", "surrogateescape")
+            if not chunk:
+                rest, self._rest = bytes(self._rest), bytearray()
+                return rest
+            if self._after_cr and chunk[:1] == b"\n":  # the LF of a CR LF that came in two pieces
+                chunk = chunk[1:]
+            self._after_cr = chunk[-1:] == b"\r"
+            if b"\n" not in chunk and b"\r" not in chunk:
+                self._rest += chunk
+                continue
+            self._rest += chunk
+            lines = self._rest.splitlines(keepends=True)  # at LF, CR LF and CR alone
+            self._rest = lines.pop() if not lines[-1].endswith((b"\n", b"\r")) else bytearray()
+            self._lines, self._next = lines, 0
+        line = self._lines[self._next]
+        self._next += 1
+        return line
+
+    def _decode(self, raw) -> str:
         where = f"{self.name}:{self.line}"
         if self.line == 1 and raw[:2] in (b"\xff\xfe", b"\xfe\xff"):
             raise DataError(f"{where}: the file is UTF-16 text; save it as UTF-8 CSV")
