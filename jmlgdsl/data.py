@@ -4,12 +4,13 @@ stream, for on-line monitoring) and write result tables.
 Columns named after the model's outputs and inputs are used; `time` (seconds) or `datetime` (ISO
 time stamps), `mode` (the true mode names) and 0/1 `anomaly` / `changepoint` labels are optional;
 any other column is ignored. Cells are separated by commas, or by semicolons when the header line
-has semicolons and no commas (as many loggers write). An empty cell (or NA / NaN) is a missing value:
-an output that was not measured, or an input that takes its default; a blank `mode` cell is a row
-without a label. Files are UTF-8 text; lines end in LF, CR LF or CR. Every problem is a DataError
-naming the file, the CSV line and the column; a problem that leaves the data readable but probably
-not what was meant (an input column absent, a time column out of step, an output never measured) is
-a DataWarning naming the column.
+has semicolons and no commas (as many loggers write). A number is written as loggers write it
+(ASCII digits, sign, decimal point, exponent: not 5_0.1); an empty cell (or NA / NaN) is a missing
+value: an output that was not measured, or an input that takes its default; a blank `mode` cell is a
+row without a label. Files are UTF-8 text; lines end in LF, CR LF or CR. Every problem is a
+DataError naming the file, the CSV line and the column; a problem that leaves the data readable but
+probably not what was meant (an input column absent, a time column out of step, an output never
+measured) is a DataWarning naming the column.
 """
 
 from __future__ import annotations
@@ -240,7 +241,9 @@ def _label(cells, col, name, where):
 
 
 def _number(cells, col, name, where):
-    """The number in cell `col` (NaN when the column is absent or the cell is missing)."""
+    """The number in cell `col` (NaN when the column is absent or the cell is missing). Only what a
+    logger writes is read: ASCII digits, a sign, a decimal point and an exponent; float() would also
+    take digit separators (5_0.1) and other scripts' digits."""
     if col is None:
         return math.nan
     text = cells[col].strip()
@@ -248,6 +251,8 @@ def _number(cells, col, name, where):
         return math.nan
     try:
         value = float(text)
+        if "_" in text or not text.isascii():
+            raise ValueError
     except ValueError:
         hint = "; write decimal points, not commas" if DECIMAL_COMMA.fullmatch(text) else ""
         raise DataError(f"{where}: column {name!r}: {text!r} is not a number{hint}") from None

@@ -97,3 +97,38 @@ def test_standard_input_with_cr_line_endings_gives_the_table_of_its_lf_twin(tmp_
                              capture_output=True, check=True).stdout
               for data in (text, text.replace(b"\n", b"\r"))]
     assert tables[0] == tables[1] and tables[0].count(b"\n") > 300
+
+
+# Cells that only look like numbers -----------------------------------------------------------------
+
+@pytest.mark.parametrize("cell", ["5_0.1", "1_000", "_5", "\uff15\uff10", "\u0665\u0660", "1e1_0"])
+def test_cells_float_reads_but_no_logger_writes_are_refused(tmp_path, cell):
+    path = written(tmp_path, f"time,one,temp\n1,1,50\n2,1,{cell}\n")
+    with pytest.raises(DataError) as err:
+        read_csv(path, dryer())
+    assert str(err.value) == f"{path}:3: column 'temp': {cell!r} is not a number"
+
+
+@pytest.mark.parametrize("column", ["time", "one", "anomaly"])
+def test_digit_separators_are_refused_in_every_numeric_column(tmp_path, column):
+    cells = {"time": "1", "one": "1", "temp": "50", "anomaly": "0"}
+    cells[column] = "1_0"
+    path = written(tmp_path, ",".join(cells) + "\n" + ",".join(cells.values()) + "\n")
+    with pytest.raises(DataError, match=rf"d.csv:2: column '{column}': '1_0' is not a number$"):
+        read_csv(path, dryer())
+
+
+@pytest.mark.parametrize("cell, value", [
+    ("", None), ("NA", None), ("na", None), ("NaN", None), ("nan", None), ("n/a", None), ("-nan", None),
+    ("50", 50.0), (" 50.5 ", 50.5), ("+5", 5.0), ("-5.", -5.0), (".5", 0.5), ("5e1", 50.0), ("5E-1", 0.5),
+])
+def test_the_cells_loggers_write_still_read(tmp_path, cell, value):
+    data = read_csv(written(tmp_path, f"time,one,temp\n1,1,50\n2,1,{cell}\n"), dryer())
+    assert np.isnan(data.y[1, 0]) if value is None else data.y[1, 0] == value
+
+
+@pytest.mark.parametrize("cell", ["inf", "-inf", "Infinity", "iNfInItY", "1e309"])
+def test_infinite_cells_stay_refused(tmp_path, cell):
+    path = written(tmp_path, f"time,one,temp\n1,1,{cell}\n")
+    with pytest.raises(DataError, match=rf"d.csv:2: column 'temp': '{cell}' is not a finite number$"):
+        read_csv(path, dryer())
