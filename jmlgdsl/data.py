@@ -8,9 +8,10 @@ has semicolons and no commas (as many loggers write). A number is written as log
 (ASCII digits, sign, decimal point, exponent: not 5_0.1); an empty cell (or NA / NaN) is a missing
 value: an output that was not measured, or an input that takes its default; a blank `mode` cell is a
 row without a label. Files are UTF-8 text; lines end in LF, CR LF or CR. Every problem is a
-DataError naming the file, the CSV line and the column; a problem that leaves the data readable but
-probably not what was meant (an input column absent, a time column out of step, an output never
-measured) is a DataWarning naming the column.
+DataError naming the file, the CSV line and the column (a time column that goes backwards is one);
+a problem that leaves the data readable but probably not what was meant (an input column absent, a
+time that repeats or steps by other than the sample time, an output never measured) is a
+DataWarning naming the column.
 """
 
 from __future__ import annotations
@@ -266,26 +267,41 @@ def _warn(message):
 
 
 class _TimeCheck:
-    """Warns (once each) when a time column runs backwards, repeats a time, or steps by other than
-    the model's sample time."""
+    """Stops at a row whose time is before the last one (the time axis must not go backwards: the
+    detection delays, false alarms per hour and the table's time column would mean nothing), and
+    warns (once each) when a time repeats or steps by other than the model's sample time. The
+    messages name the column as the header does and show the times as the file writes them."""
 
-    def __init__(self, dt):
-        self.dt, self.last, self.said = dt, None, set()
+    def __init__(self, name, dt, resolution=0.0):
+        self.name, self.dt, self.resolution = name, dt, resolution  # resolution: of the written times
+        self.first = self.last = self.text = None
+        self.consecutive, self.said = False, set()
 
-    def __call__(self, time, where):
-        last, self.last = self.last, time
-        if last is None or time is None or math.isnan(time) or math.isnan(last):
+    def __call__(self, time, text, where):
+        if time is None or math.isnan(time):
+            self.consecutive = False
+            return
+        last, consecutive = self.last, self.consecutive
+        if last is None:
+            self.first = time
+        self.last, self.consecutive, last_text, self.text = time, True, self.text, text
+        if last is None:
             return
         step = time - last
-        kind = ("backwards" if step < 0 else "repeat" if step == 0 else
-                "step" if self.dt and abs(step - self.dt) > 1e-3 * self.dt + 1e-9 * abs(time) else None)
+        if step < 0:
+            raise DataError(f"{where}: column {self.name!r} goes backwards ({last_text} then {text}); "
+                            "the rows must be in time order")
+        # what the written times can be off by: 10 significant digits of the time since the first
+        # row, the rounding of a large time (seconds since 1970) to a float, and the stamps' resolution
+        slack = 1e-3 * (self.dt or 0) + 1e-9 * (time - self.first) + 4 * math.ulp(time) + self.resolution
+        kind = ("repeat" if step == 0 else
+                "step" if self.dt and consecutive and abs(step - self.dt) > slack else None)
         if kind is None or kind in self.said:
             return
         self.said.add(kind)
-        _warn({"backwards": f"{where}: column 'time' runs backwards ({last:g} then {time:g})",
-               "repeat": f"{where}: column 'time' repeats {time:g}",
-               "step": f"{where}: column 'time' steps by {step:g} s but the model's sample time is "
-                       f"{self.dt:g} s"}[kind])
+        _warn(f"{where}: column {self.name!r} repeats {text}" if kind == "repeat" else
+              f"{where}: column {self.name!r} steps by {step:g} s but the model's sample time is "
+              f"{self.dt:g} s")
 
 
 def iter_rows(stream, model, source="<data>", outputs=True) -> Iterator[Row]:
@@ -321,7 +337,10 @@ def iter_rows(stream, model, source="<data>", outputs=True) -> Iterator[Row]:
     t_col, stamp_col, mode_col = column("time", False), column("datetime", False), column("mode", False)
     anomaly_col, change_col = column("anomaly", False), column("changepoint", False)
     defaults = model.input_defaults
-    check_time, measured = _TimeCheck(model.dt), np.zeros(model.ny, bool)
+    time_col = stamp_col if t_col is None else t_col  # with both, `time` is the time axis
+    check_time = (None if time_col is None else  # time stamps are kept to the microsecond
+                  _TimeCheck(names[time_col], model.dt, 1e-6 if t_col is None else 0.0))
+    measured = np.zeros(model.ny, bool)
 
     for line, cells in records:
         where = f"{source}:{line}"
@@ -335,7 +354,8 @@ def iter_rows(stream, model, source="<data>", outputs=True) -> Iterator[Row]:
             name = model.inputs[int(np.argmax(lacking))]
             raise DataError(f"{where}: column {name!r}: missing value and the input has no default")
         time = _timestamp(cells, stamp_col, where) if t_col is None else _number(cells, t_col, "time", where)
-        check_time(time, where)
+        if check_time is not None:
+            check_time(time, cells[time_col].strip(), where)
         measured |= ~np.isnan(y)
         yield Row(line, time, y, np.where(np.isnan(u), defaults, u), _mode(cells, mode_col, model.modes, where),
                   _label(cells, anomaly_col, "anomaly", where), _label(cells, change_col, "changepoint", where))

@@ -54,8 +54,10 @@ def seconds(time, T: int) -> np.ndarray:
     if np.issubdtype(time.dtype, np.datetime64):
         time = (time - time[:1]) / np.timedelta64(1, "s")
     t = time.astype(float)
-    if (np.diff(t) < 0).any():
-        raise DataError("the time axis goes backwards")
+    back = np.flatnonzero(np.diff(t) < 0)
+    if len(back):
+        i = int(back[0]) + 1
+        raise DataError(f"the time axis goes backwards at row {i + 1} of {T} ({t[i - 1]:g} s then {t[i]:g} s)")
     return t
 
 

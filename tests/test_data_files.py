@@ -39,6 +39,86 @@ def data_warnings(path, model=None):
     return [str(w.message) for w in caught if issubclass(w.category, DataWarning)]
 
 
+# A time column that steps by other than the sample time ------------------------------------------
+
+def test_time_stamps_two_seconds_apart_are_warned_about_like_a_time_column(tmp_path):
+    rows = "".join(f"{s},1,50\n" for s in stamps(range(0, 20, 2)))
+    path = written(tmp_path, "datetime,one,temp\n" + rows)
+    assert data_warnings(path) == [
+        f"{path}:3: column 'datetime' steps by 2 s but the model's sample time is 1 s"]
+    numbers = written(tmp_path, "time,one,temp\n" + "".join(f"{s},1,50\n" for s in range(0, 20, 2)), "n.csv")
+    assert data_warnings(numbers) == [f"{numbers}:3: column 'time' steps by 2 s but the model's sample time is 1 s"]
+
+
+def test_a_gap_in_time_stamps_names_the_datetime_column(tmp_path):
+    rows = "".join(f"{s},1,50\n" for s in stamps([0, 1, 2, 62, 63]))
+    path = written(tmp_path, "datetime,one,temp\n" + rows)
+    assert data_warnings(path) == [
+        f"{path}:5: column 'datetime' steps by 60 s but the model's sample time is 1 s"]
+
+
+def test_time_stamps_in_step_raise_no_warning(tmp_path):
+    rows = "".join(f"{s},1,50\n" for s in stamps(range(100)))
+    assert data_warnings(written(tmp_path, "datetime,one,temp\n" + rows)) == []
+    tenths = "".join(f"2020-03-09T10:00:{i // 10:02d}.{i % 10}Z,1,50\n" for i in range(300))
+    tenth = Model.from_arrays(A=[[0.9]], B=0.1, C=[[1.0]], D=0.1, F=[[1.0]], P=[[1.0]], p0=[1.0], mu0=[0.0],
+                              Sigma0=0.0, inputs=("one",), outputs=("temp",), input_defaults=[1.0],
+                              modes=("ok",), dt=0.1)
+    assert data_warnings(written(tmp_path, "datetime,one,temp\n" + tenths), tenth) == []
+
+
+def test_a_numeric_time_column_of_epoch_seconds_is_checked_too(tmp_path):
+    rows = "".join(f"{1583748873 + s},1,50\n" for s in range(0, 10, 2))
+    path = written(tmp_path, "time,one,temp\n" + rows)
+    assert data_warnings(path) == [f"{path}:3: column 'time' steps by 2 s but the model's sample time is 1 s"]
+
+
+def test_a_repeated_time_stamp_is_shown_as_written(tmp_path):
+    rows = "".join(f"{s},1,50\n" for s in stamps([0, 1, 1, 2]))
+    path = written(tmp_path, "datetime,one,temp\n" + rows)
+    assert data_warnings(path) == [f"{path}:4: column 'datetime' repeats 2020-03-09 10:00:01"]
+
+
+# A time axis that goes backwards -------------------------------------------------------------------
+
+@pytest.mark.parametrize("header, times, message", [
+    ("time", ["1", "2", "1.5", "3"], "d.csv:4: column 'time' goes backwards (2 then 1.5)"),
+    ("datetime", stamps([0, 1, 2, 1]),
+     "d.csv:5: column 'datetime' goes backwards (2020-03-09 10:00:02 then 2020-03-09 10:00:01)"),
+    ("time", ["1", "2", "", "1"], "d.csv:5: column 'time' goes backwards (2 then 1)"),  # across a missing time
+])
+def test_a_time_axis_that_goes_backwards_is_an_error_at_its_row(tmp_path, header, times, message):
+    path = written(tmp_path, f"{header},one,temp\n" + "".join(f"{t},1,50\n" for t in times))
+    with pytest.raises(DataError) as err:
+        read_csv(path, dryer())
+    assert str(err.value) == f"{tmp_path}/{message}; the rows must be in time order"
+
+
+def test_run_stops_at_the_row_where_time_goes_backwards_and_writes_nothing(tmp_path, capsys):
+    lines = EXAMPLE.read_text().splitlines()
+    lines[500], lines[501] = lines[501], lines[500]  # rows 500 and 501 swapped: CSV lines 501 and 502
+    data = written(tmp_path, "\n".join(lines) + "\n")
+    fresh, kept = tmp_path / "fresh.csv", tmp_path / "kept.csv"
+    kept.write_text("an earlier table\n")
+    for out in (fresh, kept):
+        assert main(["run", str(SPEC), str(data), "-o", str(out)]) == 2
+        err = capsys.readouterr().err
+        errors = [line for line in err.splitlines() if line.startswith("error: ")]
+        assert errors == [f"error: {data}:502: column 'time' goes backwards (501 then 500); "
+                          "the rows must be in time order"], err
+        assert err.splitlines()[-1] == errors[0]
+    assert not fresh.exists() and kept.read_text() == "an earlier table\n"
+    assert not list(tmp_path.glob(".*"))  # no temporary file left behind
+
+
+def test_a_time_axis_given_to_the_metrics_that_goes_backwards_is_located():
+    from jmlgdsl.metrics import seconds
+
+    with pytest.raises(DataError) as err:
+        seconds([0.0, 1.0, 2.0, 1.5], 4)
+    assert str(err.value) == "the time axis goes backwards at row 4 of 4 (2 s then 1.5 s)"
+
+
 # CR-only line endings (old Mac files) --------------------------------------------------------------
 
 def test_a_file_with_cr_line_endings_reads_as_its_lf_twin(tmp_path):
