@@ -18,6 +18,7 @@ LAYERS = [
     {"compile"},
     {"infer", "simulate", "nonlinear"},
     {"diagnosis"},
+    {"monitor"},
     {"bench", "learn", "fitting", "plots"},
     {"commands", "cli", "__main__", "jmlgdsl"},
 ]

@@ -1,0 +1,42 @@
+"""`jmlgdsl export STORE`: the result table of a monitor's store, as `jmlgdsl run -o` writes it."""
+
+from __future__ import annotations
+
+import sys
+
+
+def register(subparsers):
+    p = subparsers.add_parser(
+        "export", help="write the result table of a monitor's store",
+        description="Write the result table of a run in a store that 'jmlgdsl monitor' keeps: the same "
+                    "table, byte for byte, that 'jmlgdsl run -o' writes for the same rows. --samples also "
+                    "writes the rows themselves as a data file, so 'jmlgdsl run' can diagnose them again.")
+    p.add_argument("store", help="the monitor's store (SQLite database)")
+    p.add_argument("-o", "--output", default="-", help="the result table (default - : standard output)")
+    p.add_argument("--samples", metavar="FILE.csv", help="also write the rows diagnosed, as a data file")
+    p.add_argument("--run", type=int, metavar="N", help="which run of the store (default the latest)")
+    p.set_defaults(func=main)
+
+
+def main(args) -> int:
+    import contextlib
+
+    from ..data import open_target
+    from ..errors import DataError
+    from ..monitor import Store
+    from ..output import check_file
+
+    check_file(args.output, inputs=[args.store])
+    check_file(args.samples, inputs=[args.store, args.output], option="--samples")
+    with Store(args.store, create=False) as store:
+        run = store.run(args.run)
+        if run is None:
+            raise DataError(f"{args.store}: the store holds no run yet")
+        for path, write in ((args.output, store.write_table), (args.samples, store.write_samples)):
+            if path is None:
+                continue
+            out = open_target(path)
+            with out if out is not sys.stdout else contextlib.nullcontext():  # whole, or not at all
+                if not write(run, out):
+                    raise DataError(f"{args.store}: run {run.id} holds no diagnosed rows yet")
+    return 0

@@ -1,0 +1,110 @@
+"""`jmlgdsl monitor SPEC --source URL --store PATH`: diagnose a running plant live into a store that
+survives restarts and outages (docs/monitor.md)."""
+
+from __future__ import annotations
+
+import sys
+
+
+def register(subparsers):
+    from ..infer import ALGORITHMS, DEFAULT_ALGORITHM
+    from ..infer.resample import SCHEMES
+
+    p = subparsers.add_parser(
+        "monitor", help="diagnose a running plant live, keeping every conclusion in a store",
+        description="Diagnose a plant's data as they arrive, from a CSV file followed as it grows, standard "
+                    "input (-), an MQTT broker (mqtt://HOST:PORT/PREFIX, mqtts://...) or an OPC UA server "
+                    "(opc.tcp://HOST:PORT/PATH). Readings of tags that arrive at their own moments are put "
+                    "on the spec's sample clock. Every row, its mode posterior, alarms and events go to the "
+                    "store (SQLite), committed with the diagnosis's state, so the monitor killed at any "
+                    "moment and started again with the same command resumes where it was. It runs until "
+                    "stopped (SIGTERM, Ctrl-C), or to the end of standard input or of an unfollowed file. "
+                    "'jmlgdsl export STORE' writes the result table.")
+    p.add_argument("spec", help="plant spec (.jmlg) or compiled model (.json/.npz)")
+    p.add_argument("--source", required=True, metavar="URL",
+                   help="a CSV file (followed as it grows), - (standard input), mqtt://HOST:PORT/PREFIX, "
+                        "mqtts://HOST:PORT/PREFIX or opc.tcp://HOST:PORT/PATH")
+    p.add_argument("--store", required=True, metavar="PATH", help="the store (SQLite database; made when absent)")
+    p.add_argument("--tags", metavar="FILE.toml", help="per spec name: topic or node id, unit scale and offset, "
+                                                       "time stamps of the source or of arrival")
+    p.add_argument("--new-run", action="store_true",
+                   help="start a new run in a store that holds a run of another spec or other options")
+    p.add_argument("--no-follow", action="store_true",
+                   help="a CSV source is complete: diagnose it to its end, then stop")
+    clock = p.add_argument_group("rows from readings")
+    clock.add_argument("--grace", type=float, metavar="SECONDS",
+                       help="a row waits this long (in the readings' time) for its missing readings (default "
+                            "2 sample times)")
+    clock.add_argument("--stale", type=float, metavar="SECONDS",
+                       help="a tag without a reading for this long is stale (default 10 sample times)")
+    clock.add_argument("--max-gap", type=float, default=3600.0, metavar="SECONDS",
+                       help="a gap without any reading up to this long is diagnosed as rows of missing "
+                            "readings; a longer one is skipped (default 3600)")
+    bus = p.add_argument_group("connection")
+    bus.add_argument("--client-id", help="MQTT client id of the persistent session (default jmlgdsl-PLANT)")
+    bus.add_argument("--username", help="user name at the broker or server")
+    bus.add_argument("--password-env", metavar="VAR", help="the environment variable that holds the password")
+    bus.add_argument("--password-file", metavar="FILE", help="the file that holds the password (its first line)")
+    bus.add_argument("--ca-file", metavar="FILE", help="certificate authority for mqtts:// (default the system's)")
+    p.add_argument("--filter", default=DEFAULT_ALGORITHM, choices=list(ALGORITHMS),
+                   help=f"filtering algorithm (default {DEFAULT_ALGORITHM})")
+    p.add_argument("--particles", type=int, help="number of particles (default depends on the filter)")
+    p.add_argument("--seed", type=int, help="random seed (the same seed gives the same output)")
+    p.add_argument("--resampling", default="systematic", choices=list(SCHEMES), help="resampling scheme")
+    p.add_argument("--ess-threshold", type=float, default=1.0,
+                   help="resample when ESS < this fraction of the particles (1 = every step)")
+    alarm = p.add_argument_group("alarm rule")
+    alarm.add_argument("--healthy", metavar="MODE[,MODE...]",
+                       help="the modes that raise no alarm (default: the first mode of the spec)")
+    alarm.add_argument("--threshold", type=float, default=0.5,
+                       help="alarm when P(not healthy) is above this (default 0.5)")
+    alarm.add_argument("--persistence", type=int, default=1, metavar="K",
+                       help="... at K consecutive steps; the alarm starts on the K-th (default 1)")
+    p.add_argument("--lag", type=int, default=0, metavar="L",
+                   help="fixed-lag smoothing: store each row once L more rows have arrived, with "
+                        "p(mode | data up to L rows later)")
+    p.add_argument("--prefilter", metavar="ma:K", help="causal moving average over the last K readings")
+    p.set_defaults(func=main)
+
+
+def main(args) -> int:
+    import signal
+    import threading
+
+    import jmlgdsl
+
+    from ..monitor import Monitor, Store, monitor_options, read_tags
+    from ..monitor.sources import credentials, open_bus
+    from ..prefilter import parse
+
+    model = jmlgdsl.load(args.spec)
+    tags = read_tags(args.tags, model)
+    options = monitor_options(
+        algorithm=args.filter, particles=args.particles, seed=args.seed, resampling=args.resampling,
+        ess_threshold=args.ess_threshold, lag=args.lag, prefilter=parse(args.prefilter),
+        healthy=[m.strip() for m in args.healthy.split(",")] if args.healthy else None, threshold=args.threshold,
+        persistence=args.persistence, grace=args.grace, stale=args.stale, max_gap=args.max_gap)
+    source = open_bus(args.source, model, tags, follow=not args.no_follow, client_id=args.client_id,
+                      credentials=credentials(args.username, args.password_env, args.password_file),
+                      ca_file=args.ca_file)
+    stop = threading.Event()
+    for signum in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(signum, lambda *_: stop.set())
+    with Store(args.store) as store:
+        monitor = Monitor(model, store, source, spec=_text(args.spec), options=options, tags=tags,
+                          new_run=args.new_run, log=lambda text: print(f"monitor: {text}", file=sys.stderr,
+                                                                       flush=True))
+        stopped = monitor.run(stop)
+    events = ", ".join(f"{kind} {n}" for kind, n in sorted(stopped.events.items()))
+    print(f"{model.name}: {stopped.rows} rows diagnosed in run {stopped.run} of {args.store} ({stopped.stored} in "
+          f"all){'; events: ' + events if events else ''}", file=sys.stderr)
+    return 0
+
+
+def _text(path) -> str | None:
+    """A spec file's text, to keep with the run (None for a binary compiled model)."""
+    try:
+        with open(path, encoding="utf-8") as stream:
+            return stream.read()
+    except UnicodeDecodeError:
+        return None

@@ -1,0 +1,150 @@
+"""Rows on the spec's sample clock from readings that arrive at their own moments.
+
+A reading of tag NAME at time t (seconds) belongs to the sample slot round(t / dt): the clock is
+anchored at time 0, so a restarted monitor puts every reading in the same slot. Rows leave in slot
+order. A row is complete when every output has a reading in its slot and every input has a reading
+or a held value; it leaves then, or once the newest reading's time is `grace` seconds past its slot,
+and whatever is still missing is missing (the filters handle missing readings; an input takes its
+default). So the rows depend on the readings alone, not on when they were processed, and a replay
+of the same readings gives the same rows.
+
+An input holds its last value until it is stale (set points are often published on change); an
+output never does (a measurement is of its own moment). A tag without a reading for `stale` seconds
+becomes stale, with an event, and fresh again with its next reading. What does not fit is counted
+as an event and dropped, never reordered into a row already diagnosed: a reading whose row has left
+(late), a second reading of a tag in one slot (duplicate: the first stands), and a reading older
+than its tag's previous one whose row is still open (out_of_order: it is used). Slots without any
+reading are a gap; a gap longer than `max_gap` seconds is skipped (its rows are not diagnosed, the
+clock restarts after it) rather than filled with rows of nothing.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..data import Row
+
+
+@dataclass(frozen=True)
+class Event:
+    """Something the store keeps beside the rows: its kind, the tag (or None) and what happened."""
+
+    kind: str  # connect, disconnect, gap, stale, fresh, late, duplicate, out_of_order, malformed, ...
+    tag: str | None
+    detail: str
+    time: float | None = None  # the data time it concerns, seconds
+
+
+class Assembler:
+    """Readings in, rows out (`add`, `advance`), with the events they raise; picklable, so its
+    open rows and last values are saved with the diagnosis they feed."""
+
+    def __init__(self, model, tags, grace: float | None = None, stale: float | None = None,
+                 max_gap: float = 3600.0):
+        self.dt = float(model.dt)
+        self.outputs, self.inputs = list(model.outputs), list(model.inputs)
+        self.defaults = np.asarray(model.input_defaults, float)
+        self.grace = 2 * self.dt if grace is None else float(grace)
+        default_stale = 10 * self.dt if stale is None else float(stale)
+        self.stale_after = {name: tag.stale or default_stale for name, tag in tags.items()}
+        self.max_gap = float(max_gap)
+        self.next_slot = None  # the oldest slot not yet out as a row (None: no reading yet)
+        self.open = {}  # slot -> {name: value}
+        self.last = {}  # name -> (time, value) of its newest reading
+        self.stale = set()
+        self.gap = 0  # rows without any reading so far, up to the newest row out
+        self.watermark = -math.inf  # the newest reading's time
+        self.wall = True  # every reading so far took its arrival time: the wall clock may close rows
+
+    def add(self, name: str, value: float, time: float, arrival: bool = False):
+        """One reading; the rows and events it completes: (rows, events)."""
+        self.wall &= arrival
+        slot = round(time / self.dt)
+        if self.next_slot is None:
+            self.next_slot = slot
+        if slot < self.next_slot:
+            return [], [Event("late", name, f"a reading for {time:g} s came after its row was diagnosed", time)]
+        events = []
+        before = self.last.get(name)
+        if before is not None and time < before[0]:
+            events.append(Event("out_of_order", name, f"a reading for {time:g} s came after one for "
+                                                      f"{before[0]:g} s", time))
+        values = self.open.setdefault(slot, {})
+        if name in values:
+            return [], events + [Event("duplicate", name, f"a second reading for {time:g} s (the first stands)", time)]
+        values[name] = value
+        if before is None or time >= before[0]:
+            self.last[name] = (time, value)
+        if name in self.stale:
+            self.stale.discard(name)
+            events.append(Event("fresh", name, f"read again at {time:g} s", time))
+        self.watermark = max(self.watermark, time)
+        rows, closing = self._close()
+        return rows, events + closing
+
+    def advance(self, now: float):
+        """The wall clock moved on to `now` without readings; the rows that are due by it, when the
+        readings are stamped with their arrival (otherwise only readings move the clock)."""
+        if not self.wall or self.next_slot is None:
+            return [], []
+        self.watermark = max(self.watermark, now)
+        return self._close()
+
+    def _close(self):
+        rows, events = [], []
+        while True:
+            slot = self.next_slot
+            values = self.open.get(slot)
+            if not self._complete(slot, values) and self.watermark < slot * self.dt + self.grace:
+                return rows, events
+            if values is None:
+                later = [s for s in self.open if s > slot]
+                if later and (min(later) - slot) * self.dt > self.max_gap:
+                    self.next_slot = min(later)
+                    events.append(Event("gap", None, f"no readings for {(self.next_slot - slot) * self.dt:g} s from "
+                                                     f"{slot * self.dt:g} s: longer than the longest gap filled "
+                                                     f"({self.max_gap:g} s), so its rows are not diagnosed",
+                                        slot * self.dt))
+                    continue
+                self.gap += 1
+            elif self.gap:
+                start = (slot - self.gap) * self.dt
+                events.append(Event("gap", None, f"no readings for {self.gap * self.dt:g} s from {start:g} s: "
+                                                 f"{self.gap} rows of missing readings", start))
+                self.gap = 0
+            self.open.pop(slot, None)
+            self.next_slot = slot + 1
+            row, stale = self._row(slot, values or {})
+            rows.append(row)
+            events += stale
+
+    def _complete(self, slot, values) -> bool:
+        return values is not None and all(n in values for n in self.outputs) and all(
+            n in values or self._held(n, slot) is not None for n in self.inputs)
+
+    def _held(self, name, slot):
+        """An input's last value, while it is not stale at this slot."""
+        last = self.last.get(name)
+        if last is None or slot * self.dt - last[0] > self.stale_after[name]:
+            return None
+        return last[1]
+
+    def _row(self, slot, values):
+        time, events = slot * self.dt, []
+        for name in self.outputs + self.inputs:
+            last = self.last.get(name)
+            if name not in values and name not in self.stale and last is not None \
+                    and time - last[0] > self.stale_after[name]:
+                self.stale.add(name)
+                events.append(Event("stale", name, f"no reading since {last[0]:g} s; missing from {time:g} s", time))
+        y = np.array([values.get(n, math.nan) for n in self.outputs])
+        u = np.array([values[n] if n in values else _or_nan(self._held(n, slot)) for n in self.inputs])
+        u = np.where(np.isnan(u), self.defaults, u)
+        return Row(slot, time, y, u, None), events
+
+
+def _or_nan(value):
+    return math.nan if value is None else value

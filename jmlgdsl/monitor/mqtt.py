@@ -1,0 +1,97 @@
+"""Readings from an MQTT broker (paho-mqtt 2): each spec name NAME from topic PREFIX/NAME (or the tag
+file's topic), and objects of several names per sample on PREFIX itself.
+
+The session is persistent (a fixed client id, clean session off) and subscribed at QoS 1, so the
+broker keeps what is published while the monitor is down and delivers it when it is back. Messages
+are acknowledged by hand, only once the monitor has committed them to its store: a crash between
+the two leaves them unacknowledged, and the broker delivers them again. A broker that is down, at
+start or later, is retried with a growing delay (1 s to 30 s), each attempt an event; a refused
+user name or password stops the monitor with a message that says so.
+"""
+
+from __future__ import annotations
+
+import time
+
+import paho.mqtt.client as mqtt
+
+from .assemble import Event
+from .payload import Malformed, decode
+from .urls import address
+
+REFUSED = {134: "the broker refused the user name or password (--username, --password-env, --password-file)",
+           135: "the broker refused this client: not authorized (--username, --password-env, --password-file)"}
+
+
+class MqttSource:
+    """A broker's messages as readings: put(("readings", [(name, value, time)], arrival, token)),
+    put(("malformed", message, token)) and put(("event", Event)); `acknowledge(tokens)` after a commit."""
+
+    rows = False
+
+    def __init__(self, url, model, tags, *, client_id: str, credentials=None, ca_file=None):
+        self.tls = url.startswith("mqtts://")
+        self.host, self.port, prefix = address(url, 8883 if self.tls else 1883)
+        self.name = f"{'mqtts' if self.tls else 'mqtt'}://{self.host}:{self.port}/{prefix}"
+        self.names = list(model.outputs) + list(model.inputs)
+        self.topics = {tag.topic or (f"{prefix}/{name}" if prefix else name): name for name, tag in tags.items()}
+        if prefix:
+            self.topics[prefix] = None  # one object of several names per sample
+        self.client_id, self.credentials, self.ca_file = client_id, credentials, ca_file
+        self.client = None
+
+    def start(self, put, position):
+        client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=self.client_id, clean_session=False,
+                             protocol=mqtt.MQTTv311)
+        client.manual_ack_set(True)
+        client.reconnect_delay_set(1, 30)
+        if self.credentials is not None:
+            client.username_pw_set(*self.credentials)
+        if self.tls:
+            client.tls_set(ca_certs=self.ca_file)
+        where = f"{self.host}:{self.port}"
+
+        def on_connect(client, userdata, flags, reason, properties):
+            if reason.is_failure:
+                if reason.value in REFUSED:
+                    client.disconnect()
+                    put(("fatal", f"{self.name}: {REFUSED[reason.value]}"))
+                else:
+                    put(("event", Event("disconnect", None, f"{where} refused the connection: {reason}")))
+                return
+            client.subscribe([(topic, 1) for topic in self.topics])
+            resumed = "resumed its session" if flags.session_present else "a new session"
+            put(("event", Event("connect", None, f"connected to {where} as {self.client_id} ({resumed})")))
+
+        def on_connect_fail(client, userdata):
+            put(("event", Event("disconnect", None, f"cannot reach {where}; trying again")))
+
+        def on_disconnect(client, userdata, flags, reason, properties):
+            if self.client is not None:
+                put(("event", Event("disconnect", None, f"lost the connection to {where} ({reason}); "
+                                                        "reconnecting")))
+
+        def on_message(client, userdata, message):
+            token = (message.mid, message.qos)
+            try:
+                if message.topic not in self.topics:  # a subscription left in the session by an earlier run
+                    raise Malformed("not a topic of this monitor's tags")
+                put(("readings", decode(message.payload, self.topics[message.topic], self.names), time.time(), token))
+            except Malformed as exc:
+                put(("malformed", f"topic {message.topic}: {exc}", token))
+
+        client.on_connect, client.on_connect_fail = on_connect, on_connect_fail
+        client.on_disconnect, client.on_message = on_disconnect, on_message
+        self.client = client
+        client.connect_async(self.host, self.port, keepalive=30)
+        client.loop_start()
+
+    def acknowledge(self, tokens):
+        for mid, qos in tokens:
+            self.client.ack(mid, qos)
+
+    def stop(self):
+        client, self.client = self.client, None
+        if client is not None:
+            client.disconnect()
+            client.loop_stop()

@@ -1,0 +1,95 @@
+"""Payloads of a data bus read as readings: a number, `{"t": ..., "v": ...}` for one tag, or one
+object per sample holding several names, `{"t": ..., "temp": ..., "current": ...}`.
+
+The time `t` is in seconds (since 1970 or since any fixed origin) or an ISO 8601 time stamp (UTC
+unless it says otherwise); without it a reading takes its arrival time. JSON `null` is a reading
+that says "not measured". Anything else (text, NaN, an infinite or absurdly large number, JSON of
+another shape) is `Malformed`, with a message that names the tag and shows the payload.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from datetime import datetime, timezone
+
+from ..infer.online import MAX_READING
+
+SHOWN = 60  # characters of a bad payload quoted in its message
+
+
+class Malformed(ValueError):
+    """A payload that is not a reading; its message says which tag and shows the payload."""
+
+
+def decode(payload: bytes, name: str | None, names) -> list[tuple[str, float, float | None]]:
+    """(name, value, time or None) for each reading in a payload: of tag `name`, or with name None an
+    object keyed by the spec's `names` (keys it does not know are left alone)."""
+    try:
+        text = payload.decode("utf-8").strip()
+    except UnicodeDecodeError:
+        raise Malformed(f"{name or 'sample'}: payload {shown(payload)} is not UTF-8 text") from None
+    if name is not None and _plain_number(text):
+        return [(name, _value(float(text), name, text), None)]
+    try:
+        data = json.loads(text, parse_constant=lambda constant: constant)
+    except ValueError:
+        raise Malformed(f"{name or 'sample'}: payload {shown(text)} is neither a number nor JSON") from None
+    if name is not None:
+        if isinstance(data, dict) and "v" in data and set(data) <= {"t", "v"}:
+            return [(name, _value(data["v"], name, text), _time(data.get("t"), name, text))]
+        raise Malformed(f"{name}: payload {shown(text)} is not a number or {{\"t\": ..., \"v\": ...}}")
+    if not isinstance(data, dict):
+        raise Malformed(f"sample: payload {shown(text)} is not a JSON object of names and values")
+    time = _time(data.get("t"), "sample", text)
+    found = [(key, _value(data[key], key, text), time) for key in names if key in data]
+    if not found:
+        raise Malformed(f"sample: payload {shown(text)} holds none of the names {', '.join(names)}")
+    return found
+
+
+def shown(payload) -> str:
+    """A payload as a message quotes it: repr, cut to SHOWN characters."""
+    text = repr(payload if isinstance(payload, str) else bytes(payload))
+    return text if len(text) <= SHOWN else text[:SHOWN] + "…"
+
+
+def _plain_number(text: str) -> bool:
+    """A number as a logger writes it: ASCII digits with a sign, point and exponent ('nan' and 'inf'
+    have no digit, so they are not)."""
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return text.isascii() and "_" not in text and any(c.isdigit() for c in text)
+
+
+def _value(value, name, text) -> float:
+    if value is None:
+        return math.nan
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise Malformed(f"{name}: payload {shown(text)}: the value {shown(str(value))} is not a number")
+    try:
+        number = float(value)
+    except OverflowError:
+        number = math.inf
+    if not abs(number) < MAX_READING:
+        raise Malformed(f"{name}: payload {shown(text)}: the value {value!r} is not a finite measurement "
+                        f"(beyond {MAX_READING:g} in size)")
+    return number
+
+
+def _time(value, name, text) -> float | None:
+    """Seconds from a number or an ISO 8601 time stamp; None when absent."""
+    if value is None:
+        return None
+    if isinstance(value, str):
+        try:
+            stamp = datetime.fromisoformat(value.replace("Z", "+00:00"))
+        except ValueError:
+            raise Malformed(f"{name}: payload {shown(text)}: t {value!r} is not an ISO 8601 time stamp") from None
+        return (stamp if stamp.tzinfo else stamp.replace(tzinfo=timezone.utc)).timestamp()
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(float(value)) \
+            or abs(value) > 1e11:
+        raise Malformed(f"{name}: payload {shown(text)}: t {value!r} is not a time in seconds")
+    return float(value)

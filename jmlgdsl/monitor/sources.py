@@ -1,0 +1,53 @@
+"""Which source a --source URL names, and the password a source uses (never from the command line).
+
+    path/to/data.csv, -              CsvSource (jmlgdsl.monitor.follow)
+    mqtt://HOST:PORT/PREFIX          MqttSource (jmlgdsl.monitor.mqtt); mqtts:// over TLS
+"""
+
+from __future__ import annotations
+
+import os
+from urllib.parse import urlsplit
+
+from ..errors import JmlgError
+from .follow import CsvSource
+
+
+def credentials(username: str | None, env: str | None, path: str | None) -> tuple[str, str] | None:
+    """(user name, password) from --username and the password's environment variable or file; None
+    without a user name. The password is read here and never shown."""
+    if env and path:
+        raise JmlgError("--password-env and --password-file: give one of them")
+    if username is None:
+        if env or path:
+            raise JmlgError(f"{'--password-env' if env else '--password-file'}: a password needs --username")
+        return None
+    if env:
+        if env not in os.environ:
+            raise JmlgError(f"--password-env: the environment variable {env} is not set")
+        return username, os.environ[env]
+    if path:
+        try:
+            with open(path, encoding="utf-8") as stream:
+                return username, stream.readline().rstrip("\r\n")
+        except OSError as exc:
+            raise JmlgError(f"--password-file: cannot read {path}: {exc.strerror}") from None
+        except UnicodeDecodeError:
+            raise JmlgError(f"--password-file: {path} is not UTF-8 text") from None
+    return username, ""
+
+
+def open_bus(url: str, model, tags, *, follow: bool = True, client_id: str | None = None, credentials=None,
+             ca_file: str | None = None):
+    """The source a --source URL names (not yet started)."""
+    scheme = urlsplit(url).scheme if "://" in url else ""
+    if scheme in ("mqtt", "mqtts"):
+        from .mqtt import MqttSource
+
+        return MqttSource(url, model, tags, client_id=client_id or f"jmlgdsl-{model.name}",
+                          credentials=credentials, ca_file=ca_file)
+    if scheme:
+        raise JmlgError(f"--source {url}: unknown scheme {scheme!r}; use a CSV file, -, mqtt:// or mqtts://")
+    if credentials is not None or client_id or ca_file:
+        raise JmlgError(f"--source {url}: a CSV source takes no --username, --client-id or --ca-file")
+    return CsvSource(url, model, follow)

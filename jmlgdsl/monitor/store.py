@@ -1,0 +1,282 @@
+"""The monitor's store: one SQLite database (WAL mode) holding runs, their rows, results, alarms,
+events and the saved state they were diagnosed with.
+
+Schema (vectors are JSON arrays in the order the `run` row lists the names; JSON null is NaN, a
+reading not measured):
+
+    run     id, started (UTC ISO time), version, plant, spec (the spec file's text), spec_sha256,
+            model_sha256 (the compiled model's fingerprint), options (JSON: filter, alarm rule, lag,
+            source, ...), modes, states, outputs, inputs (JSON name lists)
+    sample  run, t, time, y, u, mode, anomaly, changepoint: every row diagnosed, as assembled
+    result  run, t, map_mode, posterior, state_mean, y_pred, residual, ess, loglik, alarm: every
+            finished row (ess NULL for a filter without particles) (with --lag the posterior and state are smoothed over `lag` later rows)
+    alarm   id, run, raised_t, raised_time, cleared_t, cleared_time (NULL while raised)
+    event   id, run, at (UTC ISO wall-clock time), time (the data time it concerns), kind, tag, detail
+    state   run, rows (diagnosed so far), checkpoint (the Diagnosis), monitor (the row assembler),
+            position (JSON: where the source resumes), saved (UTC ISO time)
+
+`Store.save` writes a batch of samples, results, alarms and events together with the state in one
+transaction: the store never holds a row whose state was not saved, nor state ahead of its rows.
+"""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import itertools
+import json
+import math
+import sqlite3
+from dataclasses import dataclass
+from datetime import datetime, timezone
+
+import numpy as np
+
+from ..errors import JmlgError
+from ..infer.result import Step
+from ..infer.table import TableWriter
+from ..version import VERSION
+
+SCHEMA_VERSION = 1
+SCHEMA = """
+CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
+CREATE TABLE IF NOT EXISTS run (
+    id INTEGER PRIMARY KEY, started TEXT NOT NULL, version TEXT NOT NULL, plant TEXT NOT NULL,
+    spec TEXT, spec_sha256 TEXT NOT NULL, model_sha256 TEXT NOT NULL, options TEXT NOT NULL,
+    modes TEXT NOT NULL, states TEXT NOT NULL, outputs TEXT NOT NULL, inputs TEXT NOT NULL);
+CREATE TABLE IF NOT EXISTS sample (
+    run INTEGER NOT NULL, t INTEGER NOT NULL, time REAL, y TEXT NOT NULL, u TEXT NOT NULL,
+    mode TEXT, anomaly INTEGER, changepoint INTEGER, PRIMARY KEY (run, t)) WITHOUT ROWID;
+CREATE TABLE IF NOT EXISTS result (
+    run INTEGER NOT NULL, t INTEGER NOT NULL, map_mode TEXT NOT NULL, posterior TEXT NOT NULL,
+    state_mean TEXT NOT NULL, y_pred TEXT NOT NULL, residual TEXT NOT NULL, ess REAL,
+    loglik REAL, alarm INTEGER NOT NULL, PRIMARY KEY (run, t)) WITHOUT ROWID;
+CREATE TABLE IF NOT EXISTS alarm (
+    id INTEGER PRIMARY KEY, run INTEGER NOT NULL, raised_t INTEGER NOT NULL, raised_time REAL,
+    cleared_t INTEGER, cleared_time REAL);
+CREATE TABLE IF NOT EXISTS event (
+    id INTEGER PRIMARY KEY, run INTEGER NOT NULL, at TEXT NOT NULL, time REAL, kind TEXT NOT NULL,
+    tag TEXT, detail TEXT NOT NULL);
+CREATE INDEX IF NOT EXISTS event_kind ON event (run, kind);
+CREATE TABLE IF NOT EXISTS state (
+    run INTEGER PRIMARY KEY, rows INTEGER NOT NULL, checkpoint BLOB NOT NULL, monitor BLOB,
+    position TEXT, saved TEXT NOT NULL);
+"""
+
+
+class StoreError(JmlgError):
+    """A store that cannot be used: not a jmlgdsl store, another schema, no such run."""
+
+
+@dataclass(frozen=True)
+class Run:
+    """A run as the store records it."""
+
+    id: int
+    plant: str
+    model_sha256: str
+    options: dict
+    modes: list
+    states: list
+    outputs: list
+    inputs: list
+
+
+@dataclass(frozen=True)
+class Saved:
+    """The state a run was last committed with."""
+
+    rows: int
+    checkpoint: bytes
+    monitor: bytes | None
+    position: dict | None
+
+
+def now() -> str:
+    """The wall-clock time, UTC, ISO 8601 to the microsecond."""
+    return datetime.now(timezone.utc).isoformat()
+
+
+def vector(values) -> str:
+    """A vector as a JSON array, exactly (shortest round-trip digits), NaN as null."""
+    return json.dumps([None if math.isnan(v) else v for v in np.asarray(values, float).tolist()])
+
+
+def unvector(text) -> np.ndarray:
+    return np.array([math.nan if v is None else v for v in json.loads(text)], dtype=float)
+
+
+class Store:
+    """An open store; `synchronous` is SQLite's: FULL makes every commit durable before the monitor
+    acknowledges what it holds."""
+
+    def __init__(self, path, synchronous: str = "FULL", create: bool = True):
+        self.path = str(path)
+        try:
+            if not create:
+                with open(self.path, "rb") as probe:
+                    if probe.read(16) != b"SQLite format 3\0":
+                        raise StoreError(f"{self.path}: not a jmlgdsl store (not an SQLite database)")
+            self.db = sqlite3.connect(self.path, isolation_level=None, check_same_thread=False)
+            self.db.execute("PRAGMA journal_mode=WAL")
+            self.db.execute(f"PRAGMA synchronous={synchronous}")
+            self.db.execute("PRAGMA busy_timeout=10000")
+            self.db.executescript(SCHEMA)
+            found = self.db.execute("SELECT value FROM meta WHERE key = 'schema'").fetchone()
+            if found is None:
+                self.db.execute("INSERT INTO meta VALUES ('schema', ?)", (str(SCHEMA_VERSION),))
+            elif found[0] != str(SCHEMA_VERSION):
+                raise StoreError(f"{self.path}: a store of schema {found[0]}; this jmlgdsl reads schema {SCHEMA_VERSION}")
+        except OSError as exc:
+            raise StoreError(f"cannot open the store {self.path}: {exc.strerror}") from None
+        except sqlite3.DatabaseError as exc:
+            raise StoreError(f"{self.path}: not a usable jmlgdsl store ({exc})") from None
+
+    def close(self):
+        self.db.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    # ------------------------------------------------------------------ runs
+    def run(self, id: int | None = None) -> Run | None:
+        """A run by id, or the latest (None when the store has none)."""
+        query = "SELECT id, plant, model_sha256, options, modes, states, outputs, inputs FROM run "
+        row = self.db.execute(query + ("WHERE id = ?" if id is not None else "ORDER BY id DESC LIMIT 1"),
+                              () if id is None else (id,)).fetchone()
+        if row is None:
+            if id is not None:
+                raise StoreError(f"{self.path}: no run {id}")
+            return None
+        return Run(row[0], row[1], row[2], json.loads(row[3]), *(json.loads(v) for v in row[4:]))
+
+    def begin_run(self, spec: str | None, model, fingerprint: str, options: dict) -> Run:
+        """Record a new run of a model with these options."""
+        names = [json.dumps(list(v)) for v in (model.modes, model.states, model.outputs, model.inputs)]
+        sha = hashlib.sha256((spec or "").encode()).hexdigest()
+        with self._transaction():
+            cursor = self.db.execute("INSERT INTO run (started, version, plant, spec, spec_sha256, model_sha256, "
+                                     "options, modes, states, outputs, inputs) VALUES (?,?,?,?,?,?,?,?,?,?,?)",
+                                     (now(), VERSION, model.name, spec, sha, fingerprint,
+                                      json.dumps(options, sort_keys=True), *names))
+        return self.run(cursor.lastrowid)
+
+    def saved(self, run: int) -> Saved | None:
+        """The state last committed for a run (None before its first commit)."""
+        row = self.db.execute("SELECT rows, checkpoint, monitor, position FROM state WHERE run = ?", (run,)).fetchone()
+        return None if row is None else Saved(row[0], row[1], row[2], None if row[3] is None else json.loads(row[3]))
+
+    # ------------------------------------------------------------------ the one write
+    def save(self, run: int, samples, results, events, rows: int, checkpoint: bytes, monitor: bytes | None,
+             position: dict | None):
+        """Commit in one transaction: samples [(t, Row)], results [Diagnosed], events [Event], and the
+        state after them (rows diagnosed, the Diagnosis checkpoint, the assembler, the source position)."""
+        modes = self._modes(run)
+        at = now()
+        with self._transaction():
+            self.db.executemany("INSERT INTO sample VALUES (?,?,?,?,?,?,?,?)", [
+                (run, t, row.time, vector(row.y), vector(row.u), None if row.mode is None else modes[row.mode],
+                 row.anomaly, row.changepoint) for t, row in samples])
+            self.db.executemany("INSERT INTO result VALUES (?,?,?,?,?,?,?,?,?,?)", [
+                (run, d.step.t, modes[d.step.map_mode], vector(d.step.mode_posterior), vector(d.step.state_mean),
+                 vector(d.step.y_pred), vector(d.step.residual), _real(d.step.ess), _real(d.step.loglik), d.alarm)
+                for d in results])
+            self._alarms(run, results)
+            self.db.executemany("INSERT INTO event (run, at, time, kind, tag, detail) VALUES (?,?,?,?,?,?)",
+                                [(run, at, e.time, e.kind, e.tag, e.detail) for e in events])
+            self.db.execute("INSERT OR REPLACE INTO state VALUES (?,?,?,?,?,?)",
+                            (run, rows, checkpoint, monitor, None if position is None else json.dumps(position), at))
+
+    def _alarms(self, run, results):
+        """Alarm episodes from the results' 0/1 alarms, continuing the one open in the store."""
+        open_ = self.db.execute("SELECT id FROM alarm WHERE run = ? AND cleared_t IS NULL", (run,)).fetchone()
+        for d in results:
+            if d.alarm and open_ is None:
+                open_ = (self.db.execute("INSERT INTO alarm (run, raised_t, raised_time) VALUES (?,?,?)",
+                                         (run, d.step.t, d.row.time)).lastrowid,)
+            elif not d.alarm and open_ is not None:
+                self.db.execute("UPDATE alarm SET cleared_t = ?, cleared_time = ? WHERE id = ?",
+                                (d.step.t, d.row.time, open_[0]))
+                open_ = None
+
+    def _modes(self, run):
+        if getattr(self, "_modes_of", (None,))[0] != run:
+            self._modes_of = (run, self.run(run).modes)
+        return self._modes_of[1]
+
+    def _transaction(self):
+        return _Transaction(self.db)
+
+    # ------------------------------------------------------------------ reading back
+    def counts(self, run: int) -> dict:
+        """{kind: number} of a run's events."""
+        return dict(self.db.execute("SELECT kind, count(*) FROM event WHERE run = ? GROUP BY kind", (run,)))
+
+    def write_table(self, run: Run, stream):
+        """The result table of a run's finished rows, as `jmlgdsl run -o` writes it for the same rows."""
+        lag = run.options.get("lag", 0)
+        writer = None
+        query = ("SELECT r.t, s.time, r.posterior, r.state_mean, r.y_pred, r.residual, r.loglik, r.ess, r.alarm "
+                 "FROM result r JOIN sample s ON s.run = r.run AND s.t = r.t WHERE r.run = ? ORDER BY r.t")
+        for t, time, posterior, mean, pred, residual, loglik, ess, alarm in self.db.execute(query, (run.id,)):
+            if writer is None:
+                writer = TableWriter(stream, _Names(run), time is not None, lag=lag)
+            writer.write(Step(t, unvector(posterior), unvector(mean), None, unvector(pred), unvector(residual),
+                              _nan(loglik), _nan(ess)), time, alarm)
+        return writer is not None
+
+    def write_samples(self, run: Run, stream):
+        """The rows a run diagnosed as a data file (`time`, outputs, inputs and the labels they carry),
+        every number in its shortest exact form, so `jmlgdsl run` on it diagnoses the same rows."""
+        rows = self.db.execute("SELECT time, y, u, mode, anomaly, changepoint FROM sample WHERE run = ? ORDER BY t",
+                               (run.id,))
+        first = rows.fetchone()
+        if first is None:
+            return False
+        labels = [i for i, name in ((3, "mode"), (4, "anomaly"), (5, "changepoint"))
+                  if self.db.execute(f"SELECT 1 FROM sample WHERE run = ? AND {name} IS NOT NULL LIMIT 1",
+                                     (run.id,)).fetchone()]
+        timed = first[0] is not None
+        writer = csv.writer(stream, lineterminator="\n")
+        writer.writerow((["time"] if timed else []) + run.outputs + run.inputs
+                        + [("mode", "anomaly", "changepoint")[i - 3] for i in labels])
+        for row in itertools.chain([first], rows):
+            cells = ([repr(row[0])] if timed else []) + [_cell(v) for v in json.loads(row[1]) + json.loads(row[2])]
+            writer.writerow(cells + ["" if row[i] is None else row[i] for i in labels])
+        return True
+
+
+def _real(value) -> float | None:
+    """A number for a REAL column: NaN, which SQLite cannot hold, as NULL."""
+    return None if math.isnan(value) else float(value)
+
+
+def _nan(value) -> float:
+    return math.nan if value is None else value
+
+
+def _cell(value) -> str:
+    return "" if value is None else repr(float(value))
+
+
+class _Names:
+    """What the table writer needs of a model, from the names a run recorded."""
+
+    def __init__(self, run: Run):
+        self.modes, self.states, self.outputs = run.modes, run.states, run.outputs
+
+
+class _Transaction:
+    """BEGIN IMMEDIATE ... COMMIT, or ROLLBACK on an exception: whole or absent."""
+
+    def __init__(self, db):
+        self.db = db
+
+    def __enter__(self):
+        self.db.execute("BEGIN IMMEDIATE")
+
+    def __exit__(self, kind, exc, traceback):
+        self.db.execute("ROLLBACK" if kind else "COMMIT")

@@ -1,0 +1,140 @@
+"""`jmlgdsl monitor` on a CSV source: the exported table equals `jmlgdsl run -o` on the same rows, a
+monitor killed with SIGKILL mid-stream and started again with the same command loses and repeats no
+row, a bad line is an event and not the end, and a store of another run is refused by name."""
+
+import os
+import signal
+import sqlite3
+import subprocess
+import threading
+import time
+
+import pytest
+from conftest import ROOT, jmlgdsl_command
+
+from jmlgdsl.cli import main
+
+SPEC = str(ROOT / "specs" / "dryer.jmlg")
+DATA = ROOT / "examples" / "dryer_seq1.csv"
+LINES = DATA.read_text().splitlines(keepends=True)  # the header and 1000 rows
+WAIT = 30  # seconds any one wait may take before the test fails
+
+
+def table(*args, tmp_path, name="table.csv"):
+    out = tmp_path / name
+    assert main([*args, "-o", str(out)]) == 0
+    return out.read_text()
+
+
+def stored(store):
+    """Rows with results committed in the store (0 before it exists)."""
+    if not os.path.exists(store):
+        return 0
+    with sqlite3.connect(store) as db:
+        try:
+            return db.execute("SELECT count(*) FROM result").fetchone()[0]
+        except sqlite3.OperationalError:
+            return 0
+
+
+def until(condition, what):
+    deadline = time.monotonic() + WAIT
+    while not condition():
+        assert time.monotonic() < deadline, f"gave up waiting for {what}"
+        time.sleep(0.02)
+
+
+@pytest.mark.parametrize("lag", [0, 3])
+def test_export_equals_run(tmp_path, lag):
+    store = str(tmp_path / "dryer.db")
+    assert main(["monitor", SPEC, "--source", str(DATA), "--store", store, "--no-follow", "--lag", str(lag),
+                 "--filter", "rbpf", "--seed", "3"]) == 0
+    exported = table("export", store, "--samples", str(tmp_path / "rows.csv"), tmp_path=tmp_path)
+    expected = table("run", SPEC, str(DATA), "--lag", str(lag), "--filter", "rbpf", "--seed", "3",
+                     tmp_path=tmp_path, name="run.csv")
+    assert exported == expected and len(exported.splitlines()) == 1001 + (lag > 0)
+    # the rows the store kept are the rows: run on them writes the same table again
+    again = table("run", SPEC, str(tmp_path / "rows.csv"), "--lag", str(lag), "--filter", "rbpf", "--seed", "3",
+                  tmp_path=tmp_path, name="again.csv")
+    assert again == expected
+
+
+def test_killed_and_restarted_loses_and_repeats_nothing(tmp_path):
+    data, store = tmp_path / "growing.csv", str(tmp_path / "dryer.db")
+    command = [*jmlgdsl_command(), "monitor", SPEC, "--source", str(data), "--store", store, "--lag", "2"]
+    data.write_text("".join(LINES[:301]))
+    killed, done = threading.Event(), threading.Event()
+
+    def grow():  # the plant's logger: ten rows every 10 ms, going on through the kill and the restart
+        with open(data, "a") as out:
+            for start in range(301, 1001, 10):
+                if start == 701:
+                    killed.wait(WAIT)
+                out.writelines(LINES[start:start + 10])
+                out.flush()
+                if done.wait(0.01):
+                    return
+    writer = threading.Thread(target=grow)
+    first = subprocess.Popen(command, stderr=subprocess.PIPE, text=True)
+    try:
+        until(lambda: stored(store) >= 200, "the first monitor to store 200 rows")
+        writer.start()
+        until(lambda: stored(store) >= 500, "the first monitor to store 500 rows")
+        first.send_signal(signal.SIGKILL)
+        first.wait(WAIT)
+        killed_at = stored(store)
+        assert killed_at < 700  # mid-stream
+        killed.set()
+        second = subprocess.Popen(command, stderr=subprocess.PIPE, text=True)
+        until(lambda: stored(store) == 1000 - 2, "the restarted monitor to store every row")
+        second.send_signal(signal.SIGTERM)
+        _, err = second.communicate(timeout=WAIT)
+        writer.join(WAIT)
+    finally:
+        killed.set()
+        done.set()
+        for process in (first, locals().get("second")):
+            if process is not None and process.poll() is None:
+                process.kill()
+    assert second.returncode == 0, err
+    assert f"resume: run 1 resumed after row" in err
+    expected = table("run", SPEC, str(DATA), "--lag", "2", tmp_path=tmp_path, name="run.csv").splitlines(True)
+    exported = table("export", store, tmp_path=tmp_path)
+    assert exported == "".join(expected[:-2])  # the last 2 rows wait for the 2 rows after them
+    with sqlite3.connect(store) as db:
+        assert db.execute("SELECT count(*), min(t), max(t) FROM sample").fetchone() == (1000, 1, 1000)
+        kinds = dict(db.execute("SELECT kind, count(*) FROM event GROUP BY kind"))
+    assert kinds == {"start": 1, "resume": 1}
+
+
+def test_bad_line_is_an_event(tmp_path, capsys):
+    data, store = tmp_path / "bad.csv", str(tmp_path / "dryer.db")
+    data.write_text("".join(LINES[:101] + ["101,15,hot,fan,50\n"] + LINES[101:]))
+    assert main(["monitor", SPEC, "--source", str(data), "--store", store, "--no-follow"]) == 0
+    err = capsys.readouterr().err
+    assert f"monitor: malformed: {data}:102: column 'temp': 'hot' is not a number" in err
+    assert "1000 rows diagnosed in run 1" in err and "malformed 1" in err
+    assert table("export", store, tmp_path=tmp_path) == table("run", SPEC, str(DATA), tmp_path=tmp_path, name="r.csv")
+
+
+def test_store_of_another_run_is_refused(tmp_path, capsys):
+    store = str(tmp_path / "dryer.db")
+    assert main(["monitor", SPEC, "--source", str(DATA), "--store", store, "--no-follow"]) == 0
+    other = str(ROOT / "specs" / "cstr4.jmlg")
+    assert main(["monitor", other, "--source", str(DATA), "--store", store, "--no-follow"]) == 2
+    err = capsys.readouterr().err
+    assert f"error: the store {store} holds a run of another model (plant 'dryer'" in err and "--new-run" in err
+    assert main(["monitor", SPEC, "--source", str(DATA), "--store", store, "--no-follow", "--threshold", "0.7"]) == 2
+    assert "holds a run started with threshold 0.5, not 0.7" in capsys.readouterr().err
+    assert main(["monitor", SPEC, "--source", str(DATA), "--store", store, "--no-follow", "--threshold", "0.7",
+                 "--new-run"]) == 0
+    assert main(["export", store, "--run", "3"]) == 2
+    assert f"error: {store}: no run 3" in capsys.readouterr().err
+
+
+def test_standard_input(tmp_path):
+    store = str(tmp_path / "dryer.db")
+    done = subprocess.run([*jmlgdsl_command(), "monitor", SPEC, "--source", "-", "--store", store],
+                          input="".join(LINES), capture_output=True, text=True, timeout=WAIT)
+    assert done.returncode == 0, done.stderr
+    assert table("export", store, tmp_path=tmp_path) == table("run", SPEC, str(DATA), tmp_path=tmp_path, name="r.csv")
