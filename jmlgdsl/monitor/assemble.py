@@ -53,7 +53,8 @@ class Assembler:
         self.max_gap = float(max_gap)
         self.next_slot = None  # the oldest slot not yet out as a row (None: no reading yet)
         self.open = {}  # slot -> {name: value}
-        self.last = {}  # name -> (time, value) of its newest reading
+        self.newest = {}  # name -> the time of its newest reading
+        self.last = {}  # name -> (time, value) of its reading in the newest row out that had one
         self.stale = set()
         self.gap = 0  # rows without any reading so far, up to the newest row out
         self.watermark = -math.inf  # the newest reading's time
@@ -68,19 +69,14 @@ class Assembler:
         if slot < self.next_slot:
             return [], [Event("late", name, f"a reading for {time:g} s came after its row was diagnosed", time)]
         events = []
-        before = self.last.get(name)
-        if before is not None and time < before[0]:
-            events.append(Event("out_of_order", name, f"a reading for {time:g} s came after one for "
-                                                      f"{before[0]:g} s", time))
+        newest = self.newest.get(name, -math.inf)
+        if time < newest:
+            events.append(Event("out_of_order", name, f"a reading for {time:g} s came after one for {newest:g} s", time))
         values = self.open.setdefault(slot, {})
         if name in values:
             return [], events + [Event("duplicate", name, f"a second reading for {time:g} s (the first stands)", time)]
         values[name] = value
-        if before is None or time >= before[0]:
-            self.last[name] = (time, value)
-        if name in self.stale:
-            self.stale.discard(name)
-            events.append(Event("fresh", name, f"read again at {time:g} s", time))
+        self.newest[name] = max(newest, time)
         self.watermark = max(self.watermark, time)
         rows, closing = self._close()
         return rows, events + closing
@@ -136,13 +132,17 @@ class Assembler:
         time, events = slot * self.dt, []
         for name in self.outputs + self.inputs:
             last = self.last.get(name)
-            if name not in values and name not in self.stale and last is not None \
-                    and time - last[0] > self.stale_after[name]:
+            if name in values:
+                if name in self.stale:
+                    self.stale.discard(name)
+                    events.append(Event("fresh", name, f"read again at {time:g} s", time))
+            elif name not in self.stale and last is not None and time - last[0] > self.stale_after[name]:
                 self.stale.add(name)
                 events.append(Event("stale", name, f"no reading since {last[0]:g} s; missing from {time:g} s", time))
         y = np.array([values.get(n, math.nan) for n in self.outputs])
         u = np.array([values[n] if n in values else _or_nan(self._held(n, slot)) for n in self.inputs])
         u = np.where(np.isnan(u), self.defaults, u)
+        self.last.update((name, (time, value)) for name, value in values.items())
         return Row(slot, time, y, u, None), events
 
 

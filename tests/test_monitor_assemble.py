@@ -1,0 +1,113 @@
+"""Rows from readings: complete rows leave at once and in order, a row waits its grace period for
+missing readings, and late, duplicate, out-of-order, stale and malformed readings are counted as
+events with their tag, never reordered into rows already diagnosed."""
+
+import math
+
+import pytest
+from conftest import ROOT
+
+import jmlgdsl
+from jmlgdsl.monitor import Assembler, TagError, read_tags
+from jmlgdsl.monitor.payload import Malformed, decode
+
+MODEL = jmlgdsl.load(ROOT / "specs" / "dryer.jmlg")  # output temp, input current (default 15), 1 s
+
+
+def assembler(**options):
+    return Assembler(MODEL, read_tags(None, MODEL), **options)
+
+
+def feed(a, readings):
+    """Every row (time, temp, current) and event (kind, tag, time) of a series of readings."""
+    rows, events = [], []
+    for name, value, time in readings:
+        r, e = a.add(name, value, time)
+        rows += [(row.time, *row.y.tolist(), *row.u.tolist()) for row in r]
+        events += [(event.kind, event.tag, event.time) for event in e]
+    return rows, events
+
+
+def same(a, b):
+    return len(a) == len(b) and all(x == y or (math.isnan(x) and math.isnan(y)) for p, q in zip(a, b)
+                                    for x, y in zip(p, q))
+
+
+def test_complete_rows_leave_at_once_in_order_and_late_ones_are_events():
+    a = assembler()
+    rows, events = feed(a, [("temp", 50.0, 1.0), ("current", 16.0, 1.02), ("temp", 50.5, 2.0),
+                            ("current", 16.0, 3.0), ("temp", 51.0, 3.0),
+                            ("temp", 50.1, 1.0),  # its row has left: late
+                            ("current", 17.0, 4.1), ("current", 17.0, 4.0),  # the second a duplicate
+                            ("temp", 52.0, 5.0), ("temp", 51.5, 3.9)])  # out of order, its row still open
+    assert same(rows, [(1.0, 50.0, 16.0), (2.0, 50.5, 16.0), (3.0, 51.0, 16.0), (4.0, 51.5, 17.0),
+                       (5.0, 52.0, 17.0)])
+    assert events == [("late", "temp", 1.0), ("out_of_order", "current", 4.0), ("duplicate", "current", 4.0),
+                      ("out_of_order", "temp", 3.9)]
+
+
+def test_a_row_waits_its_grace_then_its_missing_readings_are_missing():
+    a = assembler(grace=2.0)
+    rows, events = feed(a, [("temp", 50.0, 1.0), ("current", 15.5, 1.0), ("temp", 50.2, 3.0), ("temp", 50.3, 4.0)])
+    assert same(rows, [(1.0, 50.0, 15.5), (2.0, math.nan, 15.5), (3.0, 50.2, 15.5), (4.0, 50.3, 15.5)])
+    assert events == [("gap", None, 2.0)]  # slot 2 had no reading at all; a reading at 4 s made it due
+
+
+def test_stale_tags_go_missing_and_come_back_fresh():
+    a = assembler(stale=3.0)
+    readings = [("temp", 50.0, 1.0), ("current", 20.0, 1.0)] + [("temp", 50.0, float(t)) for t in range(2, 8)]
+    rows, events = feed(a, readings + [("current", 21.0, 8.0), ("temp", 50.0, 8.0), ("temp", 50.0, 9.0)])
+    # held for 3 s, then stale: the default (and rows 5-7 waited their grace for it)
+    assert [r[2] for r in rows] == [20.0, 20.0, 20.0, 20.0, 15.0, 15.0, 15.0, 21.0, 21.0]
+    assert events == [("stale", "current", 5.0), ("fresh", "current", 8.0)]
+
+
+def test_a_long_gap_is_skipped_not_filled():
+    a = assembler(max_gap=10.0)
+    rows, events = feed(a, [("temp", 50.0, 1.0), ("current", 15.0, 1.0), ("current", 15.0, 30.0),
+                            ("temp", 51.0, 30.0)])
+    assert [r[0] for r in rows] == [1.0, 30.0]
+    assert [e[0] for e in events] == ["gap"]
+
+
+@pytest.mark.parametrize("payload, name, reason", [
+    (b"hot", "temp", "temp: payload 'hot' is neither a number nor JSON"),
+    (b"NaN", "temp", "temp: payload 'NaN' is not a number or"),
+    (b"1e300", "temp", "temp: payload '1e300': the value 1e+300 is not a finite measurement"),
+    (b'{"value": 3}', "temp", "is not a number or {\"t\": ..., \"v\": ...}"),
+    (b'{"t": "yesterday", "v": 3}', "temp", "t 'yesterday' is not an ISO 8601 time stamp"),
+    (b'{"v": "3"}', "temp", "the value '3' is not a number"),
+    (b"\xff", "temp", "is not UTF-8 text"),
+    (b"[1, 2]", None, "sample: payload '[1, 2]' is not a JSON object"),
+    (b'{"t": 1, "pressure": 3}', None, "holds none of the names temp, current"),
+])
+def test_malformed_payloads_name_their_tag(payload, name, reason):
+    with pytest.raises(Malformed, match=None) as info:
+        decode(payload, name, ["temp", "current"])
+    assert reason in str(info.value)
+
+
+def test_payloads():
+    names = ["temp", "current"]
+    assert decode(b" 50.25 ", "temp", names) == [("temp", 50.25, None)]
+    assert decode(b'{"t": 12.5, "v": 50}', "temp", names) == [("temp", 50.0, 12.5)]
+    assert decode(b'{"t": "1970-01-01T00:00:10Z", "v": null}', "temp", names)[0][2] == 10.0
+    assert decode(b'{"t": 3, "current": 15, "temp": 50.1, "other": 1}', None, names) == [
+        ("temp", 50.1, 3.0), ("current", 15.0, 3.0)]
+
+
+def test_tag_file(tmp_path):
+    path = tmp_path / "tags.toml"
+    path.write_text('[tags.temp]\ntopic = "line4/temp_F"\nscale = 0.5555555555555556\noffset = -17.77777777777778\n'
+                    '[tags.current]\ntime = "arrival"\nstale = 60\n')
+    tags = read_tags(path, MODEL)
+    assert tags["temp"].topic == "line4/temp_F" and abs(tags["temp"].value(212.0) - 100.0) < 1e-12
+    assert (tags["current"].time, tags["current"].stale, tags["current"].output) == ("arrival", 60.0, False)
+    for text, message in [('[tags.tmep]\n', "[tags.tmep]: the spec has no input or output 'tmep'; did you mean 'temp'?"),
+                          ('[tags.temp]\nscael = 2\n', "[tags.temp]: unknown key 'scael'; did you mean 'scale'?"),
+                          ('[tags.temp]\ntime = "now"\n', 'time must be "source" or "arrival"'),
+                          ('[tags.temp\n', "not a TOML tag file")]:
+        path.write_text(text)
+        with pytest.raises(TagError) as info:
+            read_tags(path, MODEL)
+        assert message in str(info.value)
