@@ -8,8 +8,8 @@ and whatever is still missing is missing (the filters handle missing readings; a
 default). So the rows depend on the readings alone, not on when they were processed, and a replay
 of the same readings gives the same rows.
 
-An input holds its last value until it is stale (set points are often published on change); an
-output never does (a measurement is of its own moment). A tag without a reading for `stale` seconds
+An input holds its last value until it is stale (set points are often published on change: an input
+read in the previous row is waited for, one that was not is taken as held); an output never does (a measurement is of its own moment). A tag without a reading for `stale` seconds
 becomes stale, with an event, and fresh again with its next reading. What does not fit is counted
 as an event and dropped, never reordered into a row already diagnosed: a reading whose row has left
 (late), a second reading of a tag in one slot (duplicate: the first stands), and a reading older
@@ -60,26 +60,33 @@ class Assembler:
         self.watermark = -math.inf  # the newest reading's time
         self.wall = True  # every reading so far took its arrival time: the wall clock may close rows
 
-    def add(self, name: str, value: float, time: float, arrival: bool = False):
-        """One reading; the rows and events it completes: (rows, events)."""
+    def add(self, readings, arrival: bool = False):
+        """The readings of one message, [(name, value, time)], taken in together; the rows and events
+        they complete: (rows, events). `arrival`: their times are their arrival's."""
         self.wall &= arrival
+        events = []
+        for name, value, time in readings:
+            events += self._take(name, value, time)
+        rows, closing = self._close() if self.next_slot is not None else ([], [])
+        return rows, events + closing
+
+    def _take(self, name, value, time):
         slot = round(time / self.dt)
         if self.next_slot is None:
             self.next_slot = slot
         if slot < self.next_slot:
-            return [], [Event("late", name, f"a reading for {time:g} s came after its row was diagnosed", time)]
+            return [Event("late", name, f"a reading for {time:g} s came after its row was diagnosed", time)]
         events = []
         newest = self.newest.get(name, -math.inf)
         if time < newest:
             events.append(Event("out_of_order", name, f"a reading for {time:g} s came after one for {newest:g} s", time))
         values = self.open.setdefault(slot, {})
         if name in values:
-            return [], events + [Event("duplicate", name, f"a second reading for {time:g} s (the first stands)", time)]
+            return events + [Event("duplicate", name, f"a second reading for {time:g} s (the first stands)", time)]
         values[name] = value
         self.newest[name] = max(newest, time)
         self.watermark = max(self.watermark, time)
-        rows, closing = self._close()
-        return rows, events + closing
+        return events
 
     def advance(self, now: float):
         """The wall clock moved on to `now` without readings; the rows that are due by it, when the
@@ -119,7 +126,13 @@ class Assembler:
 
     def _complete(self, slot, values) -> bool:
         return values is not None and all(n in values for n in self.outputs) and all(
-            n in values or self._held(n, slot) is not None for n in self.inputs)
+            n in values or self._quiet(n, slot) for n in self.inputs)
+
+    def _quiet(self, name, slot) -> bool:
+        """An input that holds a value and was not read in the previous row either: published on
+        change, so its row need not wait for it (one read every sample is waited for)."""
+        last = self.last.get(name)
+        return self._held(name, slot) is not None and last[0] < (slot - 1) * self.dt
 
     def _held(self, name, slot):
         """An input's last value, while it is not stale at this slot."""

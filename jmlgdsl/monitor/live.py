@@ -146,10 +146,10 @@ class Monitor:
             self._feed(row)
         elif kind == "readings":
             _, readings, arrival, token = item
-            for name, value, stamp in readings:
-                tag = self.tags[name]
-                own = stamp is not None and tag.time == "source"
-                self._assembled(*self.assembler.add(name, tag.value(value), stamp if own else arrival, not own))
+            own = [stamp is not None and self.tags[name].time == "source" for name, _, stamp in readings]
+            self._assembled(*self.assembler.add([(name, self.tags[name].value(value), stamp if mine else arrival)
+                                                 for (name, value, stamp), mine in zip(readings, own)],
+                                                not any(own)))
             self.tokens.append(token)
         elif kind == "malformed":
             _, message, token = item

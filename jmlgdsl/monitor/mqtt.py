@@ -19,8 +19,7 @@ from .assemble import Event
 from .payload import Malformed, decode
 from .urls import address
 
-REFUSED = {134: "the broker refused the user name or password (--username, --password-env, --password-file)",
-           135: "the broker refused this client: not authorized (--username, --password-env, --password-file)"}
+REFUSED = (134, 135)  # bad user name or password, not authorized: trying again would not help
 
 
 class MqttSource:
@@ -55,7 +54,8 @@ class MqttSource:
             if reason.is_failure:
                 if reason.value in REFUSED:
                     client.disconnect()
-                    put(("fatal", f"{self.name}: {REFUSED[reason.value]}"))
+                    put(("fatal", f"{self.name}: the broker refused the connection ({reason}); check --username "
+                                  "and the password (--password-env, --password-file)"))
                 else:
                     put(("event", Event("disconnect", None, f"{where} refused the connection: {reason}")))
                 return

@@ -1,0 +1,207 @@
+"""`jmlgdsl monitor` on a real MQTT broker (Debian's mosquitto, started here on 127.0.0.1): the dryer
+recording published as one JSON object per sample is diagnosed into the store and exported as the
+very table `jmlgdsl run -o` writes for it; killed with SIGKILL mid-stream, the monitor's persistent
+session keeps what is published while it is down, and the restarted monitor loses and repeats no
+row; malformed and late readings are counted events; a wrong password is refused by name."""
+
+import csv
+import getpass
+import json
+import os
+import shutil
+import signal
+import socket
+import sqlite3
+import subprocess
+import time
+
+import pytest
+from conftest import ROOT, jmlgdsl_command
+
+from jmlgdsl.cli import main
+
+paho = pytest.importorskip("paho.mqtt.client")
+MOSQUITTO = shutil.which("mosquitto") or next(
+    (p for p in ("/usr/sbin/mosquitto",) if os.access(p, os.X_OK)), None)
+pytestmark = pytest.mark.skipif(MOSQUITTO is None, reason="no mosquitto broker on PATH (.ci/run installs it: "
+                                                          "apt-get install mosquitto)")
+SPEC = str(ROOT / "specs" / "dryer.jmlg")
+DATA = ROOT / "examples" / "dryer_seq1.csv"
+WAIT = 30
+
+
+def free_port():
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture
+def broker(tmp_path):
+    """A mosquitto on 127.0.0.1 (anonymous, or with user 'plant' and password 'secret' when asked)."""
+    started = []
+
+    def start(password=False):
+        port = free_port()
+        config = tmp_path / f"mosquitto-{port}.conf"
+        # run as this user (a broker started by root would drop to 'mosquitto', who cannot read tmp_path)
+        lines = [f"listener {port} 127.0.0.1", f"user {getpass.getuser()}", "persistence false",
+                 "max_queued_messages 0"]
+        if password:
+            passwords = tmp_path / "passwords"
+            passwords.write_text("")
+            subprocess.run(["mosquitto_passwd", "-b", str(passwords), "plant", "secret"], check=True, timeout=WAIT)
+            lines += ["allow_anonymous false", f"password_file {passwords}"]
+        else:
+            lines.append("allow_anonymous true")
+        config.write_text("\n".join(lines) + "\n")
+        process = subprocess.Popen([MOSQUITTO, "-c", str(config)], stdout=subprocess.DEVNULL,
+                                   stderr=subprocess.DEVNULL)
+        started.append(process)
+        deadline = time.monotonic() + WAIT
+        while True:
+            try:
+                socket.create_connection(("127.0.0.1", port), timeout=1).close()
+                return port
+            except OSError:
+                assert process.poll() is None and time.monotonic() < deadline, "mosquitto did not start"
+                time.sleep(0.02)
+    yield start
+    for process in started:
+        process.terminate()
+        process.wait(WAIT)
+
+
+def samples():
+    """The recording as one JSON object per sample, every number as the file writes it."""
+    with open(DATA) as stream:
+        return [json.dumps({"t": float(r["time"]), "temp": float(r["temp"]), "current": float(r["current"])})
+                for r in csv.DictReader(stream)]
+
+
+def publish(port, messages, topic="dryer"):
+    """Publish (topic, payload) pairs, or payloads to `topic`, at QoS 1, each one acknowledged."""
+    client = paho.Client(paho.CallbackAPIVersion.VERSION2, client_id="recorder")
+    client.connect("127.0.0.1", port)
+    client.loop_start()
+    try:
+        sent = [client.publish(*(m if isinstance(m, tuple) else (topic, m)), qos=1) for m in messages]
+        for info in sent:
+            info.wait_for_publish(WAIT)
+    finally:
+        client.disconnect()
+        client.loop_stop()
+
+
+def query(store, sql):
+    if not os.path.exists(store):
+        return None
+    db = sqlite3.connect(store)
+    try:
+        return db.execute(sql).fetchone()[0]
+    except sqlite3.OperationalError:
+        return None
+    finally:
+        db.close()
+
+
+def until(condition, what, process):
+    deadline = time.monotonic() + WAIT
+    while not condition():
+        if process.poll() is not None:
+            pytest.fail(f"the monitor stopped while waiting for {what}: {process.stderr.read()}")
+        assert time.monotonic() < deadline, f"gave up waiting for {what}"
+        time.sleep(0.02)
+
+
+def monitor(port, store, *extra, env=None):
+    return subprocess.Popen([*jmlgdsl_command(), "monitor", SPEC, "--source", f"mqtt://127.0.0.1:{port}/dryer",
+                             "--store", store, *extra], stderr=subprocess.PIPE, text=True,
+                            env=None if env is None else {**os.environ, **env})
+
+
+def stop(process):
+    process.send_signal(signal.SIGTERM)
+    _, err = process.communicate(timeout=WAIT)
+    assert process.returncode == 0, err
+    return err
+
+
+def expected_table(tmp_path):
+    out = tmp_path / "run.csv"
+    assert main(["run", SPEC, str(DATA), "-o", str(out)]) == 0
+    return out.read_text()
+
+
+def exported(tmp_path, store):
+    out = tmp_path / "export.csv"
+    assert main(["export", store, "-o", str(out)]) == 0
+    return out.read_text()
+
+
+def connected(store):
+    return lambda: (query(store, "SELECT count(*) FROM event WHERE kind = 'connect'") or 0) >= 1
+
+
+def test_published_recording_is_diagnosed_as_run_diagnoses_it(broker, tmp_path):
+    port, store = broker(), str(tmp_path / "dryer.db")
+    process = monitor(port, store)
+    try:
+        until(connected(store), "the monitor to connect", process)
+        publish(port, samples() + [("dryer/temp", "hot"), ("dryer/current", "1e300"),
+                                   ("dryer/temp", '{"t": 5, "v": 50.1}')])
+        until(lambda: query(store, "SELECT count(*) FROM event WHERE kind IN ('late', 'malformed')") == 3,
+              "the late and malformed readings", process)
+        err = stop(process)
+    finally:
+        process.kill()
+    assert exported(tmp_path, store) == expected_table(tmp_path)
+    kinds = dict(sqlite3.connect(store).execute("SELECT kind, count(*) FROM event GROUP BY kind"))
+    assert kinds == {"start": 1, "connect": 1, "malformed": 2, "late": 1}
+    assert "monitor: malformed: topic dryer/temp: temp: payload 'hot' is neither a number nor JSON" in err
+    assert "1000 rows diagnosed in run 1" in err
+
+
+def test_killed_monitor_resumes_from_its_persistent_session(broker, tmp_path):
+    port, store = broker(), str(tmp_path / "dryer.db")
+    messages = samples()
+    first = monitor(port, store)
+    second = None
+    try:
+        until(connected(store), "the monitor to connect", first)
+        publish(port, messages[:600])
+        until(lambda: (query(store, "SELECT count(*) FROM result") or 0) >= 300, "300 rows stored", first)
+        first.send_signal(signal.SIGKILL)
+        first.wait(WAIT)
+        publish(port, messages[600:])  # while the monitor is down: the broker keeps them for its session
+        second = monitor(port, store)
+        until(lambda: query(store, "SELECT count(*) FROM result") == 1000, "every row stored", second)
+        err = stop(second)
+    finally:
+        for process in (first, second):
+            if process is not None:
+                process.kill()
+    assert "resumed its session" in err
+    assert exported(tmp_path, store) == expected_table(tmp_path)
+    assert query(store, "SELECT count(*) FROM sample") == 1000
+
+
+def test_wrong_password_is_refused(broker, tmp_path):
+    port, store = broker(password=True), str(tmp_path / "dryer.db")
+    secret = tmp_path / "password"
+    secret.write_text("wrong\n")
+    done = subprocess.run([*jmlgdsl_command(), "monitor", SPEC, "--source", f"mqtt://127.0.0.1:{port}/dryer",
+                           "--store", store, "--username", "plant", "--password-file", str(secret)],
+                          capture_output=True, text=True, timeout=WAIT)
+    assert done.returncode == 2
+    assert (f"error: mqtt://127.0.0.1:{port}/dryer: the broker refused the connection (Not authorized); check "
+            "--username and the password" in done.stderr)
+    assert "wrong" not in done.stderr
+    process = monitor(port, store, "--username", "plant", "--password-env", "PLANT_PASSWORD",
+                      env={"PLANT_PASSWORD": "secret"})
+    try:
+        until(connected(store), "the monitor to connect with the right password", process)
+        stop(process)
+    finally:
+        process.kill()
+    assert "secret" not in (query(store, "SELECT group_concat(options) FROM run") or "")
