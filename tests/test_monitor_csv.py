@@ -138,3 +138,12 @@ def test_standard_input(tmp_path):
                           input="".join(LINES), capture_output=True, text=True, timeout=WAIT)
     assert done.returncode == 0, done.stderr
     assert table("export", store, tmp_path=tmp_path) == table("run", SPEC, str(DATA), tmp_path=tmp_path, name="r.csv")
+
+
+def test_package_example(monkeypatch):
+    import doctest
+
+    import jmlgdsl.monitor
+
+    monkeypatch.chdir(ROOT)
+    assert doctest.testmod(jmlgdsl.monitor).failed == 0
