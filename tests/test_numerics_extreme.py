@@ -28,7 +28,7 @@ ALGORITHMS = ["imm", "exact", "pf", "rbpf", "la-rbpf", "fc-rbpf"]
 def overflow_row(a, sigma0, q):
     """The first row t at which the variance recursion s_t = a^2 s_t-1 + q from s_0 = sigma0 overflows
     (in Python floats: no BLAS, and each step multiplies by a^2, so no rounding decides the row)."""
-    s, t = sigma0, 0
+    s, q, t = float(sigma0), float(q), 0
     while math.isfinite(s):
         s, t = a * a * s + q, t + 1
     return t

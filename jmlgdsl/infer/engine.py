@@ -30,7 +30,7 @@ class Estimate(NamedTuple):
     loglik: float  # log p(y_t | y_1:t-1) (an estimate for particle filters)
     ess: float  # effective sample size of the particle weights (NaN for deterministic filters)
     rejected: np.ndarray | None = None  # (ny,) readings left out as gross errors, None when none were
-    flagged: np.ndarray | None = None  # (ny,) readings beyond the gate, left out or not; None when none were
+    flagged: np.ndarray | None = None  # (ny,) readings beyond the gate, not absurd (screen); None when none were
 
 
 class Genealogy(NamedTuple):
@@ -76,24 +76,47 @@ class Engine(Protocol):
     def step(self, y: np.ndarray, mask: np.ndarray, u: np.ndarray, gate: Gate = OPEN) -> Estimate:
         """Condition on y (ny,), of which the entries where mask (ny,) is True were measured, under
         input u (nu,); a measured reading beyond `gate` under every hypothesis is left out (see
-        `gross_errors` and `screen`)."""
+        `screen`)."""
 
 
-def gross_errors(r, sd, limit) -> np.ndarray:
-    """(m,) True for the readings whose residuals r (J, m) exceed limit (m,) times their predicted
-    standard deviations sd (J, m) under every one of the J hypotheses."""
-    return (np.abs(r) > limit * sd).all(axis=0)
+def beyond(r, distance) -> np.ndarray:
+    """(m,) True for the readings whose residuals r (J, m) exceed distance (J, m) under every one of the
+    J hypotheses."""
+    return (np.abs(r) > distance).all(axis=0)
+
+
+def mode_span(model, u) -> np.ndarray:
+    """(ny,) the largest distance between two modes' steady-state outputs under inputs u: the farthest
+    a switch of mode can take the plant's outputs from where the filter expects them. Infinite when
+    a mode has no steady state it settles to (an unstable or integrating mode can take its outputs
+    anywhere)."""
+    if (np.abs(np.linalg.eigvals(model.A)) >= 1.0).any():
+        return np.full(model.ny, np.inf)
+    b, c = offsets(model, u)
+    x = np.linalg.solve(np.eye(model.nx) - model.A, b[:, :, None])
+    return np.ptp((model.C @ x)[:, :, 0] + c, axis=0)
 
 
 def screen(engine: Engine, y, mask, u, gate: Gate, r, sd):
-    """(the step's Estimate with the enforced gross errors left out, or None to go on; the flagged
-    readings (ny,), or None): the closer look at residuals r (J, m) with standard deviations sd."""
-    flags = gross_errors(r, sd, gate.limit[mask])
+    """(the step's Estimate with the rejected readings left out, or None to go on; the flagged readings
+    (ny,), or None): the closer look at residuals r (J, m) with standard deviations sd (J, m).
+
+    A reading beyond the gate under every hypothesis is flagged, and left out while the gate is
+    enforced on it. One beyond the gate by more than `mode_span` as well is absurd: no switch of mode
+    could bring the plant there, so it is the sensor, however long it lasts. It is left out like a
+    missing reading and is not flagged: it neither counts towards a change that lasts nor lifts the
+    gate, so a burst of garbage leaves the filter where a gap in the data would."""
+    gated = gate.limit[mask] * sd
+    flags = beyond(r, gated)
     if not flags.any():
         return None, None
+    absurd = flags & beyond(r, gated + mode_span(engine.model, u)[mask])
+    measured = np.flatnonzero(mask)
     flagged = np.zeros(len(mask), dtype=bool)
-    flagged[np.flatnonzero(mask)[flags]] = True
+    flagged[measured[flags & ~absurd]] = True
     rejected = flagged & gate.enforce
+    rejected[measured[absurd]] = True
+    flagged = flagged if flagged.any() else None
     if not rejected.any():
         return None, flagged
     keep = mask & ~rejected

@@ -27,7 +27,8 @@ from .smooth import ModeGaussians, kim_smooth, smooth_exact
 # Kalman arithmetic, so they are treated as not measured.
 MAX_READING = 1e100
 # A reading beyond the model's outlier gate under every hypothesis is left out as a gross error at
-# most this many steps in a row (docs/filters.md, "Gross errors").
+# most this many steps in a row, unless it is absurd (beyond the reach of every mode: engine.screen),
+# which is left out every time (docs/filters.md, "Gross errors").
 MAX_REJECTIONS = 2
 
 
@@ -139,8 +140,9 @@ class Filter:
 
     def _count_flagged(self, flagged):
         """Count the steps in a row each output's reading was beyond the gate. After MAX_REJECTIONS
-        such steps its readings are taken whatever they say, until one is within the gate again:
-        a change that lasts is the plant, not a glitch."""
+        such steps its readings are taken whatever they say, unless absurd, until one is within the
+        gate again: a change that lasts, within the reach of the modes, is the plant, not a glitch.
+        An absurd or missing reading (never flagged) ends the count."""
         self._flagged = np.zeros_like(self._flagged) if flagged is None else np.where(flagged, self._flagged + 1, 0)
         self._watching = flagged is not None
         self._gate = Gate.of(self.model.outlier_gate, self._flagged < MAX_REJECTIONS)
