@@ -274,34 +274,39 @@ class _TimeCheck:
 
     def __init__(self, name, dt, resolution=0.0):
         self.name, self.dt, self.resolution = name, dt, resolution  # resolution: of the written times
-        self.first = self.last = self.text = None
+        self.first = self.last = self.cell = None
         self.consecutive, self.said = False, set()
 
-    def __call__(self, time, text, where):
-        if time is None or math.isnan(time):
+    def __call__(self, time, cell, where):
+        if time is None or time != time:  # no time column, or a missing time
             self.consecutive = False
             return
-        last, consecutive = self.last, self.consecutive
+        last, last_cell, consecutive = self.last, self.cell, self.consecutive
+        self.last, self.cell, self.consecutive = time, cell, True
         if last is None:
             self.first = time
-        self.last, self.consecutive, last_text, self.text = time, True, self.text, text
-        if last is None:
             return
-        step = time - last
+        step, dt = time - last, self.dt
         if step < 0:
-            raise DataError(f"{where}: column {self.name!r} goes backwards ({last_text} then {text}); "
-                            "the rows must be in time order")
-        # what the written times can be off by: 10 significant digits of the time since the first
-        # row, the rounding of a large time (seconds since 1970) to a float, and the stamps' resolution
-        slack = 1e-3 * (self.dt or 0) + 1e-9 * (time - self.first) + 4 * math.ulp(time) + self.resolution
-        kind = ("repeat" if step == 0 else
-                "step" if self.dt and consecutive and abs(step - self.dt) > slack else None)
-        if kind is None or kind in self.said:
+            raise DataError(f"{where}: column {self.name!r} goes backwards ({last_cell.strip()} then "
+                            f"{cell.strip()}); the rows must be in time order")
+        if step == 0:
+            kind = "repeat"
+        elif dt and consecutive and abs(step - dt) > 1e-3 * dt and abs(step - dt) > self.slack(time):
+            kind = "step"
+        else:
+            return
+        if kind in self.said:
             return
         self.said.add(kind)
-        _warn(f"{where}: column {self.name!r} repeats {text}" if kind == "repeat" else
-              f"{where}: column {self.name!r} steps by {step:g} s but the model's sample time is "
-              f"{self.dt:g} s")
+        _warn(f"{where}: column {self.name!r} repeats {cell.strip()}" if kind == "repeat" else
+              f"{where}: column {self.name!r} steps by {step:g} s but the model's sample time is {dt:g} s")
+
+    def slack(self, time):
+        """What a step may be off the sample time by: 1e-3 of it, 10 significant digits of the time
+        since the first row, the rounding of a large time (seconds since 1970) to a float, and the
+        resolution of the written times."""
+        return 1e-3 * self.dt + 1e-9 * (time - self.first) + 4 * math.ulp(time) + self.resolution
 
 
 def iter_rows(stream, model, source="<data>", outputs=True) -> Iterator[Row]:
@@ -355,7 +360,7 @@ def iter_rows(stream, model, source="<data>", outputs=True) -> Iterator[Row]:
             raise DataError(f"{where}: column {name!r}: missing value and the input has no default")
         time = _timestamp(cells, stamp_col, where) if t_col is None else _number(cells, t_col, "time", where)
         if check_time is not None:
-            check_time(time, cells[time_col].strip(), where)
+            check_time(time, cells[time_col], where)
         measured |= ~np.isnan(y)
         yield Row(line, time, y, np.where(np.isnan(u), defaults, u), _mode(cells, mode_col, model.modes, where),
                   _label(cells, anomaly_col, "anomaly", where), _label(cells, change_col, "changepoint", where))
