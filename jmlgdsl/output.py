@@ -30,13 +30,20 @@ def _same(a: Path, b: Path) -> bool:
 
 def _writable_folder(folder: Path, path):
     """Refuse a folder that is missing, is not a folder, or cannot be written to, in the words the
-    system would use when the write failed."""
+    system would use when the write failed. A file is made and removed there too: permissions do not
+    stop a superuser, yet a folder like /proc still refuses new files."""
     for failed, code, why in ((not folder.exists(), errno.ENOENT, f"no folder {folder}"),
                               (not folder.is_dir(), errno.ENOTDIR, f"{folder} is a file"),
                               (not os.access(folder, os.W_OK | os.X_OK), errno.EACCES,
                                f"folder {folder} is not writable")):
         if failed:
             raise JmlgError(f"cannot write {path}: {os.strerror(code)} ({why})")
+    try:
+        fd, probe = tempfile.mkstemp(prefix=".jmlgdsl-probe.", dir=folder)
+    except OSError as exc:
+        raise JmlgError(f"cannot write {path}: {exc.strerror or exc} (folder {folder} takes no new files)") from None
+    os.close(fd)
+    os.unlink(probe)
 
 
 def _not_an_input(path: Path, inputs, what: str):
@@ -161,7 +168,8 @@ class Pending(io.TextIOWrapper):
             self.temporary.unlink(missing_ok=True)
 
     def __del__(self):
-        self.discard()
+        if hasattr(self, "temporary"):  # not when __init__ failed before the file was made
+            self.discard()
 
     def __exit__(self, kind, value, traceback):
         if kind is None:

@@ -192,6 +192,44 @@ def test_a_folder_that_cannot_be_written_is_refused(files, capsys, monkeypatch):
         fails(capsys, argv, "Permission denied (folder")
 
 
+NO_FILES = Path("/proc")  # a folder that takes no new files, whatever its permissions say to a superuser
+
+
+@pytest.mark.skipif(not (NO_FILES / "self").is_dir(), reason="needs the /proc of Linux")
+@pytest.mark.parametrize("command", [
+    lambda d: ["bench", d / "missing.jmlg", "--simulate", "30", "--filters", "imm", "--runs", "1", "--workers", "1",
+               "--no-figures", "-o", NO_FILES / "forbidden"],
+    lambda d: ["learn", "--mode", f"normal={d / 'missing.csv'}", "--output", "temp", "-o", d / "l.jmlg",
+               "--figures", NO_FILES / "nofigs"],
+    lambda d: ["learn", "--mode", f"normal={d / 'missing.csv'}", "--output", "temp", "-o", NO_FILES / "l.jmlg"],
+    lambda d: ["simulate", d / "missing.jmlg", "--steps", "3", "-o", NO_FILES / "s.csv"],
+    lambda d: ["compile", d / "missing.jmlg", "-o", NO_FILES / "m.json"],
+    lambda d: ["fit", d / "missing.jmlg", d / "missing.csv", "-o", NO_FILES / "f.jmlg"],
+    lambda d: ["prbs", "--cells", "3", "-o", NO_FILES / "u.csv"],
+    lambda d: ["plot", d / "missing.csv", "-o", NO_FILES / "p.png"],
+    lambda d: ["run", d / "missing.jmlg", d / "missing.csv", "-o", NO_FILES / "r.csv"],
+])
+def test_a_folder_that_takes_no_files_is_refused_before_any_work(tmp_path, capsys, command):
+    """Every command that writes tries its output folder before it starts: the inputs here do not
+    exist, so a command that began its work would fail on them (or, for prbs, on the write) instead."""
+    err = fails(capsys, command(tmp_path), "takes no new files")
+    assert err.count("\n") == 1 and "missing" not in err, err
+
+
+def test_a_table_that_cannot_be_made_is_one_error(tmp_path, monkeypatch):
+    """A pending table whose temporary file cannot be made raises a user error and nothing else
+    (no 'Exception ignored' report from the half-made object as it goes)."""
+    ignored = []
+    monkeypatch.setattr(sys, "unraisablehook", ignored.append)
+    try:
+        output.Pending(tmp_path / "no" / "t.csv")
+    except JmlgError as exc:
+        assert "cannot write" in str(exc)
+    else:
+        raise AssertionError("no error")
+    assert ignored == []
+
+
 # item 17: files of the wrong kind are named as such
 
 def test_simulate_inputs_must_be_a_csv_with_the_right_rows(files, capsys):
