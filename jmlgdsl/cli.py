@@ -1,9 +1,10 @@
 """The `jmlgdsl` command: a thin argparse shell over the Python API.
 
 Each subcommand is a module in jmlgdsl/commands/ with `register(subparsers)`, which adds its parser
-and sets `func(args) -> exit status`. User errors (JmlgError) print as located messages, exit 2;
-so does a request that runs out of memory after the up-front checks let it through. Warnings about
-the data (DataWarning) print as `warning: ...` lines.
+and sets `func(args) -> exit status`. With no arguments the full help, every command with a line,
+goes to standard error with exit status 2, as for any other usage error. User errors (JmlgError)
+print as located messages, exit 2; so does a request that runs out of memory after the up-front
+checks let it through. Warnings about the data (DataWarning) print as `warning: ...` lines.
 """
 
 from __future__ import annotations
@@ -52,7 +53,12 @@ def _show_warning(message, category, filename, lineno, file=None, line=None):
 
 
 def main(argv=None) -> int:
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if not argv:  # no command: the list of commands, as a usage error (nothing was done)
+        parser.print_help(sys.stderr)
+        return 2
+    args = parser.parse_args(argv)
     warnings.showwarning = _show_warning
     try:
         return args.func(args) or 0
