@@ -265,11 +265,12 @@ def _shade_true_modes(ax, edges, true_modes, colors):
 def result_figure(result, path, true_modes=None, title=""):
     """The diagnosis figure of a filter Result; the outputs drawn are those it filtered (prediction +
     residual), so a pre-filtered run shows the pre-filtered signal."""
+    from .diagnosis.report import plural
     from .infer.table import given
 
     model = result.model
     time = model.dt * np.arange(1, result.T + 1)
-    who = result.algorithm + (f", {result.particles} particles" if result.particles else "")
+    who = result.algorithm + (f", {plural(result.particles, 'particle')}" if result.particles else "")
     who += "" if result.lag == 0 else ", smoothed"
     return diagnosis_figure(path, model.modes, result.mode_posterior, time, result.y_pred + result.residuals,
                             result.y_pred, model.outputs, true_modes=true_modes, output_units=model.units,

@@ -238,7 +238,7 @@ def test_simulate_inputs_must_be_a_csv_with_the_right_rows(files, capsys):
     fails(capsys, ["simulate", spec, "--inputs", data, "--modes", "1-4:normal"],
           f"{data} has 10 rows, more than the 4 steps of --modes")
     assert main(["simulate", str(spec), "--inputs", str(data), "--steps", "4"]) == 0
-    assert f"warning: {data}: 10 rows; the first 4 are used (--steps 4)" in capsys.readouterr().err
+    assert f"warning: {data}: 10 rows; --steps 4 uses the first 4 rows" in capsys.readouterr().err
 
 
 def test_a_mat_model_cannot_be_read_back(files, capsys):

@@ -1,4 +1,4 @@
-"""The command line as a whole: no command at all."""
+"""The command line as a whole: no command at all, counts in messages."""
 
 import subprocess
 from pathlib import Path
@@ -8,6 +8,15 @@ from conftest import jmlgdsl_command
 from jmlgdsl.cli import ORDER, main
 
 ROOT = Path(__file__).resolve().parents[1]
+ONE_MODE = """plant one
+sample 1 s
+input  current [%] = 15
+output temp [degC]
+modes
+  normal "Normal operation"
+noise process 0.05, measurement 0.05
+mode normal: temp ~ fopdt(current, gain 1.94, tau 30.45 s, delay 0 s, at current 15 -> 50.52)
+"""
 
 
 def test_no_command_prints_every_command_and_exits_2(capsys):
@@ -23,3 +32,16 @@ def test_no_command_prints_every_command_and_exits_2(capsys):
 def test_no_command_from_the_shell():
     done = subprocess.run(jmlgdsl_command(), cwd=ROOT, capture_output=True, text=True, timeout=60)
     assert done.returncode == 2 and "simulate a plant and write its data as CSV" in done.stderr
+
+
+def test_counts_of_one_are_singular(tmp_path, capsys):
+    spec = tmp_path / "one.jmlg"
+    spec.write_text(ONE_MODE)
+    assert main(["check", str(spec)]) == 0
+    assert "plant one: 1 mode (normal)" in capsys.readouterr().out
+    assert main(["compile", str(spec), "-o", str(tmp_path / "one.json")]) == 0
+    assert "(1 mode, nx=1" in capsys.readouterr().out
+    data = tmp_path / "one.csv"
+    assert main(["simulate", str(spec), "--steps", "1", "-o", str(data)]) == 0
+    assert main(["simulate", str(spec), "--modes", "1-2:normal", "--inputs", str(data)]) == 2
+    assert f"{data} has 1 row, fewer than the 2 steps of --modes" in capsys.readouterr().err

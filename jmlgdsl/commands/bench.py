@@ -144,6 +144,7 @@ def main(args) -> int:
     import jmlgdsl
 
     from .. import bench, prefilter
+    from ..diagnosis.report import plural
     from ..output import check_folder
 
     stems = [Path(p).stem for p in args.data] or ["simulated"]
@@ -157,7 +158,7 @@ def main(args) -> int:
     for name in dict.fromkeys(r["data"] for r in records):
         mine = [r for r in records if r["data"] == name]
         by_source[name] = mine, bench.summarise(mine)
-        print(f"## {model.name}, {name}: {args.runs} runs per setting\n")
+        print(f"## {model.name}, {name}: {plural(args.runs, 'run')} per setting\n")
         print(bench.report(by_source[name][1]))
     written = write_outputs(args.output, model, records, by_source, figures=not args.no_figures)
     print("wrote " + ", ".join(str(p) for p in written))

@@ -21,8 +21,10 @@ def register(sub):
 
 def summary(model) -> str:
     """A few lines describing a compiled model."""
+    from ..diagnosis.report import plural
+
     modes = ", ".join(model.modes)
-    return (f"plant {model.name}: {model.K} modes ({modes})\n"
+    return (f"plant {model.name}: {plural(model.K, 'mode')} ({modes})\n"
             f"  states {model.nx} ({', '.join(model.states)}), outputs {model.ny} ({', '.join(model.outputs)}), "
             f"inputs {model.nu} ({', '.join(model.inputs) or '-'}), sample time {_seconds(model.dt)}")
 
@@ -36,6 +38,7 @@ def _seconds(dt: float) -> str:
 
 def run(args) -> int:
     from .. import load
+    from ..diagnosis.report import plural
 
     status = 0
     for path in args.specs:
@@ -50,6 +53,6 @@ def run(args) -> int:
         for w in caught:
             print(w.message, file=sys.stderr)
         if not args.quiet:
-            note = f", {len(caught)} warning{'s' if len(caught) != 1 else ''}" if caught else ""
+            note = f", {plural(len(caught), 'warning')}" if caught else ""
             print(f"{path}: ok{note}\n  " + summary(model).replace("\n", "\n  "))
     return status

@@ -20,6 +20,7 @@ def run(args) -> int:
     import numpy as np
 
     from .. import load
+    from ..diagnosis.report import plural
     from ..output import MODEL, check_file, replacing
 
     check_file(args.output, inputs=[args.spec], suffixes=MODEL)
@@ -31,7 +32,7 @@ def run(args) -> int:
     if args.output:
         with replacing(args.output) as temporary:
             model.save(temporary)
-        print(f"wrote {args.output} ({model.K} modes, nx={model.nx}, ny={model.ny}, nu={model.nu})")
+        print(f"wrote {args.output} ({plural(model.K, 'mode')}, nx={model.nx}, ny={model.ny}, nu={model.nu})")
     elif not args.show_jacobian:
         with np.printoptions(precision=6, suppress=True, linewidth=110):
             for k, mode in enumerate(model.modes):

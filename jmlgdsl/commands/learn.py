@@ -146,13 +146,14 @@ def healthy_prior(K: int, p: float) -> np.ndarray:
 
 def header(args, paths, learned) -> str:
     """The comment block at the top of the written spec: where it came from and how well it fits."""
+    from ..diagnosis.report import plural
     from ..learn import validate
 
     how = ("FOPDT fits of step tests" if args.fopdt else
            f"states chosen by {args.criterion.upper()} of the EM fits, started from ARX" if args.order == "auto"
            else f"ARX order {args.order}")
     lines = [f"Learned by jmlgdsl learn from {', '.join(dict.fromkeys(p for ps in paths.values() for p in ps))}",
-             f"Structure: {how}; EM up to {args.max_iter} iterations, relative tolerance {args.tol:g}.",
+             f"Structure: {how}; EM up to {plural(args.max_iter, 'iteration')}, relative tolerance {args.tol:g}.",
              "Every mode shares one state basis: the noise-free outputs of the last steps (NAME_lag1, ...)",
              "and the inputs before this step (NAME_lag1, ...); a mode's coefficients and offset are its",
              "first rows. B, D are Cholesky factors of the learned process and measurement noise",

@@ -22,6 +22,7 @@ def true_modes(path, modes, steps):
     import numpy as np
 
     from ..data import Columns, read_csv
+    from ..diagnosis.report import plural
     from ..errors import DataError
 
     data = read_csv(path, Columns(modes=tuple(modes)), outputs=False)
@@ -30,7 +31,7 @@ def true_modes(path, modes, steps):
     if (data.modes < 0).any():
         raise DataError(f"{path}: data row {int(np.argmax(data.modes < 0)) + 1} has no true mode in its 'mode' cell")
     if len(data.modes) != steps:
-        raise DataError(f"{path} has {len(data.modes)} rows but the run has {steps} steps")
+        raise DataError(f"{path} has {plural(len(data.modes), 'row')} but the run has {plural(steps, 'step')}")
     return data.modes
 
 

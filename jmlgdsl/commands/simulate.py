@@ -47,6 +47,7 @@ def inputs(args, model):
     from pathlib import Path
 
     from ..data import DataWarning, read_csv
+    from ..diagnosis.report import plural
     from ..errors import DataError
 
     if args.inputs is None:
@@ -55,13 +56,14 @@ def inputs(args, model):
         raise DataError(f"--inputs {args.inputs}: a spec or model file, not a CSV of inputs")
     u = read_csv(args.inputs, model, outputs=False).u
     if args.steps is not None and len(u) > args.steps:
-        warnings.warn(f"{args.inputs}: {len(u)} rows; the first {args.steps} are used (--steps {args.steps})",
+        warnings.warn(f"{args.inputs}: {len(u)} rows; --steps {args.steps} uses the first {plural(args.steps, 'row')}",
                       DataWarning, stacklevel=2)
         return u[:args.steps]
     wanted = requested_steps(args, len(u))
     if len(u) != wanted:
-        given = f"--steps {args.steps}" if args.steps is not None else f"the {wanted} steps of --modes"
-        raise DataError(f"{args.inputs} has {len(u)} rows, {'fewer' if len(u) < wanted else 'more'} than {given}")
+        given = f"--steps {args.steps}" if args.steps is not None else f"the {plural(wanted, 'step')} of --modes"
+        raise DataError(f"{args.inputs} has {plural(len(u), 'row')}, {'fewer' if len(u) < wanted else 'more'} "
+                        f"than {given}")
     return u
 
 

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.linalg import qr, solve_triangular
 
+from ..diagnosis.report import plural
 from ..errors import DataError
 from .em import segments
 from .lagged import LaggedMode, Lags, lag_inputs
@@ -82,7 +83,7 @@ def fit(y, u, na, nb, nk=0, start=None) -> ArxFit:
     X, Y = (np.vstack(blocks) for blocks in zip(*(regressors(yk, uk, lags, start) for yk, uk in parts)))
     N, p = X.shape
     if N <= p:
-        raise DataError(f"ARX({na},{nb},{nk}) has {p} parameters per output but only {N} complete equations")
+        raise DataError(f"ARX({na},{nb},{nk}) has {p} parameters per output but only {plural(N, 'complete equation')}")
     Qm, Rm = qr(X, mode="economic")
     theta = solve_triangular(Rm, Qm.T @ Y)
     E = Y - X @ theta

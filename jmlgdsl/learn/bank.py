@@ -11,6 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.linalg import LinAlgWarning, solve_discrete_lyapunov
 
+from ..diagnosis.report import plural
 from ..errors import DataError
 from ..lang.probabilities import otherwise_uniform
 from ..model import Model
@@ -65,7 +66,7 @@ class LearnedMode:
         poles = ", ".join(f"{p:.4g}" for p in self.mode.poles())
         gain = f"gain {', '.join(f'{g:.4g}' for g in self.model.gain().ravel())}; " if self.mode.nu else ""
         verdict = "white residuals" if v.passed else "residual tests FAIL"
-        return (f"{self.name}: {self.structure}, EM {self.em.iterations} iterations"
+        return (f"{self.name}: {self.structure}, EM {plural(self.em.iterations, 'iteration')}"
                 f"{'' if self.em.converged else ' (not converged)'}, log-lik {self.em.loglik[-1]:.6g}; "
                 f"poles {poles}; {gain}measurement sd {np.sqrt(np.diag(self.mode.R)).max():.3g}; "
                 f"fit {', '.join(f'{x:.1f}' for x in v.fit)} %; {verdict}")
@@ -126,7 +127,8 @@ def learn_modes(experiments: dict, order="auto", fopdt=False, dt=1.0, max_order=
         learned.append(learn(k, exps))
         if progress is not None:
             lm = learned[-1]
-            progress(f"learned mode {i} of {len(runs)}, {k}: {lm.structure}, EM {lm.em.iterations} iterations "
+            progress(f"learned mode {i} of {len(runs)}, {k}: {lm.structure}, "
+                     f"EM {plural(lm.em.iterations, 'iteration')} "
                      f"({time.perf_counter() - start:.1f} s so far)")
     return learned
 
