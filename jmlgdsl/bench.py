@@ -261,15 +261,21 @@ def _wide(summary):
     return counts, filters, {(r["filter"], r["particles"]): r for r in summary}
 
 
+def mean_sd(row, key, digits) -> str:
+    """'mean (SD)' of a measure in a summary row, or the mean alone when one run gives no spread."""
+    sd = row[f"{key}_sd"]
+    return f"{row[f'{key}_mean']:.{digits}f}" + ("" if math.isnan(sd) else f" ({sd:.{digits}f})")
+
+
 QUANTITIES = {
-    "error": ("Diagnosis error %, mean (SD) over runs", lambda r: f"{r['error_mean']:.2f} ({r['error_sd']:.2f})"),
+    "error": ("Diagnosis error %, mean (SD) over runs", lambda r: mean_sd(r, "error", 2)),
     "delay": ("Detection delay, steps from a switch to the first right row (lag included), mean over runs",
               lambda r: f"{r['delay_mean']:.1f}"),
     "f1": ("Alarms (the spec's first mode healthy, P > 0.5): F1, FAR %, MAR %, mean over runs",
            lambda r: f"{r['f1_mean']:.3f}, {r['far_mean']:.1f}, {r['mar_mean']:.1f}"),
     "nab": ("Alarms: NAB score (standard profile, 60 s windows), mean over runs", lambda r: f"{r['nab_mean']:.1f}"),
     "ms_per_step": ("Time per step, ms (mean over runs)", lambda r: f"{r['ms_per_step_mean']:.3g}"),
-    "loglik": ("Log-likelihood, mean (SD) over runs", lambda r: f"{r['loglik_mean']:.1f} ({r['loglik_sd']:.1f})"),
+    "loglik": ("Log-likelihood, mean (SD) over runs", lambda r: mean_sd(r, "loglik", 1)),
 }
 
 

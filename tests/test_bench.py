@@ -165,6 +165,17 @@ def test_markdown_table_has_the_published_shape():
     assert "| 10 | 2 |  |" in bench.markdown_table(bench.summarise(RECORDS), "ms_per_step")
 
 
+def test_one_run_gives_the_mean_without_a_spread(tmp_path):
+    """One run has no SD: the tables give the mean alone (not 'mean (nan)'), the CSV an empty SD cell."""
+    summary = bench.summarise([r for r in RECORDS if r["run"] == 0])
+    assert bench.markdown_table(summary).splitlines()[4:] == ["| 1 | 50.00 |  |", "| 10 | 10.00 |  |",
+                                                              "| — |  | 4.00 |"]
+    assert "| 10 | -5.0 |  |" in bench.markdown_table(summary, "loglik")
+    bench.write_table_csv(tmp_path / "t.csv", summary)
+    rows = list(csv.DictReader((tmp_path / "t.csv").open()))
+    assert rows[1]["pf_error_mean"] == "10" and rows[1]["pf_error_sd"] == ""
+
+
 def test_table_and_record_csv_files(tmp_path):
     bench.write_table_csv(tmp_path / "t.csv", bench.summarise(RECORDS))
     rows = list(csv.DictReader((tmp_path / "t.csv").open()))
@@ -250,6 +261,15 @@ def test_bench_command_on_simulated_sequences(files, tmp_path, capsys):
                  "--workers", "1", "--prefilter", "ma:2", "--no-figures", "-o", str(tmp_path)]) == 0
     assert "## dryer, simulated: 2 runs per setting" in capsys.readouterr().out
     assert not list(tmp_path.glob("*.png"))
+
+
+def test_bench_command_with_one_run(files, tmp_path, capsys):
+    spec, data = files
+    assert main(["bench", str(spec), str(data), "--runs", "1", "--filters", "imm", "--workers", "1",
+                 "--no-figures", "-o", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert "## dryer, seq: 1 run per setting" in out and "(nan)" not in out
+    assert "(nan)" not in (tmp_path / "seq-table.md").read_text()
 
 
 def test_bench_command_simulates_the_nonlinear_equations(capsys, tmp_path):
