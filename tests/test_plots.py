@@ -32,13 +32,25 @@ def test_error_against_particles_draws_each_filter_and_the_published_points(tmp_
     assert (tmp_path / "p.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
-def test_error_against_time_marks_the_sample_time(tmp_path):
+def test_error_against_time_marks_the_sample_time_among_the_times(tmp_path):
+    fig = plots.error_vs_time(bench.summarise(RECORDS), tmp_path / "t.png", sample_time=0.005)
+    (ax,) = fig.axes
+    vertical = [line for line in ax.get_lines() if list(line.get_xdata()) == [5.0, 5.0]]
+    assert len(vertical) == 1  # 0.005 s = 5 ms, the real-time limit, between 0.1 and 10 ms a step
+    assert "0.005 s" not in ax.texts[0].get_text() and "5 ms" in ax.texts[0].get_text()
+    assert _legend(ax) == ["pf", "la-rbpf", "imm"]
+
+
+def test_a_sample_time_beyond_every_filter_is_a_note_not_the_axis_range(tmp_path):
+    """Filters at 0.1-10 ms a step and a 100 ms sample time: the axis ends near 10 ms (an axis out to
+    100 ms squeezed every point into its left part) and the sample time is a note at the edge."""
     fig = plots.error_vs_time(bench.summarise(RECORDS), tmp_path / "t.png", sample_time=0.1)
     (ax,) = fig.axes
-    vertical = [line for line in ax.get_lines() if list(line.get_xdata()) == [100.0, 100.0]]
-    assert len(vertical) == 1  # 0.1 s = 100 ms, the real-time limit
-    assert "0.1 s" not in ax.texts[0].get_text() and "100 ms" in ax.texts[0].get_text()
-    assert _legend(ax) == ["pf", "la-rbpf", "imm"]
+    assert ax.get_xlim()[1] < 20
+    assert not [line for line in ax.get_lines() if list(line.get_xdata()) == [100.0, 100.0]]
+    (note,) = ax.texts
+    assert "sample time 100 ms (real-time limit), off the axis" in note.get_text()
+    assert "the slowest setting takes 10 ms a step" in note.get_text()
 
 
 def test_box_plots_have_one_panel_per_particle_filter(tmp_path):
