@@ -62,3 +62,37 @@ def test_input_must_change_exactly_once():
         steptest.fit(y, u)
     with pytest.raises(DataError, match="changes 0 times"):
         steptest.fit(y, np.full_like(u, 15.0))
+
+
+def test_a_step_the_output_does_not_answer_is_refused():
+    """An output that stays at its level, plus noise, is no step response: refused before the
+    search over every dead time, which found a gain of about zero and a dead time of minutes."""
+    y, u = step_data(noise=0.1, seed=4)
+    flat = y[0] + 0.1 * np.random.default_rng(4).standard_normal(len(y))
+    with pytest.raises(DataError, match="does not respond to the input step at row 51 of the experiment"):
+        steptest.fit(flat, u)
+    assert steptest.fit(y, u, max_delay=5).delay == 3  # the same noise on a real response still fits
+
+
+def test_learn_names_the_file_and_the_step_without_a_response(tmp_path, capsys):
+    """examples/learning/step.csv with the output held at its level plus noise: learn --fopdt stops
+    with one error naming the file and the step, in well under the 20 s the fit took."""
+    import csv
+    import time
+    from pathlib import Path
+
+    from jmlgdsl.cli import main
+
+    rows = list(csv.DictReader(open(Path(__file__).resolve().parents[1] / "examples" / "learning" / "step.csv")))
+    noise = np.random.default_rng(0).normal(0, 0.1, len(rows))
+    data = tmp_path / "flat.csv"
+    data.write_text("time,current,temp\n" + "".join(f"{r['time']},{r['current']},{50.5 + e:.4f}\n"
+                                                    for r, e in zip(rows, noise)))
+    start = time.perf_counter()
+    assert main(["learn", "--fopdt", "--mode", f"normal={data}", "--input", "current", "--output", "temp",
+                 "-o", str(tmp_path / "flat.jmlg")]) == 2
+    assert time.perf_counter() - start < 5
+    err = capsys.readouterr().err
+    assert err.startswith(f"error: {data}: the output does not respond to the input step at row 51") and \
+        err.count("\n") == 1, err
+    assert not (tmp_path / "flat.jmlg").exists()

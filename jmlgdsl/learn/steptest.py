@@ -5,6 +5,8 @@ the model's timing (u_t acts on y_t): y_t = a y_{t-1} + K (1 - a) u_{t-d} + c wi
 so after a step of size du at sample s the response is y0 + K du (1 - a^(t-s-d+1)) for t >= s + d.
 The dead time d runs over a whole-sample grid; for each d, (y0, K) are linear least squares given
 tau and tau is found by a bounded one-dimensional search; the d with the least squared error wins.
+A step the output does not answer is refused first: any curve fits noise, with a gain near zero
+and a meaningless dead time, and the search over every dead time takes long.
 """
 
 from __future__ import annotations
@@ -68,6 +70,22 @@ def find_step(u) -> int:
     return int(changes[0]) + 1
 
 
+RESPONSE = 5.0  # standard errors the output's mean must move by for a step to count as answered
+
+
+def check_response(y, step: int):
+    """Refuse a step test whose output does not respond: the change of its mean across the step
+    within RESPONSE standard errors of that change. The noise sd comes from the median absolute
+    deviation of successive differences, which the step's own transient hardly moves."""
+    steps = np.diff(y)
+    noise = 1.4826 * np.median(np.abs(steps - np.median(steps))) / np.sqrt(2)
+    change = y[step:].mean() - y[:step].mean()
+    if not abs(change) > RESPONSE * noise * np.sqrt(1 / step + 1 / (len(y) - step)):
+        raise DataError(f"the output does not respond to the input step at row {step + 1} of the experiment: "
+                        f"its mean moves by {change:.3g} across the step, within its noise (sd {noise:.3g}); "
+                        "a step test needs a step that the output answers")
+
+
 def fit(y, u, dt: float = 1.0, max_delay: int | None = None) -> FopdtFit:
     """FOPDT fit of output y (T,) to a single step in input u (T,); dead times 0..max_delay samples."""
     y = np.asarray(y, float).ravel()
@@ -76,6 +94,7 @@ def fit(y, u, dt: float = 1.0, max_delay: int | None = None) -> FopdtFit:
         raise DataError("the step test has missing values")
     T = len(y)
     s = find_step(u)
+    check_response(y, s)
     max_delay = (T - s) // 2 if max_delay is None else max_delay
     du, u0 = u[s] - u[s - 1], u[s - 1]
     best = None
