@@ -1,8 +1,10 @@
-"""The command line as a whole: no command at all, counts in messages."""
+"""The command line as a whole: no command at all, counts in messages, and the SKAB script's data folder."""
 
+import importlib.util
 import subprocess
 from pathlib import Path
 
+import pytest
 from conftest import jmlgdsl_command
 
 from jmlgdsl.cli import ORDER, main
@@ -45,3 +47,26 @@ def test_counts_of_one_are_singular(tmp_path, capsys):
     assert main(["simulate", str(spec), "--steps", "1", "-o", str(data)]) == 0
     assert main(["simulate", str(spec), "--modes", "1-2:normal", "--inputs", str(data)]) == 2
     assert f"{data} has 1 row, fewer than the 2 steps of --modes" in capsys.readouterr().err
+
+
+@pytest.fixture(scope="module")
+def skab():
+    """benchmarks/skab/run.py as a module."""
+    spec = importlib.util.spec_from_file_location("skab_run", ROOT / "benchmarks" / "skab" / "run.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_the_skab_benchmark_needs_its_data_folder_named(skab, tmp_path, capsys):
+    """No folder found by guessing: without --data, or with a folder that is not SKAB's, a usage error."""
+    with pytest.raises(SystemExit) as stop:
+        skab.main(["--out", str(tmp_path)])
+    assert stop.value.code == 2 and "the following arguments are required: --data" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as stop:
+        skab.main(["--data", str(tmp_path), "--out", str(tmp_path)])
+    assert stop.value.code == 2
+    assert f"--data {tmp_path}: no valve1/, valve2/, other/ folder" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        skab.main(["--help"])
+    assert "--data DIR" in capsys.readouterr().out

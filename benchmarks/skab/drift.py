@@ -1,7 +1,7 @@
 """SKAB with a healthy "drift" mode (docs/realdata.md, "Where it fails"): does a random-walk bias on the
 two temperatures, counted as healthy, take the slow normal drifts off the false alarms?
 
-    python benchmarks/skab/drift.py [--data DIR] [--results DIR]
+    python benchmarks/skab/drift.py --data DIR [--results DIR]
 
 Needs the specs benchmarks/skab/run.py wrote (RESULTS/strict/*.jmlg). Each file's learned `normal`
 mode becomes a bank of `normal`, `drift` (the normal dynamics plus a bias on the chosen sensors that

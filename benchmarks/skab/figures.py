@@ -1,7 +1,7 @@
 """Figures of a few SKAB files for docs/realdata.md: the sensors against the learned bank's one-step
 predictions, P(mode) over time, the diagnosed and the true (labelled) mode, and the residuals.
 
-    python benchmarks/skab/figures.py [--data DIR] [--results DIR] [FOLDER_NAME ...]
+    python benchmarks/skab/figures.py --data DIR [--results DIR] [FOLDER_NAME ...]
 
 Uses the specs benchmarks/skab/run.py wrote (RESULTS/strict/<folder>_<name>.jmlg, with the a priori
 noise scale 3 and stay 0.99) changed to the setting cross-validation chose for the file

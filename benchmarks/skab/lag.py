@@ -2,7 +2,7 @@
 with the setting cross-validation chose for most files, their alarms from the posterior smoothed
 with a lag of L rows, counted L rows late (where they are known), pooled over the 34 files.
 
-    python benchmarks/skab/lag.py [--data DIR] [--results DIR]
+    python benchmarks/skab/lag.py --data DIR [--results DIR]
 
 Needs the specs benchmarks/skab/run.py wrote (RESULTS/strict/*.jmlg, with the a priori noise scale
 3 and stay 0.99, changed here to the chosen 2 and 0.999; threshold 0.5, persistence 3).

@@ -1,9 +1,11 @@
 """The SKAB benchmark through jmlgdsl's public pipeline: learn -> .jmlg spec -> filter with an alarm
 rule -> the leaderboard's metrics (docs/realdata.md).
 
-    python benchmarks/skab/run.py [--data DIR] [--out DIR] [--setting strict|leave-file-out|both]
+    python benchmarks/skab/run.py --data DIR [--out DIR] [--setting strict|leave-file-out|both]
 
-For each of the 34 labelled files (valve1/, valve2/, other/) and each setting:
+--data (required, no default) is the data/ folder of the public SKAB repository, e.g.
+../shared/data/skab/data from the root of this repository. For each of its 34 labelled files
+(valve1/, valve2/, other/) and each setting:
 1. learn: `jmlgdsl learn` fits a VAR (an ARX model of the 8 sensors with no inputs) to the
    file's first 400 rows (normal operation) -> mode `normal`;
 2. the modes a user can state without data are added to that spec in the language: `anomaly`,
@@ -23,7 +25,9 @@ file's own labels never choose its setting.
 Writes OUT/<setting>/<folder>_<name>.csv (datetime, anomaly and changepoint predictions of the scored
 rows), OUT/<setting>/<folder>_<name>.jmlg (the spec, to open, check and run), OUT/<setting>/summary.json
 and OUT/<setting>/table.md (our row beside the published leaderboard rows). The SKAB data are
-GPL-3.0 and stay where they are: nothing of them is written into this repository.
+GPL-3.0 and stay where they are: nothing of them is written into this repository. A learned bank
+that deserves a look (a slightly unstable mode) is reported once per SKAB file, after the run,
+with the file and the spec written for it.
 """
 
 from __future__ import annotations
@@ -36,6 +40,7 @@ import math
 import sys
 import tempfile
 import time
+import warnings
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
@@ -45,10 +50,10 @@ import jmlgdsl
 from jmlgdsl.alarms import AlarmRule
 from jmlgdsl.cli import main as jmlgdsl_main
 from jmlgdsl.data import Columns, read_csv, write_columns
+from jmlgdsl.errors import SpecWarning
 from jmlgdsl.metrics import Scores, changepoints, score
 
 REPO = Path(__file__).resolve().parents[2]
-DEFAULT_DATA = [REPO.parent / "shared" / "data" / "skab" / "data", Path("/work/shared/data/skab/data")]
 FOLDERS = ("valve1", "valve2", "other")
 SENSORS = ("Accelerometer1RMS", "Accelerometer2RMS", "Current", "Pressure", "Temperature", "Thermocouple",
            "Voltage", "Volume Flow RateRMS")
@@ -65,20 +70,29 @@ LEADERBOARD_NAB = [("MSCRED", 32.42, 16.53, 40.28, 55, 342), ("Isolation forest"
                    ("MSET", 13.84, 10.22, 17.37, 96, 66)]
 
 
+def add_data_option(parser: argparse.ArgumentParser):
+    """--data DIR, required: the SKAB data live outside this repository, wherever the user put them."""
+    parser.add_argument("--data", type=Path, required=True, metavar="DIR",
+                        help="the SKAB data folder: the data/ folder of the public SKAB repository, holding "
+                             f"{', '.join(f + '/' for f in FOLDERS)} (e.g. ../shared/data/skab/data from the "
+                             "repository root)")
+
+
 def results_parser(doc: str) -> argparse.ArgumentParser:
     """The options of the scripts that read what this one wrote (lag.py, drift.py, figures.py)."""
     parser = argparse.ArgumentParser(description=doc, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--data", type=Path, help="the SKAB data folder (valve1/, valve2/, other/)")
+    add_data_option(parser)
     parser.add_argument("--results", type=Path, default=REPO / "benchmarks" / "skab" / "results",
                         help="the --out folder of benchmarks/skab/run.py")
     return parser
 
 
-def data_folder(parser: argparse.ArgumentParser, given: Path | None) -> Path:
-    """The SKAB data folder: --data, else the first default that exists; a usage error if none does."""
-    data = given or next((d for d in DEFAULT_DATA if d.is_dir()), None)
-    if data is None or not data.is_dir():
-        parser.error("no SKAB data folder found; give --data DIR (the public SKAB repository's data/ folder)")
+def data_folder(parser: argparse.ArgumentParser, data: Path) -> Path:
+    """The --data folder, checked: a usage error unless it holds the SKAB folders."""
+    missing = [folder for folder in FOLDERS if not (data / folder).is_dir()]
+    if missing:
+        parser.error(f"--data {data}: no {', '.join(f + '/' for f in missing)} folder; give the data/ folder of "
+                     "the SKAB repository")
     return data
 
 
@@ -123,9 +137,11 @@ GRID = [(scale, stay, threshold, persistence) for scale in (2, 3, 5) for stay in
         for threshold in (0.5, 0.9) for persistence in (1, 3, 5)]
 
 
-def one_file(path: Path, others: list[Path], setting: str, out: Path, args) -> tuple[str, dict]:
+def one_file(path: Path, others: list[Path], setting: str, out: Path, args):
     """Learn one file's bank; filter, alarm and score it under the a priori setting and every GRID
-    setting; write its spec. Returns {setting: (Scores, alarm series of the scored rows)}."""
+    setting; write its spec. Returns the file's stem, {setting: (Scores, alarm series of the scored
+    rows)}, the scored rows' time stamps, and the warnings its banks raised, each once (they name
+    no file: the banks of the GRID settings are compiled from temporary specs)."""
     stem = f"{path.parent.name}_{path.stem}"
     data = read_csv(path, Columns(outputs=SENSORS))
     with tempfile.TemporaryDirectory() as tmp:
@@ -145,26 +161,30 @@ def one_file(path: Path, others: list[Path], setting: str, out: Path, args) -> t
             learn("fault", labelled, tmp / "fault.jmlg", args.order, stem, max_iter=10)  # 33 files' anomalies
             fault = (tmp / "fault.jmlg").read_text()
         learned = (tmp / "normal.jmlg").read_text()
-    header = f"# SKAB {path.parent.name}/{path.name}, setting {setting}: learned by benchmarks/skab/run.py\n"
-    (out / f"{stem}.jmlg").write_text(header + extend(learned, fault, args.scale, args.stay, args.healthy))
-    scored = slice(TRAIN, None)
-    outcomes, posteriors = {}, {}
-    for key in [("a priori", args.scale, args.stay, args.threshold, args.persistence)] + [("cv", *g) for g in GRID]:
-        _, scale, stay, threshold, persistence = key
-        if (scale, stay) not in posteriors:
-            spec = Path(tempfile.mkstemp(suffix=".jmlg")[1])
-            spec.write_text(header + extend(learned, fault, scale, stay, args.healthy))
-            model = jmlgdsl.load(spec)
-            spec.unlink()
-            if args.no_gate:
-                model = model.replace(outlier_gate=np.full(model.ny, np.inf))
-            result = jmlgdsl.filter(model, data.y, algorithm=args.filter, particles=args.particles, seed=0)
-            posteriors[scale, stay] = result.mode_posterior, model.modes
-        posterior, modes = posteriors[scale, stay]
-        alarm = AlarmRule(("normal",), threshold, persistence).alarms(posterior, modes)[scored]
-        outcomes[key] = score(alarm, data.anomaly[scored], data.time[scored], data.changepoint[scored]), alarm
+        header = f"# SKAB {path.parent.name}/{path.name}, setting {setting}: learned by benchmarks/skab/run.py\n"
+        (out / f"{stem}.jmlg").write_text(header + extend(learned, fault, args.scale, args.stay, args.healthy))
+        scored = slice(TRAIN, None)
+        outcomes, posteriors = {}, {}
+        settings = [("a priori", args.scale, args.stay, args.threshold, args.persistence)] + [("cv", *g) for g in GRID]
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            for key in settings:
+                _, scale, stay, threshold, persistence = key
+                if (scale, stay) not in posteriors:
+                    spec = tmp / f"scale{scale:g}-stay{stay:g}.jmlg"
+                    spec.write_text(header + extend(learned, fault, scale, stay, args.healthy))
+                    model = jmlgdsl.load(spec)
+                    if args.no_gate:
+                        model = model.replace(outlier_gate=np.full(model.ny, np.inf))
+                    result = jmlgdsl.filter(model, data.y, algorithm=args.filter, particles=args.particles, seed=0)
+                    posteriors[scale, stay] = result.mode_posterior, model.modes
+                posterior, modes = posteriors[scale, stay]
+                alarm = AlarmRule(("normal",), threshold, persistence).alarms(posterior, modes)[scored]
+                outcomes[key] = score(alarm, data.anomaly[scored], data.time[scored], data.changepoint[scored]), alarm
     stamps = [np.datetime_as_string(np.datetime64(int(t), "s")).replace("T", " ") for t in data.time[scored]]
-    return stem, outcomes, stamps
+    notes = dict.fromkeys(w.message.diagnostic.message if isinstance(w.message, SpecWarning) else str(w.message)
+                          for w in caught)
+    return stem, outcomes, stamps, list(notes)
 
 
 def objective(scores: Scores) -> float:
@@ -207,17 +227,20 @@ def run_setting(setting: str, data: Path, args) -> dict:
             results.append(future.result())
             print(f"\r{setting}: {i}/{len(paths)} files", end="", file=sys.stderr, flush=True)
     print(file=sys.stderr)
+    for path, (stem, _, _, notes) in zip(paths, results):
+        for note in notes:
+            print(f"warning: {path}: the bank learned for it ({out / stem}.jmlg): {note}", file=sys.stderr)
     prior = ("a priori", args.scale, args.stay, args.threshold, args.persistence)
     chosen, final = {}, []
-    for stem, outcomes, stamps in results:  # leave one file out: the others choose its setting
-        rest = [o for s, o, _ in results if s != stem]
+    for stem, outcomes, stamps, _ in results:  # leave one file out: the others choose its setting
+        rest = [o for s, o, _, _ in results if s != stem]
         best = max(GRID, key=lambda g: objective(Scores.pool([o["cv", *g][0] for o in rest])))
         chosen[stem] = dict(zip(("scale", "stay", "threshold", "persistence"), best))
         scores, alarm = outcomes["cv", *best]
         final.append(scores)
         write_columns(out / f"{stem}.csv", {"datetime": stamps, "anomaly": alarm, "changepoint": changepoints(alarm)})
     name = f"jmlgdsl, {setting}" + (" + learned fault" if setting == "leave-file-out" else "")
-    rows = {f"{name}, a priori": clean(Scores.pool([o[prior][0] for _, o, _ in results]).summary()),
+    rows = {f"{name}, a priori": clean(Scores.pool([o[prior][0] for _, o, _, _ in results]).summary()),
             f"{name}, cross-validated": clean(Scores.pool(final).summary())}
     summary = {**rows[f"{name}, cross-validated"], "a_priori": rows[f"{name}, a priori"], "chosen": chosen,
                "files": len(results), "seconds": round(time.perf_counter() - start, 1),
@@ -231,7 +254,7 @@ def run_setting(setting: str, data: Path, args) -> dict:
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--data", type=Path, help="the SKAB data folder (valve1/, valve2/, other/)")
+    add_data_option(parser)
     parser.add_argument("--out", type=Path, default=REPO / "benchmarks" / "skab" / "results")
     parser.add_argument("--setting", choices=("strict", "leave-file-out", "both"), default="both")
     parser.add_argument("--order", type=int, default=1, help="VAR order of the learned modes (a priori: 1)")

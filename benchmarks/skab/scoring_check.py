@@ -5,7 +5,7 @@ all-zero, all-one and perfect-label detectors, and one that alarms on each true 
 only, pooled over files, and prints them beside the values the leaderboard's scorer is known to give
 (shared/reference/skab-scoring.md) and its Null detector row (the SKAB README).
 
-    python benchmarks/skab/scoring_check.py [--data DIR]
+    python benchmarks/skab/scoring_check.py --data DIR
 """
 
 from __future__ import annotations
@@ -19,10 +19,10 @@ import numpy as np
 
 from jmlgdsl.metrics import Scores, score
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from run import add_data_option, data_folder, files as skab_files  # noqa: E402
+
 FIRST_SCORED = 400  # rows 0-399 are the training stretch of normal operation
-FOLDERS = ("valve1", "valve2", "other")
-REPO = Path(__file__).resolve().parents[2]
-DEFAULT_DATA = [Path("/work/shared/data/skab/data"), REPO.parent / "shared" / "data" / "skab" / "data"]
 
 # Known values, (F1, FAR %, MAR %) and (NAB standard, LowFP, LowFN, missed CPs, FPs), None where none is
 # known: the scorer's check values in skab-scoring.md, and the README leaderboard's Null detector row.
@@ -50,12 +50,10 @@ def detectors(anomaly, changepoint):
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--data", type=Path, help="the SKAB data folder (holding valve1/, valve2/, other/)")
+    add_data_option(parser)
     args = parser.parse_args(argv)
-    data = args.data or next((d for d in DEFAULT_DATA if d.is_dir()), None)
-    if data is None or not data.is_dir():
-        parser.error(f"no SKAB data folder at {args.data or ' or '.join(map(str, DEFAULT_DATA))}; give --data DIR")
-    files = sorted(p for folder in FOLDERS for p in (data / folder).glob("*.csv"))
+    data = data_folder(parser, args.data)
+    files = skab_files(data)
     per_detector = {name: [] for name in EXPECTED}
     for path in files:
         time, anomaly, changepoint = read(path)
