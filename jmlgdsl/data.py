@@ -16,7 +16,6 @@ DataWarning naming the column.
 
 from __future__ import annotations
 
-import contextlib
 import csv
 import math
 import re
@@ -31,7 +30,7 @@ import numpy as np
 
 from .errors import DataError
 from .names import suggest
-from .output import check_file, open_text
+from .output import check_file, writing
 
 MISSING = {"", "na", "nan", "n/a"}
 DECIMAL_COMMA = re.compile(r"[-+]?\d+,\d+")
@@ -192,11 +191,11 @@ def open_source(path) -> Source:
 
 
 def open_target(path):
-    """A text stream to write a table to, or standard output for '-': the file appears (or replaces
-    the old one) only when the stream is closed, so an interrupted write never leaves half a table;
-    a file this process is reading is refused."""
+    """`with open_target(path) as stream:` a text stream to write a table to, or standard output for
+    '-': the file appears (or replaces the old one) only when the block completes, so an interrupted
+    write never leaves half a table; a file this process is reading is refused."""
     check_file(path, inputs=[source.name for source in _READING])
-    return open_text(path)
+    return writing(path)
 
 
 def _records(stream, source):
@@ -427,8 +426,7 @@ class CsvWriter:
 
 def write_columns(path, columns: dict):
     """Write equal-length columns (name -> array of numbers or strings) to a CSV file ('-' = stdout)."""
-    stream = open_target(path)
-    with stream if stream is not sys.stdout else contextlib.nullcontext():
+    with open_target(path) as stream:
         writer = CsvWriter(stream, list(columns))
         for row in zip(*columns.values()):
             writer.write(row)

@@ -7,7 +7,6 @@ A request too large for memory is refused up front too, saying how much it would
 from __future__ import annotations
 
 import errno
-import io
 import os
 import sys
 import tempfile
@@ -144,45 +143,15 @@ def replacing(path):
     _commit(temporary, target)
 
 
-class Pending(io.TextIOWrapper):
-    """A text file written under a temporary name: close() renames it into place, discard() (or an
-    exception leaving a `with` block, or dropping the file unclosed) removes it and leaves the
-    target as it was."""
-
-    def __init__(self, path):
-        self.target = Path(path)
-        try:
-            fd, self.temporary = _temporary(self.target)
-        except OSError as exc:
-            raise JmlgError(f"cannot write {path}: {exc.strerror or exc}") from None
-        super().__init__(os.fdopen(fd, "wb"), encoding="utf-8", newline="")
-
-    def close(self):
-        if not self.closed:
-            super().close()
-            _commit(self.temporary, self.target)
-
-    def discard(self):
-        if not self.closed:
-            super().close()
-            self.temporary.unlink(missing_ok=True)
-
-    def __del__(self):
-        if hasattr(self, "temporary"):  # not when __init__ failed before the file was made
-            self.discard()
-
-    def __exit__(self, kind, value, traceback):
-        if kind is None:
-            self.close()
-        else:
-            self.discard()
-
-
-def open_text(path):
-    """A text stream for a table: a Pending file, or standard output for '-' (the caller closes the
-    file, never standard output)."""
+@contextmanager
+def writing(path):
+    """A text stream to write `path` through, whole or not at all (see `replacing`); '-' is standard
+    output, flushed at the end and left open."""
     if str(path) == "-":
         if sys.stdout is None:
             raise JmlgError("cannot write to standard output: it is closed")
-        return sys.stdout
-    return Pending(path)
+        yield sys.stdout
+        sys.stdout.flush()
+        return
+    with replacing(path) as temporary, open(temporary, "w", encoding="utf-8", newline="") as stream:
+        yield stream

@@ -70,11 +70,11 @@ def test_an_interrupted_table_leaves_the_old_file(tmp_path):
     assert target.read_text() == "time\n1\n" and os.listdir(tmp_path) == ["sim.csv"]
 
 
-def test_a_table_dropped_unclosed_is_not_written(tmp_path):
+def test_a_table_whose_writing_fails_is_not_written(tmp_path):
     target = tmp_path / "t.csv"
-    stream = output.open_text(target)
-    stream.write("half")
-    del stream
+    with pytest.raises(RuntimeError), output.writing(target) as stream:
+        stream.write("half")
+        raise RuntimeError("interrupted")
     assert os.listdir(tmp_path) == []
 
 
@@ -222,7 +222,8 @@ def test_a_table_that_cannot_be_made_is_one_error(tmp_path, monkeypatch):
     ignored = []
     monkeypatch.setattr(sys, "unraisablehook", ignored.append)
     try:
-        output.Pending(tmp_path / "no" / "t.csv")
+        with output.writing(tmp_path / "no" / "t.csv"):
+            pass
     except JmlgError as exc:
         assert "cannot write" in str(exc)
     else:

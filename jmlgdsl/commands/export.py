@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import sys
-
 
 def register(subparsers):
     p = subparsers.add_parser(
@@ -19,7 +17,6 @@ def register(subparsers):
 
 
 def main(args) -> int:
-    import contextlib
 
     from ..data import open_target
     from ..errors import DataError
@@ -35,8 +32,7 @@ def main(args) -> int:
         for path, write in ((args.output, store.write_table), (args.samples, store.write_samples)):
             if path is None:
                 continue
-            out = open_target(path)
-            with out if out is not sys.stdout else contextlib.nullcontext():  # whole, or not at all
+            with open_target(path) as out:  # whole, or not at all
                 if not write(run, out):
                     raise DataError(f"{args.store}: run {run.id} holds no diagnosed rows yet")
     return 0

@@ -100,10 +100,8 @@ def main(args) -> int:
                           rule=AlarmRule(tuple(healthy), args.threshold, args.persistence), sinks=[ticker])
     with contextlib.ExitStack() as stack, open_source(args.data) as source:
         stack.callback(ticker.close)
-        if args.output is not None:
-            out = open_target(args.output)
-            if out is not sys.stdout:
-                stack.enter_context(out)  # the table appears whole when the run ends, or not at all
+        if args.output is not None:  # the table appears whole when the run ends, or not at all
+            out = stack.enter_context(open_target(args.output))
             diagnosis.sinks.append(TableSink(out, model, diagnosis.filter.lag, flush=streaming))
         if kept is not None:
             diagnosis.sinks.append(kept)

@@ -3,8 +3,6 @@ where the data carry the true mode, the alarms and how well they detect, fit and
 
 from __future__ import annotations
 
-import numpy as np
-
 from ..metrics import runs
 
 

@@ -9,7 +9,6 @@ conditioned on. Rows are written as they are computed, so a stream is written on
 from __future__ import annotations
 
 import csv
-import sys
 from dataclasses import dataclass
 
 import numpy as np
@@ -56,16 +55,12 @@ class TableWriter:
 def write_result(path, result: Result, time=None, alarm=None):
     """Write a whole Result as a result table ('-' = standard output); `time` (T,) adds the time
     column and `alarm` (T,) 0/1 the alarm column."""
-    stream = open_target(path)
-    try:
+    with open_target(path) as stream:  # an error part way leaves no half table
         writer = TableWriter(stream, result.model, time is not None, with_alarm=alarm is not None, lag=result.lag)
         for i in range(result.T):
             step = Step(i + 1, result.mode_posterior[i], result.state_mean[i], result.state_cov[i],
                         result.y_pred[i], result.residuals[i], result.loglik_steps[i], result.ess[i])
             writer.write(step, None if time is None else time[i], None if alarm is None else int(alarm[i]))
-    finally:
-        if stream is not sys.stdout:
-            stream.close()
 
 
 @dataclass(frozen=True)

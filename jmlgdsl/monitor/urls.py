@@ -11,8 +11,8 @@ def address(url: str, default_port: int):
     """(host, port, path) of a source URL; a URL with a user name or password in it is refused."""
     parts = urlsplit(url)
     if parts.username or parts.password:
-        raise JmlgError(f"--source: put no user name or password in the URL (they would show in the process "
-                        f"list and the store); use --username with --password-env or --password-file")
+        raise JmlgError("--source: put no user name or password in the URL (they would show in the process "
+                        "list and the store); use --username with --password-env or --password-file")
     if not parts.hostname:
         raise JmlgError(f"--source {url}: no host")
     try:
