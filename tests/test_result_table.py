@@ -3,6 +3,7 @@
 import csv
 
 import numpy as np
+import pytest
 
 import jmlgdsl
 from jmlgdsl.cli import main
@@ -33,3 +34,13 @@ def test_a_result_written_from_python_is_the_run_table(tmp_path, capsys):
     np.testing.assert_array_equal(table.time, d.time)
     np.testing.assert_allclose(table.mode_posterior, result.mode_posterior, rtol=1e-9)
     np.testing.assert_allclose(table.residuals, result.residuals, rtol=1e-9)
+
+
+def test_a_result_table_that_fails_part_way_is_not_written(tmp_path):
+    model = jmlgdsl.load("specs/dryer.jmlg")
+    result = jmlgdsl.filter(model, simulate(model, 20, seed=1).y)
+    out = tmp_path / "result.csv"
+    out.write_text("the old table\n")
+    with pytest.raises(IndexError):
+        write_result(out, result, time=np.arange(10.0))  # the times end at row 10 of 20
+    assert out.read_text() == "the old table\n" and [p.name for p in tmp_path.iterdir()] == ["result.csv"]
