@@ -79,6 +79,12 @@ def _mode_sequence(model, T, modes, rng):
     return int(seq[0]), seq
 
 
+def step_bytes(model: Model) -> int:
+    """Memory one simulated step takes: states, outputs, inputs, both noises, the mode, the time, and
+    the table built from them (an estimate, to refuse a run that cannot fit before it starts)."""
+    return 16 * (model.nx + model.ny + model.nu + model.B.shape[2] + model.D.shape[2] + 3)
+
+
 def simulate(model: Model, T: int | None = None, seed=None, modes=None, u=None) -> Simulation:
     """Simulate T steps. `modes`: None (draw from the chain), a schedule string or a sequence of mode
     names/indices; `u`: (T, nu) inputs or None for the defaults. `seed` (a number or a numpy

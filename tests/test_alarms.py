@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from jmlgdsl.alarms import AlarmRule
+from jmlgdsl.diagnosis.alarms import AlarmRule
 from jmlgdsl.errors import DataError
 
 MODES = ("ok", "leak", "stuck")

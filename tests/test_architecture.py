@@ -12,14 +12,13 @@ import pytest
 
 PACKAGE = Path(__file__).resolve().parents[1] / "jmlgdsl"
 LAYERS = [
-    {"errors", "names", "random", "gaussian", "output", "priors", "progress", "version"},
-    {"model", "data", "prefilter", "metrics", "alarms"},
+    {"errors", "names", "random", "gaussian", "output", "priors", "progress", "version", "drawing"},
+    {"model", "data"},
     {"lang"},
     {"compile"},
     {"infer", "simulate", "nonlinear"},
     {"diagnosis"},
-    {"monitor"},
-    {"bench", "learn", "fitting", "plots"},
+    {"studies", "learn", "fitting", "monitor"},
     {"commands", "cli", "__main__", "jmlgdsl"},
 ]
 RANK = {name: rank for rank, names in enumerate(LAYERS) for name in names}

@@ -8,7 +8,7 @@ import pytest
 from infer_models import dryer
 
 import jmlgdsl
-from jmlgdsl import bench
+from jmlgdsl.studies import sweep
 from jmlgdsl.cli import main
 from jmlgdsl.data import write_columns
 from jmlgdsl.errors import DataError
@@ -26,11 +26,11 @@ def model():
 @pytest.fixture(scope="module")
 def sequence(model):
     sim = simulate(model, modes=SHORT, seed=5)
-    return bench.Sequence("short", sim.y, sim.u, sim.modes)
+    return sweep.Sequence("short", sim.y, sim.u, sim.modes)
 
 
 def read_records(path) -> list[dict]:
-    """Run records as bench.write_records_csv writes them, read back with the csv module."""
+    """Run records as sweep.write_records_csv writes them, read back with the csv module."""
     with open(path, newline="") as stream:
         rows = list(csv.DictReader(stream))
     return [{"data": r["data"], "filter": r["filter"], "particles": int(r["particles"]) if r["particles"] else None,
@@ -42,43 +42,43 @@ def _without_time(records):
 
 
 def test_jobs_cover_every_setting_and_deterministic_filters_once_per_run(model, sequence):
-    jobs = bench.make_jobs(model, [sequence], ("pf", "imm", "la-rbpf"), (1, 10), runs=3, seed=0)
+    jobs = sweep.make_jobs(model, [sequence], ("pf", "imm", "la-rbpf"), (1, 10), runs=3, seed=0)
     settings = [(j.algorithm, j.particles, j.run) for j in jobs]
     assert len(settings) == len(set(settings)) == 3 * (2 + 1 + 2)
     assert {(a, n) for a, n, _ in settings} == {("pf", 1), ("pf", 10), ("imm", None), ("la-rbpf", 1), ("la-rbpf", 10)}
 
 
 def test_each_filter_run_has_its_own_stream_and_each_run_its_own_data(model):
-    jobs = bench.make_jobs(model, [bench.Simulated(None, SHORT)], ("rbpf", "la-rbpf"), (4,), runs=2, seed=7)
+    jobs = sweep.make_jobs(model, [sweep.Simulated(None, SHORT)], ("rbpf", "la-rbpf"), (4,), runs=2, seed=7)
     states = [tuple(j.filter_seed.generate_state(4)) for j in jobs]
     assert len(set(states)) == len(jobs)
     first, second = [[j for j in jobs if j.run == r] for r in (0, 1)]
-    np.testing.assert_array_equal(bench.sequence_of(first[0]).y, bench.sequence_of(first[1]).y)
-    assert not np.array_equal(bench.sequence_of(first[0]).y, bench.sequence_of(second[0]).y)
-    np.testing.assert_array_equal(bench.sequence_of(first[0]).modes, simulate(model, modes=SHORT).modes)
+    np.testing.assert_array_equal(sweep.sequence_of(first[0]).y, sweep.sequence_of(first[1]).y)
+    assert not np.array_equal(sweep.sequence_of(first[0]).y, sweep.sequence_of(second[0]).y)
+    np.testing.assert_array_equal(sweep.sequence_of(first[0]).modes, simulate(model, modes=SHORT).modes)
 
 
 def test_adding_a_filter_or_a_count_to_a_sweep_leaves_the_other_settings_draws_alone(model, sequence):
-    small = bench.make_jobs(model, [sequence], ("la-rbpf",), (3,), runs=2, seed=1)
-    large = bench.make_jobs(model, [sequence], ("pf", "la-rbpf", "rbpf"), (1, 3, 7), runs=2, seed=1)
+    small = sweep.make_jobs(model, [sequence], ("la-rbpf",), (3,), runs=2, seed=1)
+    large = sweep.make_jobs(model, [sequence], ("pf", "la-rbpf", "rbpf"), (1, 3, 7), runs=2, seed=1)
     seeds = {(j.algorithm, j.particles, j.run): j.filter_seed.generate_state(4).tolist() for j in large}
     for job in small:
         assert job.filter_seed.generate_state(4).tolist() == seeds[job.algorithm, job.particles, job.run]
-    assert bench.run_job(small[0]) | {"ms_per_step": 0} == bench.run_job(
+    assert sweep.run_job(small[0]) | {"ms_per_step": 0} == sweep.run_job(
         [j for j in large if (j.algorithm, j.particles, j.run) == ("la-rbpf", 3, 0)][0]) | {"ms_per_step": 0}
 
 
 def test_data_can_come_from_another_plant_than_the_filters_model(model):
     other = model.replace(P=np.full((4, 4), 0.25))
-    job = bench.make_jobs(other, [bench.Simulated(None, SHORT, plant=model)], ("imm",), (1,), runs=1, seed=4)[0]
+    job = sweep.make_jobs(other, [sweep.Simulated(None, SHORT, plant=model)], ("imm",), (1,), runs=1, seed=4)[0]
     expected = simulate(model, modes=SHORT, seed=job.data_seed)
-    np.testing.assert_array_equal(bench.sequence_of(job).y, expected.y)
+    np.testing.assert_array_equal(sweep.sequence_of(job).y, expected.y)
     assert job.model is other
 
 
 def test_a_job_reports_the_map_error_of_the_filter_it_names(model, sequence):
-    job = bench.make_jobs(model, [sequence], ("la-rbpf",), (3,), runs=1, seed=2)[0]
-    record = bench.run_job(job)
+    job = sweep.make_jobs(model, [sequence], ("la-rbpf",), (3,), runs=1, seed=2)[0]
+    record = sweep.run_job(job)
     result = jmlgdsl.filter(model, sequence.y, sequence.u, algorithm="la-rbpf", particles=3, seed=job.filter_seed)
     wrong = np.count_nonzero(result.map_modes != sequence.modes)
     assert record["error"] == pytest.approx(100.0 * wrong / 60)
@@ -87,18 +87,18 @@ def test_a_job_reports_the_map_error_of_the_filter_it_names(model, sequence):
 
 
 def test_a_one_reading_prefilter_changes_nothing_and_a_longer_one_changes_the_data(model, sequence):
-    plain, one, five = (bench.make_jobs(model, [sequence], ("imm",), (1,), runs=1, seed=0, prefilter=w)[0]
+    plain, one, five = (sweep.make_jobs(model, [sequence], ("imm",), (1,), runs=1, seed=0, prefilter=w)[0]
                         for w in (None, 1, 5))
-    assert bench.run_job(one)["loglik"] == bench.run_job(plain)["loglik"]
-    assert bench.run_job(five)["loglik"] != bench.run_job(plain)["loglik"]
+    assert sweep.run_job(one)["loglik"] == sweep.run_job(plain)["loglik"]
+    assert sweep.run_job(five)["loglik"] != sweep.run_job(plain)["loglik"]
 
 
 def test_sweeps_repeat_exactly_and_the_pool_matches_serial_runs(model, sequence):
     args = (model, [sequence], ("pf", "fc-rbpf"), (1, 5), 2, 11)
-    serial = bench.sweep(*args, workers=1)
-    pooled = bench.sweep(*args, workers=2)
+    serial = sweep.sweep(*args, workers=1)
+    pooled = sweep.sweep(*args, workers=2)
     assert _without_time(serial) == _without_time(pooled)
-    other = bench.sweep(model, [sequence], ("pf", "fc-rbpf"), (1, 5), 2, 12, workers=1)
+    other = sweep.sweep(model, [sequence], ("pf", "fc-rbpf"), (1, 5), 2, 12, workers=1)
     assert _without_time(other) != _without_time(serial)
 
 
@@ -106,28 +106,28 @@ def test_the_sweep_runs_on_a_dask_cluster_with_the_same_results(model, sequence)
     distributed = pytest.importorskip("distributed")
     args = (model, [sequence], ("la-rbpf",), (2,), 2, 3)
     with distributed.LocalCluster(n_workers=1, threads_per_worker=1, dashboard_address=None) as cluster:
-        remote = bench.sweep(*args, scheduler=cluster.scheduler_address)
-    assert _without_time(remote) == _without_time(bench.sweep(*args, workers=1))
+        remote = sweep.sweep(*args, scheduler=cluster.scheduler_address)
+    assert _without_time(remote) == _without_time(sweep.sweep(*args, workers=1))
 
 
 def test_bad_sweeps_are_user_errors(model, sequence):
     with pytest.raises(DataError, match="unknown filter 'kalman'"):
-        bench.make_jobs(model, [sequence], ("kalman",), (1,))
+        sweep.make_jobs(model, [sequence], ("kalman",), (1,))
     with pytest.raises(DataError, match="at least 1"):
-        bench.make_jobs(model, [sequence], ("pf",), (1,), runs=0)
+        sweep.make_jobs(model, [sequence], ("pf",), (1,), runs=0)
     with pytest.raises(DataError, match="positive whole numbers, got 0"):
-        bench.make_jobs(model, [sequence], ("pf",), (4, 0))
+        sweep.make_jobs(model, [sequence], ("pf",), (4, 0))
     with pytest.raises(DataError, match="no filter to run"):
-        bench.make_jobs(model, [sequence], (), (1,))
+        sweep.make_jobs(model, [sequence], (), (1,))
     with pytest.raises(DataError, match="need at least one particle count"):
-        bench.make_jobs(model, [sequence], ("imm", "pf"), ())
-    assert len(bench.make_jobs(model, [sequence], ("imm",), (), runs=2)) == 2  # imm needs no particles
+        sweep.make_jobs(model, [sequence], ("imm", "pf"), ())
+    assert len(sweep.make_jobs(model, [sequence], ("imm",), (), runs=2)) == 2  # imm needs no particles
 
 
 def test_a_failing_run_stops_the_pool_with_its_error(model, sequence):
-    bad = bench.Sequence("bad", sequence.y[:, :0], sequence.u, sequence.modes)  # no output column
+    bad = sweep.Sequence("bad", sequence.y[:, :0], sequence.u, sequence.modes)  # no output column
     with pytest.raises(DataError, match="y must have shape"):
-        bench.sweep(model, [bad], ("imm",), (1,), runs=3, workers=2)
+        sweep.sweep(model, [bad], ("imm",), (1,), runs=3, workers=2)
 
 
 def test_an_unreachable_dask_scheduler_is_a_user_error(model, sequence):
@@ -135,7 +135,7 @@ def test_an_unreachable_dask_scheduler_is_a_user_error(model, sequence):
     pytest.importorskip("distributed")
     with dask.config.set({"distributed.comm.timeouts.connect": "1s"}):
         with pytest.raises(DataError, match="cannot reach the Dask scheduler at tcp://127.0.0.1:9"):
-            bench.sweep(model, [sequence], ("imm",), (1,), runs=1, scheduler="tcp://127.0.0.1:9")
+            sweep.sweep(model, [sequence], ("imm",), (1,), runs=1, scheduler="tcp://127.0.0.1:9")
 
 
 RECORDS = [
@@ -149,7 +149,7 @@ RECORDS = [
 
 
 def test_summary_is_the_mean_and_sample_sd_over_runs():
-    rows = {(r["filter"], r["particles"]): r for r in bench.summarise(RECORDS)}
+    rows = {(r["filter"], r["particles"]): r for r in sweep.summarise(RECORDS)}
     pf10 = rows["pf", 10]
     assert pf10["runs"] == 2
     assert pf10["error_mean"] == 15.0
@@ -159,30 +159,30 @@ def test_summary_is_the_mean_and_sample_sd_over_runs():
 
 
 def test_markdown_table_has_the_published_shape():
-    table = bench.markdown_table(bench.summarise(RECORDS)).splitlines()
+    table = sweep.markdown_table(sweep.summarise(RECORDS)).splitlines()
     assert table[2:] == ["| N | pf | imm |", "|---|---|---|", "| 1 | 60.00 (14.14) |  |",
                          "| 10 | 15.00 (7.07) |  |", "| — |  | 4.00 (0.00) |"]
-    assert "| 10 | 2 |  |" in bench.markdown_table(bench.summarise(RECORDS), "ms_per_step")
+    assert "| 10 | 2 |  |" in sweep.markdown_table(sweep.summarise(RECORDS), "ms_per_step")
 
 
 def test_one_run_gives_the_mean_without_a_spread(tmp_path):
     """One run has no SD: the tables give the mean alone (not 'mean (nan)'), the CSV an empty SD cell."""
-    summary = bench.summarise([r for r in RECORDS if r["run"] == 0])
-    assert bench.markdown_table(summary).splitlines()[4:] == ["| 1 | 50.00 |  |", "| 10 | 10.00 |  |",
+    summary = sweep.summarise([r for r in RECORDS if r["run"] == 0])
+    assert sweep.markdown_table(summary).splitlines()[4:] == ["| 1 | 50.00 |  |", "| 10 | 10.00 |  |",
                                                               "| — |  | 4.00 |"]
-    assert "| 10 | -5.0 |  |" in bench.markdown_table(summary, "loglik")
-    bench.write_table_csv(tmp_path / "t.csv", summary)
+    assert "| 10 | -5.0 |  |" in sweep.markdown_table(summary, "loglik")
+    sweep.write_table_csv(tmp_path / "t.csv", summary)
     rows = list(csv.DictReader((tmp_path / "t.csv").open()))
     assert rows[1]["pf_error_mean"] == "10" and rows[1]["pf_error_sd"] == ""
 
 
 def test_table_and_record_csv_files(tmp_path):
-    bench.write_table_csv(tmp_path / "t.csv", bench.summarise(RECORDS))
+    sweep.write_table_csv(tmp_path / "t.csv", sweep.summarise(RECORDS))
     rows = list(csv.DictReader((tmp_path / "t.csv").open()))
     assert [r["particles"] for r in rows] == ["1", "10", ""]
     assert float(rows[1]["pf_error_mean"]) == 15.0 and rows[1]["imm_error_mean"] == ""
     assert float(rows[2]["imm_error_mean"]) == 4.0
-    bench.write_records_csv(tmp_path / "runs.csv", RECORDS)
+    sweep.write_records_csv(tmp_path / "runs.csv", RECORDS)
     assert read_records(tmp_path / "runs.csv") == RECORDS
 
 

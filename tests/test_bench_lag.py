@@ -7,10 +7,10 @@ import pytest
 from infer_models import dryer
 
 import jmlgdsl
-from jmlgdsl import bench
+from jmlgdsl.studies import sweep
 from jmlgdsl.cli import main
 from jmlgdsl.data import write_columns
-from jmlgdsl.metrics import switch_delays
+from jmlgdsl.diagnosis.metrics import switch_delays
 from jmlgdsl.simulate import simulate
 
 SHORT = "1-20:normal,21-40:fan,41-60:grill"
@@ -20,15 +20,15 @@ SHORT = "1-20:normal,21-40:fan,41-60:grill"
 def sequence():
     model = dryer()
     sim = simulate(model, modes=SHORT, seed=5)
-    return model, bench.Sequence("short", sim.y, sim.u, sim.modes)
+    return model, sweep.Sequence("short", sim.y, sim.u, sim.modes)
 
 
 @pytest.mark.parametrize("algorithm, particles, lag", [("imm", None, 3), ("imm", None, None), ("la-rbpf", 5, 2)])
 def test_a_lagged_job_measures_the_smoother_with_the_filters_seed(sequence, algorithm, particles, lag):
     model, data = sequence
-    jobs = bench.make_jobs(model, [data], (algorithm,), (particles or 1,), runs=1, seed=3, lags=(0, lag))
+    jobs = sweep.make_jobs(model, [data], (algorithm,), (particles or 1,), runs=1, seed=3, lags=(0, lag))
     assert [j.lag for j in jobs] == [0, lag] and jobs[0].filter_seed is jobs[1].filter_seed
-    record = bench.run_job(jobs[1])
+    record = sweep.run_job(jobs[1])
     result = jmlgdsl.smooth(model, data.y, data.u, algorithm=algorithm, particles=particles, lag=lag,
                             seed=jobs[1].filter_seed)
     assert record["lag"] == lag and record["error"] == result.diagnosis_error(data.modes)
@@ -66,12 +66,12 @@ def test_a_bad_lag_list_is_a_clear_error(sequence, tmp_path, capsys):
 
 @pytest.mark.parametrize("lag", [0, 4])
 def test_a_record_scores_the_default_alarm_rule_where_each_alarm_is_known(sequence, lag):
-    from jmlgdsl.alarms import AlarmRule
-    from jmlgdsl.metrics import changepoints, score
+    from jmlgdsl.diagnosis.alarms import AlarmRule
+    from jmlgdsl.diagnosis.metrics import changepoints, score
 
     model, data = sequence
-    job = bench.make_jobs(model, [data], ("imm",), (1,), runs=1, seed=0, lags=(lag,))[0]
-    record = bench.run_job(job)
+    job = sweep.make_jobs(model, [data], ("imm",), (1,), runs=1, seed=0, lags=(lag,))[0]
+    record = sweep.run_job(job)
     result = jmlgdsl.smooth(model, data.y, data.u, lag=lag)
     rule = AlarmRule(("normal",))
     alarm = np.r_[np.zeros(lag, int), rule.alarms(result.mode_posterior, model.modes)][:len(data.y)]

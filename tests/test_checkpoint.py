@@ -12,7 +12,7 @@ import pytest
 from conftest import ROOT, SOURCE
 
 import jmlgdsl
-from jmlgdsl.alarms import AlarmRule
+from jmlgdsl.diagnosis.alarms import AlarmRule
 from jmlgdsl.data import iter_rows, open_source
 from jmlgdsl.diagnosis import CheckpointError, Diagnosis, Kept
 from jmlgdsl.diagnosis import pipeline

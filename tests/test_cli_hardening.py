@@ -16,7 +16,7 @@ from jmlgdsl import output
 from jmlgdsl.cli import main
 from jmlgdsl.data import Columns, DataWarning, iter_rows, read_csv, write_columns
 from jmlgdsl.errors import DataError, JmlgError
-from jmlgdsl.prefilter import parse
+from jmlgdsl.diagnosis.prefilter import parse
 
 ROOT = Path(__file__).resolve().parents[1]
 SPEC = ROOT / "specs" / "dryer.jmlg"
@@ -307,7 +307,7 @@ def test_a_blank_mode_cell_is_a_missing_label(files, capsys, tmp_path):
     assert read_csv(path, Columns(outputs=("temp",), modes=("fan",))).modes.tolist() == [-1, 0, -1]
     spec = files[0]
     assert main(["run", str(spec), str(path)]) == 0
-    assert "of 1 steps" in capsys.readouterr().out
+    assert " of 1 step)" in capsys.readouterr().out
     fails(capsys, ["bench", spec, path, "-o", tmp_path / "b"], "data row 1 has no true mode")
 
 

@@ -112,7 +112,7 @@ def test_run_stops_at_the_row_where_time_goes_backwards_and_writes_nothing(tmp_p
 
 
 def test_a_time_axis_given_to_the_metrics_that_goes_backwards_is_located():
-    from jmlgdsl.metrics import seconds
+    from jmlgdsl.diagnosis.metrics import seconds
 
     with pytest.raises(DataError) as err:
         seconds([0.0, 1.0, 2.0, 1.5], 4)

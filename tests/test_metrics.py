@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from jmlgdsl.errors import DataError
-from jmlgdsl.metrics import (PROFILES, EventCounts, NabCounts, OutlierCounts, Scores, changepoints, confusion,
+from jmlgdsl.diagnosis.metrics import (PROFILES, EventCounts, NabCounts, OutlierCounts, Scores, changepoints, confusion,
                              event_counts, monitored, nab_counts, nab_windows, outlier_counts, score,
                              switch_delays)
 

@@ -6,7 +6,8 @@ import pytest
 from infer_models import dryer
 
 import jmlgdsl
-from jmlgdsl import bench, plots
+from jmlgdsl.diagnosis import figure as run_figure
+from jmlgdsl.studies import figures, sweep
 from jmlgdsl.cli import main
 
 RECORDS = [
@@ -21,8 +22,8 @@ def _legend(ax):
 
 
 def test_error_against_particles_draws_each_filter_and_the_published_points(tmp_path):
-    summary = bench.summarise(RECORDS)
-    fig = plots.error_vs_particles(summary, tmp_path / "p.png", reference={"la-rbpf": [(1, 26.0, 7.8), (10, 13.6, 5.6)]})
+    summary = sweep.summarise(RECORDS)
+    fig = figures.error_vs_particles(summary, tmp_path / "p.png", reference={"la-rbpf": [(1, 26.0, 7.8), (10, 13.6, 5.6)]})
     (ax,) = fig.axes
     assert _legend(ax) == ["imm (no particles)", "pf", "la-rbpf", "la-rbpf, published (real data)"]
     assert list(ax.get_xticks()) == [1, 10, 100] and ax.get_xscale() == "log"
@@ -33,7 +34,7 @@ def test_error_against_particles_draws_each_filter_and_the_published_points(tmp_
 
 
 def test_error_against_time_marks_the_sample_time_among_the_times(tmp_path):
-    fig = plots.error_vs_time(bench.summarise(RECORDS), tmp_path / "t.png", sample_time=0.005)
+    fig = figures.error_vs_time(sweep.summarise(RECORDS), tmp_path / "t.png", sample_time=0.005)
     (ax,) = fig.axes
     vertical = [line for line in ax.get_lines() if list(line.get_xdata()) == [5.0, 5.0]]
     assert len(vertical) == 1  # 0.005 s = 5 ms, the real-time limit, between 0.1 and 10 ms a step
@@ -44,7 +45,7 @@ def test_error_against_time_marks_the_sample_time_among_the_times(tmp_path):
 def test_a_sample_time_beyond_every_filter_is_a_note_not_the_axis_range(tmp_path):
     """Filters at 0.1-10 ms a step and a 100 ms sample time: the axis ends near 10 ms (an axis out to
     100 ms squeezed every point into its left part) and the sample time is a note at the edge."""
-    fig = plots.error_vs_time(bench.summarise(RECORDS), tmp_path / "t.png", sample_time=0.1)
+    fig = figures.error_vs_time(sweep.summarise(RECORDS), tmp_path / "t.png", sample_time=0.1)
     (ax,) = fig.axes
     assert ax.get_xlim()[1] < 20
     assert not [line for line in ax.get_lines() if list(line.get_xdata()) == [100.0, 100.0]]
@@ -54,21 +55,21 @@ def test_a_sample_time_beyond_every_filter_is_a_note_not_the_axis_range(tmp_path
 
 
 def test_box_plots_have_one_panel_per_particle_filter(tmp_path):
-    fig = plots.error_boxplots(RECORDS, tmp_path / "b.png")
+    fig = figures.error_boxplots(RECORDS, tmp_path / "b.png")
     assert [ax.get_title() for ax in fig.axes] == ["pf", "la-rbpf"]
     assert [t.get_text() for t in fig.axes[0].get_xticklabels()] == ["1", "10", "100"]
 
 
 def test_box_plots_need_particle_filter_runs(tmp_path):
     with pytest.raises(ValueError, match="no particle-filter runs"):
-        plots.error_boxplots([r for r in RECORDS if r["filter"] == "imm"], tmp_path / "b.png")
+        figures.error_boxplots([r for r in RECORDS if r["filter"] == "imm"], tmp_path / "b.png")
 
 
 def test_the_diagnosis_figure_has_a_row_per_mode_and_a_panel_per_output(tmp_path):
     T = 50
     time = 0.5 * np.arange(1, T + 1)
     names = [f"mode{k}" for k in range(10)]
-    fig = plots.diagnosis_figure(tmp_path / "many.png", names, np.full((T, 10), 0.1), time, np.zeros((T, 3)),
+    fig = run_figure.diagnosis_figure(tmp_path / "many.png", names, np.full((T, 10), 0.1), time, np.zeros((T, 3)),
                                  np.zeros((T, 3)), ["y1", "y2", "y3"], true_modes=np.arange(T) % 10)
     panels = [ax for ax in fig.axes if ax.get_label() != "<colorbar>"]
     assert len(panels) == 2 + 3 + 1  # MAP mode, posterior map, three outputs, residuals
@@ -84,8 +85,8 @@ def test_result_figure_draws_the_filtered_outputs_on_the_model_clock(monkeypatch
     y = np.array([[50.5], [np.nan], [50.4], [50.6]])
     result = jmlgdsl.filter(model, y, algorithm="imm")
     seen = {}
-    monkeypatch.setattr(plots, "diagnosis_figure", lambda path, *args, **kw: seen.update(args=args, kw=kw))
-    plots.result_figure(result, tmp_path / "r.png", true_modes=[0, 0, 0, 0])
+    monkeypatch.setattr(run_figure, "diagnosis_figure", lambda path, *args, **kw: seen.update(args=args, kw=kw))
+    run_figure.result_figure(result, tmp_path / "r.png", true_modes=[0, 0, 0, 0])
     modes, posterior, time, drawn, y_pred, outputs = seen["args"]
     np.testing.assert_allclose(drawn, y)  # NaN where nothing was measured
     np.testing.assert_array_equal(time, [1.0, 2.0, 3.0, 4.0])
@@ -107,7 +108,7 @@ def run_table(tmp_path_factory):
 def test_plot_command_draws_what_the_run_table_holds(run_table, tmp_path, monkeypatch, capsys):
     data, table = run_table
     seen = {}
-    monkeypatch.setattr(plots, "diagnosis_figure", lambda path, *args, **kw: seen.update(args=args, kw=kw))
+    monkeypatch.setattr(run_figure, "diagnosis_figure", lambda path, *args, **kw: seen.update(args=args, kw=kw))
     assert main(["plot", str(table), "--truth", str(data), "-o", str(tmp_path / "f.png")]) == 0
     modes, posterior, time, y, y_pred, outputs = seen["args"]
     assert modes == ["normal", "fan", "grill", "fan_grill"] and outputs == ["temp"]

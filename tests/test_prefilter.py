@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from jmlgdsl.errors import DataError
-from jmlgdsl.prefilter import MovingAverage, moving_average, parse
+from jmlgdsl.diagnosis.prefilter import MovingAverage, moving_average, parse
 
 
 def test_averages_over_the_readings_so_far_then_the_window():

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 from infer_models import dryer
 
-from jmlgdsl import metrics
-from jmlgdsl.alarms import AlarmRule
+from jmlgdsl.diagnosis import metrics
+from jmlgdsl.diagnosis.alarms import AlarmRule
 from jmlgdsl.cli import main
 
 SCHEDULE = "1-60:normal,61-120:fan,121-150:normal,151-200:grill"

@@ -2,7 +2,6 @@
 
 import csv
 import subprocess
-import sys
 import threading
 from pathlib import Path
 

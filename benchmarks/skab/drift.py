@@ -21,10 +21,10 @@ from scipy.linalg import block_diag
 
 import jmlgdsl
 from jmlgdsl import Model
-from jmlgdsl.alarms import AlarmRule
+from jmlgdsl.diagnosis.alarms import AlarmRule
 from jmlgdsl.data import Columns, read_csv
 from jmlgdsl.learn.bank import default_transitions
-from jmlgdsl.metrics import Scores, score
+from jmlgdsl.diagnosis.metrics import Scores, score
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from run import SENSORS, TRAIN, data_folder, files, results_parser  # noqa: E402

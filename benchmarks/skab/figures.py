@@ -16,7 +16,7 @@ import tempfile
 from pathlib import Path
 
 import jmlgdsl
-from jmlgdsl import plots
+from jmlgdsl.diagnosis import figure as run_figure
 from jmlgdsl.data import Columns, read_csv
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -44,7 +44,7 @@ def main(argv=None) -> int:
         Path(spec.name).unlink()
         result = jmlgdsl.filter(model, recording.y)
         path = FIGURES / f"skab-{stem}.png"
-        plots.result_figure(result, path, true_modes=recording.anomaly,
+        run_figure.result_figure(result, path, true_modes=recording.anomaly,
                             title=f"SKAB {folder}/{name}.csv (true mode: the anomaly labels)")
         print(f"wrote {path}")
     return 0

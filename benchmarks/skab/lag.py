@@ -18,9 +18,9 @@ from pathlib import Path
 import numpy as np
 
 import jmlgdsl
-from jmlgdsl.alarms import AlarmRule
+from jmlgdsl.diagnosis.alarms import AlarmRule
 from jmlgdsl.data import Columns, read_csv
-from jmlgdsl.metrics import Scores, score
+from jmlgdsl.diagnosis.metrics import Scores, score
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from run import SENSORS, TRAIN, data_folder, files, results_parser  # noqa: E402

@@ -13,8 +13,8 @@ rule -> the leaderboard's metrics (docs/realdata.md).
    leave-file-out setting also `fault`, learned by `jmlgdsl learn` from the rows labelled
    anomalous in the other files (never the file being scored);
 3. filter: the spec is loaded and filtered over the whole file (rows 0-399 warm the filter up);
-4. alarm: P(not normal) > threshold for `persistence` rows (jmlgdsl.alarms.AlarmRule);
-5. score: rows 400 to the end, pooled over the files as the leaderboard does (jmlgdsl.metrics).
+4. alarm: P(not normal) > threshold for `persistence` rows (jmlgdsl.diagnosis.alarms.AlarmRule);
+5. score: rows 400 to the end, pooled over the files as the leaderboard does (jmlgdsl.diagnosis.metrics).
 
 Hyperparameters: the a priori row uses --scale, --stay, --threshold and --persistence as given
 (defaults fixed before any run: noise sd x3, stay 0.99, threshold 0.5, persistence 1). The
@@ -47,11 +47,11 @@ from pathlib import Path
 import numpy as np
 
 import jmlgdsl
-from jmlgdsl.alarms import AlarmRule
+from jmlgdsl.diagnosis.alarms import AlarmRule
 from jmlgdsl.cli import main as jmlgdsl_main
 from jmlgdsl.data import Columns, read_csv, write_columns
 from jmlgdsl.errors import SpecWarning
-from jmlgdsl.metrics import Scores, changepoints, score
+from jmlgdsl.diagnosis.metrics import Scores, changepoints, score
 
 REPO = Path(__file__).resolve().parents[2]
 FOLDERS = ("valve1", "valve2", "other")

@@ -1,4 +1,4 @@
-"""Check jmlgdsl.metrics against the SKAB leaderboard's own figures with trivial detectors.
+"""Check jmlgdsl.diagnosis.metrics against the SKAB leaderboard's own figures with trivial detectors.
 
 Reads every labelled SKAB file (valve1/, valve2/, other/; rows 400 on are scored), scores the
 all-zero, all-one and perfect-label detectors, and one that alarms on each true change point's row
@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from jmlgdsl.metrics import Scores, score
+from jmlgdsl.diagnosis.metrics import Scores, score
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from run import add_data_option, data_folder, files as skab_files  # noqa: E402

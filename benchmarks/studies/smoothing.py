@@ -26,8 +26,9 @@ from pathlib import Path
 import numpy as np
 
 import jmlgdsl
-from jmlgdsl import plots
-from jmlgdsl.metrics import switch_delays
+from jmlgdsl import drawing
+from jmlgdsl.studies import figures
+from jmlgdsl.diagnosis.metrics import switch_delays
 from jmlgdsl.simulate import simulate
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -83,7 +84,7 @@ def read_table(path):
 def draw(means, runs, path):
     """Error (top) and detection delay (bottom) against the lag, one column per plant. The off-line
     point stands apart: its delay has no lag to count (the whole record is waited for)."""
-    fig = plots.figure(figsize=(13, 6.8), layout="constrained")
+    fig = drawing.figure(figsize=(13, 6.8), layout="constrained")
     axes = fig.subplots(2, len(PLANTS), sharex=True, squeeze=False)
     online = [lag for lag in LAGS if lag is not None]
     positions = np.arange(len(LAGS))
@@ -92,7 +93,7 @@ def draw(means, runs, path):
         bottom.plot(positions[:len(online)], online, color="0.6", ls="--", lw=1, label="the lag alone")
         for algorithm, n in FILTERS:
             label = filter_label(algorithm, n)
-            color, marker = plots.style(algorithm)
+            color, marker = figures.style(algorithm)
             for ax, k in ((top, 0), (bottom, 1)):
                 values = [means[name, label, lag][k] for lag in LAGS]
                 ax.plot(positions[:len(online)], values[:len(online)], color=color, marker=marker or "*", ms=5,
@@ -110,7 +111,7 @@ def draw(means, runs, path):
     handles, labels = axes[1, -1].get_legend_handles_labels()
     fig.legend(handles, labels, loc="outside lower center", ncols=len(handles), fontsize="small")
     fig.suptitle(f"Smoothed MAP mode against the lag: error and detection delay, mean over {runs} runs a plant")
-    plots.save(fig, path)
+    drawing.save(fig, path)
 
 
 def main():

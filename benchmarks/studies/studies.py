@@ -24,7 +24,9 @@ from pathlib import Path
 import numpy as np
 
 import jmlgdsl
-from jmlgdsl import bench, plots
+from jmlgdsl import drawing
+from jmlgdsl.diagnosis import figure as run_figure
+from jmlgdsl.studies import figures, sweep
 from jmlgdsl.simulate import parse_schedule
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -89,11 +91,11 @@ def check_schedule(model, schedule):
                              f"which the transition matrix forbids")
 
 
-def sweep(args, name, model, sources, filters, particles, **options):
+def one_sweep(args, name, model, sources, filters, particles, **options):
     """Run one sweep with the common options, print its progress, return its records."""
     print(f"\n== {name}: {len(filters)} filters, N = {','.join(map(str, particles))}, {args.runs} runs",
           file=sys.stderr)
-    return bench.sweep(model, sources, filters, particles, args.runs, args.seed, workers=args.workers,
+    return sweep.sweep(model, sources, filters, particles, args.runs, args.seed, workers=args.workers,
                        progress=sys.stderr, **options)
 
 
@@ -101,21 +103,21 @@ def publish(name, model, records, reference=None, title=None):
     """Write a study's tables (results/<name>/) and figures (docs/figures/<name>-*.png)."""
     folder = RESULTS / name
     folder.mkdir(parents=True, exist_ok=True)
-    summary = bench.summarise(records)
-    bench.write_records_csv(folder / "runs.csv", records)
-    bench.write_table_csv(folder / "table.csv", summary)
-    (folder / "table.md").write_text(bench.report(summary))
-    plots.study_figures(FIGURES, name, title or model.name, model.dt, summary, records, reference)
-    print(bench.markdown_table(summary))
+    summary = sweep.summarise(records)
+    sweep.write_records_csv(folder / "runs.csv", records)
+    sweep.write_table_csv(folder / "table.csv", summary)
+    (folder / "table.md").write_text(sweep.report(summary))
+    figures.study_figures(FIGURES, name, title or model.name, model.dt, summary, records, reference)
+    print(sweep.markdown_table(summary))
 
 
 def diagnosis_example(name, model, schedule, algorithm, particles, seed, plant=None, prefilter=None, run=0,
                       figure="diagnosis"):
     """The mode-posterior figure of one run (the sweep's run `run`): docs/figures/<name>-<figure>.png."""
-    source = bench.Simulated(None, schedule, name, plant)
-    jobs = bench.make_jobs(model, [source], (algorithm,), (particles,), runs=run + 1, seed=seed, prefilter=prefilter)
-    data, result = bench.filter_job(next(job for job in jobs if job.run == run))
-    plots.result_figure(result, FIGURES / f"{name}-{figure}.png", true_modes=data.modes)
+    source = sweep.Simulated(None, schedule, name, plant)
+    jobs = sweep.make_jobs(model, [source], (algorithm,), (particles,), runs=run + 1, seed=seed, prefilter=prefilter)
+    data, result = sweep.filter_job(next(job for job in jobs if job.run == run))
+    run_figure.result_figure(result, FIGURES / f"{name}-{figure}.png", true_modes=data.modes)
 
 
 def worst_example(name, model, schedule, records, algorithm, particles, seed):
@@ -132,7 +134,7 @@ def linear_study(args, name, spec, schedule, reference=None, model=None, title=N
     `worst` also draws the example filter's worst run."""
     model = model or jmlgdsl.load(SPECS / spec)
     check_schedule(model, schedule)
-    records = sweep(args, name, model, [bench.Simulated(None, schedule, name)], args.filters, args.particles)
+    records = one_sweep(args, name, model, [sweep.Simulated(None, schedule, name)], args.filters, args.particles)
     publish(name, model, records, reference, title)
     diagnosis_example(name, model, schedule, *example, args.seed)
     if worst and example[0] in args.filters and example[1] in args.particles:
@@ -148,9 +150,9 @@ def dryer(args, seq):
 def cstr(args, name):
     """The CSTR filtered with its linearised modes on data from its nonlinear equations."""
     spec = str(SPECS / f"{name}.jmlg")
-    model = bench.nonlinear_plant(spec).model
-    source = bench.Simulated(None, SCHEDULES[name], name, plant=spec)
-    records = sweep(args, name, model, [source], args.filters, args.particles)
+    model = sweep.nonlinear_plant(spec).model
+    source = sweep.Simulated(None, SCHEDULES[name], name, plant=spec)
+    records = one_sweep(args, name, model, [source], args.filters, args.particles)
     publish(name, model, records, title=f"{name.upper()} ({model.K} modes, nonlinear data)")
     diagnosis_example(name, model, SCHEDULES[name], "la-rbpf", 10, args.seed, plant=spec)
 
@@ -184,12 +186,12 @@ def robustness(args, name, spec, schedule, filters, rows=None):
     particles = tuple(n for n in args.particles if n <= 200)
     records = []
     for percent in VARIATIONS:
-        source = bench.Simulated(None, schedule, f"{percent}%", plant=true)
-        records += sweep(args, f"{name} {percent} %", perturbed(true, percent, rows), [source], filters, particles)
+        source = sweep.Simulated(None, schedule, f"{percent}%", plant=true)
+        records += one_sweep(args, f"{name} {percent} %", perturbed(true, percent, rows), [source], filters, particles)
     folder = RESULTS / name
     folder.mkdir(parents=True, exist_ok=True)
-    bench.write_records_csv(folder / "runs.csv", records)
-    summary = bench.summarise(records)
+    sweep.write_records_csv(folder / "runs.csv", records)
+    summary = sweep.summarise(records)
     text = "\n\n".join(variation_table(summary, f) for f in filters) + "\n"
     (folder / "table.md").write_text(text)
     print(text)
@@ -209,7 +211,7 @@ def variation_table(summary, name):
 
 def variation_figure(summary, filters, path, title):
     """Error against the perturbation, one line per particle count, one panel per filter."""
-    fig = plots.figure(figsize=(4.2 * len(filters) + 2, 4.2))
+    fig = drawing.figure(figsize=(4.2 * len(filters) + 2, 4.2))
     axes = fig.subplots(1, len(filters), sharey=True, squeeze=False)
     for ax, name in zip(axes[0], filters):
         rows = [r for r in summary if r["filter"] == name]
@@ -224,7 +226,7 @@ def variation_figure(summary, filters, path, title):
     axes[0, -1].legend(fontsize="small", loc="upper left", bbox_to_anchor=(1.02, 1), title="particles")
     fig.suptitle(title)
     fig.tight_layout()
-    plots.save(fig, path)
+    drawing.save(fig, path)
 
 
 def prefilter(args, name, model_level, data_level=None):
@@ -239,8 +241,8 @@ def prefilter(args, name, model_level, data_level=None):
     particles = tuple(n for n in args.particles if n <= 400)
     for window in (None, 3, 5):
         label = "raw" if window is None else f"ma{window}"
-        source = bench.Simulated(None, schedule, label, plant)
-        records = sweep(args, f"{name} {label}", model, [source], filters, particles, prefilter=window)
+        source = sweep.Simulated(None, schedule, label, plant)
+        records = one_sweep(args, f"{name} {label}", model, [source], filters, particles, prefilter=window)
         publish(f"{name}-{label}", model, records,
                 title=f"Robot, 8 modes, {noise}, {'raw' if window is None else f'moving average of {window}'}")
     diagnosis_example(f"{name}-ma5", model, schedule, "la-rbpf", 10, args.seed, plant=plant, prefilter=5)
@@ -287,8 +289,8 @@ def main(argv=None):
     parser.add_argument("--runs", type=int, default=25)
     parser.add_argument("--seed", type=int, default=2001)
     parser.add_argument("--workers", type=int, help="processes (default: every core)")
-    parser.add_argument("--filters", default=",".join(bench.DEFAULT_FILTERS))
-    parser.add_argument("--particles", default=",".join(map(str, bench.DEFAULT_PARTICLES)))
+    parser.add_argument("--filters", default=",".join(sweep.DEFAULT_FILTERS))
+    parser.add_argument("--particles", default=",".join(map(str, sweep.DEFAULT_PARTICLES)))
     parser.add_argument("--out", type=Path, help="write to OUT/figures and OUT/results instead (to compare first)")
     args = parser.parse_args(argv)
     if args.out:

@@ -21,7 +21,7 @@ def register(sub):
 
 def summary(model) -> str:
     """A few lines describing a compiled model."""
-    from ..diagnosis.report import plural
+    from ..names import plural
 
     modes = ", ".join(model.modes)
     return (f"plant {model.name}: {plural(model.K, 'mode')} ({modes})\n"
@@ -38,7 +38,7 @@ def _seconds(dt: float) -> str:
 
 def run(args) -> int:
     from .. import load
-    from ..diagnosis.report import plural
+    from ..names import plural
 
     status = 0
     for path in args.specs:

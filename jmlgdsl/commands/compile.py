@@ -20,7 +20,7 @@ def run(args) -> int:
     import numpy as np
 
     from .. import load
-    from ..diagnosis.report import plural
+    from ..names import plural
     from ..output import MODEL, check_file, replacing
 
     check_file(args.output, inputs=[args.spec], suffixes=MODEL)

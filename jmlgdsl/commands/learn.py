@@ -146,7 +146,7 @@ def healthy_prior(K: int, p: float) -> np.ndarray:
 
 def header(args, paths, learned) -> str:
     """The comment block at the top of the written spec: where it came from and how well it fits."""
-    from ..diagnosis.report import plural
+    from ..names import plural
     from ..learn import validate
 
     how = ("FOPDT fits of step tests" if args.fopdt else

@@ -75,7 +75,7 @@ def main(args) -> int:
 
     from ..monitor import Monitor, Store, monitor_options, read_tags
     from ..monitor.sources import credentials, open_bus
-    from ..prefilter import parse
+    from ..diagnosis.prefilter import parse
 
     model = jmlgdsl.load(args.spec)
     tags = read_tags(args.tags, model)

@@ -22,7 +22,7 @@ def true_modes(path, modes, steps):
     import numpy as np
 
     from ..data import Columns, read_csv
-    from ..diagnosis.report import plural
+    from ..names import plural
     from ..errors import DataError
 
     data = read_csv(path, Columns(modes=tuple(modes)), outputs=False)
@@ -42,7 +42,7 @@ def main(args) -> int:
     from ..errors import DataError
     from ..infer.table import read_table
     from ..output import FIGURE, check_file, replacing
-    from ..plots import diagnosis_figure
+    from ..diagnosis.figure import diagnosis_figure
 
     check_file(args.output, inputs=[args.result, args.truth], suffixes=FIGURE)
     try:

@@ -67,15 +67,14 @@ def main(args) -> int:
 
     import jmlgdsl
 
-    from ..alarms import AlarmRule
-    from ..bench import particle_bytes
+    from ..diagnosis.alarms import AlarmRule
     from ..data import iter_rows, open_source, open_target
     from ..diagnosis import Diagnosis, Kept, TableSink
     from ..errors import DataError, JmlgError
-    from ..infer import ALGORITHMS
+    from ..infer import ALGORITHMS, particle_bytes
     from ..output import FIGURE, check_count, check_file, replacing
-    from ..plots import result_figure
-    from ..prefilter import parse
+    from ..diagnosis.figure import result_figure
+    from ..diagnosis.prefilter import parse
     from ..progress import Progress
 
     streaming = args.data == "-"

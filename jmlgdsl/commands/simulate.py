@@ -22,12 +22,6 @@ def register(subparsers):
     p.set_defaults(func=main)
 
 
-def step_bytes(model) -> int:
-    """Memory one simulated step takes: states, outputs, inputs, both noises, the mode, the time, and
-    the table built from them (an estimate, to refuse a run that cannot fit before it starts)."""
-    return 16 * (model.nx + model.ny + model.nu + model.B.shape[2] + model.D.shape[2] + 3)
-
-
 def requested_steps(args, rows) -> int | None:
     """The steps a command line asks for: --steps, else the end of --modes (read from its numbers,
     before a schedule is spelled out step by step), else the rows of --inputs."""
@@ -47,7 +41,7 @@ def inputs(args, model):
     from pathlib import Path
 
     from ..data import DataWarning, read_csv
-    from ..diagnosis.report import plural
+    from ..names import plural
     from ..errors import DataError
 
     if args.inputs is None:
@@ -72,7 +66,7 @@ def main(args) -> int:
 
     from ..data import write_columns
     from ..output import check_count, check_file
-    from ..simulate import simulate
+    from ..simulate import simulate, step_bytes
 
     check_file(args.output, inputs=[args.spec, args.inputs])
     if args.nonlinear:

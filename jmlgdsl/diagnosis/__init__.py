@@ -23,9 +23,10 @@ monitor is the same pipeline fed from a data bus, checkpointing beside the rows 
     (1000, 1.0)
 """
 
+from .alarms import AlarmRule
 from .pipeline import CheckpointError, Diagnosed, Diagnosis, diagnose, fingerprint
 from .sinks import Kept, TableSink
 from .truth import Truth, detection_scores
 
-__all__ = ["Diagnosis", "Diagnosed", "diagnose", "CheckpointError", "fingerprint", "Kept", "TableSink", "Truth",
+__all__ = ["AlarmRule", "Diagnosis", "Diagnosed", "diagnose", "CheckpointError", "fingerprint", "Kept", "TableSink", "Truth",
            "detection_scores"]

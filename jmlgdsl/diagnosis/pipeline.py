@@ -17,13 +17,13 @@ import pickle
 from collections import deque
 from dataclasses import dataclass
 
-from ..alarms import AlarmRule
+from .alarms import AlarmRule
 from ..data import Row
 from ..errors import JmlgError
 from ..infer import DEFAULT_ALGORITHM, Filter
 from ..infer.result import Step, Summary
 from ..model import Model
-from ..prefilter import MovingAverage
+from .prefilter import MovingAverage
 from ..version import VERSION
 from .scale import ScaleCheck
 from .truth import Truth

@@ -3,24 +3,20 @@ where the data carry the true mode, the alarms and how well they detect, fit and
 
 from __future__ import annotations
 
-from ..metrics import runs
-
-
-def plural(count: int, noun: str) -> str:
-    """'1 step', '2 steps'."""
-    return f"{count} {noun}{'' if count == 1 else 's'}"
+from ..names import plural
+from .metrics import runs
 
 
 def smoothing(lag) -> str:
     """How the reported posteriors were conditioned, for the report's first line."""
-    return "" if lag == 0 else ", smoothed off-line" if lag is None else f", smoothed with a lag of {lag} steps"
+    return "" if lag == 0 else ", smoothed off-line" if lag is None else f", smoothed with a lag of {plural(lag, 'step')}"
 
 
 def report(diagnosis) -> str:
     """The whole report of a finished (or running) Diagnosis."""
     f, summary, model = diagnosis.filter, diagnosis.summary, diagnosis.model
     who = f"{f.algorithm}" + (f" with {f.particles} particles" if f.particles else "")
-    lines = [f"{model.name}: {summary.T} steps, filter {who}" + smoothing(f.lag),
+    lines = [f"{model.name}: {plural(summary.T, 'step')}, filter {who}" + smoothing(f.lag),
              "mode segments (most probable mode):"]
     for a, b, k, total in summary.segments:
         span = f"{a}" if a == b else f"{a}\u2013{b}"
@@ -28,7 +24,7 @@ def report(diagnosis) -> str:
     if summary.more_segments:
         lines.append(f"  \u2026 {summary.more_segments} more segments (see the output CSV)")
     if summary.labelled:
-        lines.append(f"diagnosis error: {summary.diagnosis_error:.2f} % ({summary.wrong} of {summary.labelled} steps)")
+        lines.append(f"diagnosis error: {summary.diagnosis_error:.2f} % ({summary.wrong} of {plural(summary.labelled, 'step')})")
         lines += confusion_report(model.modes, summary.confusion)
     lines += alarm_report(diagnosis)
     lines.append(f"log-likelihood: {summary.loglik:.2f}")
@@ -52,7 +48,7 @@ def alarm_report(diagnosis) -> list[str]:
     lines = [f"alarms (healthy: {', '.join(rule.healthy)}; P(not healthy) > {rule.threshold:g} for "
              f"{plural(rule.persistence, 'step')}): {len(raised)} raised"]
     if lag:
-        lines[0] += f"; each is known {lag} steps after its row, later than the delays below"
+        lines[0] += f"; each is known {plural(lag, 'step')} after its row, later than the delays below"
     scores = truth.scores()
     if scores is None:
         return lines

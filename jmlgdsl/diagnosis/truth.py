@@ -7,7 +7,7 @@ from array import array
 
 import numpy as np
 
-from ..metrics import Scores, changepoints, score
+from .metrics import Scores, changepoints, score
 
 
 def detection_scores(alarm, anomaly, time, changepoint=None) -> Scores:

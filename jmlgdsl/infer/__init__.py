@@ -2,8 +2,9 @@
 deterministic baselines (imm, exact) over one batched Kalman kernel."""
 
 from .engine import FilterError
-from .algorithms import ALGORITHMS, DEFAULT_ALGORITHM
+from .algorithms import ALGORITHMS, DEFAULT_ALGORITHM, particle_bytes
 from .online import Filter, filter, smooth
 from .result import Result, Step
 
-__all__ = ["filter", "smooth", "Filter", "Result", "Step", "FilterError", "ALGORITHMS", "DEFAULT_ALGORITHM"]
+__all__ = ["filter", "smooth", "Filter", "Result", "Step", "FilterError", "ALGORITHMS", "DEFAULT_ALGORITHM",
+           "particle_bytes"]

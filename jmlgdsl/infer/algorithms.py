@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from ..model import Model
 from .engine import Engine, Resampler
 from .imm import IMM
 from .pf import BootstrapPF
@@ -41,3 +42,10 @@ ALGORITHMS = {a.name: a for a in (
 )}
 # The lowest error per unit of time on every published plant (docs/filters.md).
 DEFAULT_ALGORITHM = "imm"
+
+
+def particle_bytes(model: Model) -> int:
+    """Memory one particle takes in the largest filter (a Rao-Blackwellised particle keeps a Kalman
+    mean and covariance, and its predictions for every mode, with a copy made by resampling)."""
+    nx, ny = model.nx, model.ny
+    return 16 * model.K * (nx + nx * nx + ny + ny * ny + nx * ny + 2)

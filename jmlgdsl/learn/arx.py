@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.linalg import qr, solve_triangular
 
-from ..diagnosis.report import plural
+from ..names import plural
 from ..errors import DataError
 from .em import segments
 from .lagged import LaggedMode, Lags, lag_inputs

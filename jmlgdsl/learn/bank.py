@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.linalg import LinAlgWarning, solve_discrete_lyapunov
 
-from ..diagnosis.report import plural
+from ..names import plural
 from ..errors import DataError
 from ..lang.probabilities import otherwise_uniform
 from ..model import Model

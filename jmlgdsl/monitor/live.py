@@ -14,7 +14,7 @@ import queue
 import threading
 import time as clock
 
-from ..alarms import AlarmRule
+from ..diagnosis.alarms import AlarmRule
 from ..diagnosis import Diagnosis, fingerprint
 from ..infer import DEFAULT_ALGORITHM
 from ..errors import JmlgError

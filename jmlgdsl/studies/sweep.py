@@ -17,15 +17,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .alarms import AlarmRule
-from .errors import DataError
-from .infer import ALGORITHMS, filter as run_filter, smooth
-from .metrics import changepoints, score, switch_delays
-from .model import Model
-from .output import check_count
-from .prefilter import moving_average
-from .progress import Progress
-from .simulate import simulate
+from ..diagnosis.alarms import AlarmRule
+from ..errors import DataError
+from ..infer import ALGORITHMS, filter as run_filter, particle_bytes, smooth
+from ..diagnosis.metrics import switch_delays
+from ..diagnosis.truth import detection_scores
+from ..model import Model
+from ..output import check_count
+from ..diagnosis.prefilter import moving_average
+from ..progress import Progress
+from ..simulate import simulate
 
 DEFAULT_PARTICLES = (1, 4, 10, 25, 50, 100, 200, 400, 800, 1600)
 DEFAULT_FILTERS = ("pf", "rbpf", "la-rbpf", "fc-rbpf", "imm")
@@ -34,13 +35,6 @@ RECORD_FIELDS = ("data", "filter", "particles", "lag", "run", "error", "delay", 
                  "ms_per_step", "loglik")
 MEASURES = RECORD_FIELDS[5:]  # what a run measures, averaged over runs in the tables
 JOB_BYTES = 4096  # a job, its seeds and its record, to refuse a sweep too large to list
-
-
-def particle_bytes(model: Model) -> int:
-    """Memory one particle takes in the largest filter (a Rao-Blackwellised particle keeps a Kalman
-    mean and covariance, and its predictions for every mode, with a copy made by resampling)."""
-    nx, ny = model.nx, model.ny
-    return 16 * model.K * (nx + nx * nx + ny + ny * ny + nx * ny + 2)
 
 
 @dataclass(frozen=True)
@@ -97,7 +91,7 @@ def _simulated(source, plant, entropy, spawn_key) -> Sequence:
     """One run's simulated sequence, kept while a worker's consecutive jobs filter the same run."""
     seed = np.random.SeedSequence(entropy, spawn_key=spawn_key)
     if isinstance(plant, str):
-        from .nonlinear import simulate_nonlinear
+        from ..nonlinear import simulate_nonlinear
 
         sim = simulate_nonlinear(nonlinear_plant(plant), source.steps, seed=seed, modes=source.schedule)
     else:
@@ -108,7 +102,7 @@ def _simulated(source, plant, entropy, spawn_key) -> Sequence:
 @functools.lru_cache(maxsize=4)
 def nonlinear_plant(path):
     """An ODE plant, compiled once per process."""
-    from .nonlinear import load_nonlinear
+    from ..nonlinear import load_nonlinear
 
     return load_nonlinear(path)
 
@@ -144,7 +138,7 @@ def alarm_scores(model: Model, posterior, true_modes, lag) -> dict:
     alarm, truth = rule.alarms(posterior, model.modes), rule.truth(true_modes, model.modes)
     if lag:
         alarm = np.concatenate([np.zeros(lag, dtype=alarm.dtype), alarm])[:len(alarm)]
-    summary = score(alarm, truth, model.dt, changepoints(truth)).summary()
+    summary = detection_scores(alarm, truth, model.dt).summary()
     return {"f1": summary["f1"], "far": summary["far"], "mar": summary["mar"], "nab": summary["nab_standard"]}
 
 

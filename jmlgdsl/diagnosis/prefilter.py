@@ -12,7 +12,7 @@ from collections import deque
 
 import numpy as np
 
-from .errors import DataError
+from ..errors import DataError
 
 _MA = re.compile(r"^\s*ma\s*:\s*(\d+)\s*$")
 MAX_WINDOW = 10_000  # readings; each row averages over the whole window

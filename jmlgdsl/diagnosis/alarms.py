@@ -11,8 +11,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import DataError
-from .names import suggest
+from ..errors import DataError
+from ..names import suggest
 
 
 @dataclass(frozen=True)

@@ -13,7 +13,7 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-from .errors import DataError
+from ..errors import DataError
 
 WINDOW = 60.0  # seconds: the NAB window to the right of each true change point (SKAB leaderboard)
 
