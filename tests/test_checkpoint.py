@@ -128,3 +128,26 @@ def test_a_checkpoint_leaves_the_model_out():
     assert b"jmlgdsl.model" in pickle.dumps(model)
     assert b"jmlgdsl.model" not in d.checkpoint()  # no Model in it: the model is given back, not saved
     assert pipeline.fingerprint(model) == pipeline.fingerprint(jmlgdsl.load(SPEC))
+
+
+def test_an_unscored_diagnosis_keeps_a_state_of_constant_size():
+    model = jmlgdsl.load(SPEC)
+    data = rows(1000)
+    scored, unscored = diagnosis(model, "imm", 0, []), Diagnosis(model, algorithm="imm", seed=7, prefilter=2,
+                                                                   rule=scored_rule(), scored=False)
+    sizes = []
+    for i, row in enumerate(data):
+        scored.feed(row)
+        unscored.feed(row)
+        if i in (99, 999):
+            sizes.append((len(scored.checkpoint()), len(unscored.checkpoint())))
+    (scored_100, unscored_100), (scored_1000, unscored_1000) = sizes
+    assert scored_1000 - scored_100 > 8 * 900  # the alarm, truth and time of every row
+    assert unscored_1000 - unscored_100 < pipeline.MAX_SEGMENTS * 64  # only the summary's few segments
+    assert unscored.alarms.raised == scored.alarms.raised > 0
+    assert unscored.report().splitlines()[:-1] == [line for line in scored.report().splitlines()[:-1]
+                                                   if not line.startswith(("detection:", "rows:", "NAB"))]
+
+
+def scored_rule():
+    return AlarmRule(("normal",), threshold=0.6, persistence=2)

@@ -72,11 +72,13 @@ class AlarmStream:
         self.rule = rule
         self.faulty = faulty
         self.run = 0  # consecutive steps so far with P(not healthy) above the threshold
+        self.raised = 0  # alarms raised so far
 
     def step(self, posterior_row) -> int:
         """The alarm (0/1) for the newest step, given its (K,) mode posterior."""
         above = _fault_probability(posterior_row, self.faulty) > self.rule.threshold
         self.run = self.run + 1 if above else 0
+        self.raised += self.run == self.rule.persistence
         return int(self.run >= self.rule.persistence)
 
 

@@ -51,19 +51,21 @@ class Diagnosis:
 
     The options are the Filter's (algorithm, particles, seed, resampling, ess_threshold, lag), the
     causal moving-average window `prefilter` (None: off) and the alarm `rule` (None: the first mode
-    is healthy, threshold 0.5, persistence 1). Sinks see every finished row, in order.
+    is healthy, threshold 0.5, persistence 1). Sinks see every finished row, in order. `scored`
+    keeps every row's alarm and truth for the detection scores (a few bytes a row); a diagnosis
+    that runs for ever on data without truth (a live plant) leaves it off, so its state stays small.
     """
 
     def __init__(self, model: Model, *, algorithm: str = DEFAULT_ALGORITHM, particles: int | None = None,
                  seed=None, resampling: str = "systematic", ess_threshold: float = 1.0, lag: int | None = 0,
-                 prefilter: int | None = None, rule: AlarmRule | None = None, sinks=()):
+                 prefilter: int | None = None, rule: AlarmRule | None = None, scored: bool = True, sinks=()):
         self.model = model
         self.filter = Filter(model, algorithm, particles, seed, resampling, ess_threshold, lag)
         self.prefilter = None if prefilter is None else MovingAverage(prefilter)
         self.rule = AlarmRule((model.modes[0],)) if rule is None else rule
         self.alarms = self.rule.stream(model.modes)  # an unknown healthy mode is an error before any data
         self.summary = Summary(max_segments=MAX_SEGMENTS)
-        self.truth = Truth(self.alarms.faulty, model.dt)
+        self.truth = Truth(self.alarms.faulty, model.dt) if scored else None
         self.scale = ScaleCheck(model)
         self.sinks = list(sinks)
         self._held = deque()  # data rows whose records the filter still holds back (with a lag)
@@ -91,7 +93,8 @@ class Diagnosis:
         row = self._held.popleft()
         alarm = self.alarms.step(step.mode_posterior)
         self.summary.add(step, row.mode)
-        self.truth.add(row, alarm, step.t)
+        if self.truth is not None:
+            self.truth.add(row, alarm, step.t)
         self.scale.add(step)
         done = Diagnosed(step, row, alarm)
         for sink in self.sinks:

@@ -4,7 +4,6 @@ where the data carry the true mode, the alarms and how well they detect, fit and
 from __future__ import annotations
 
 from ..names import plural
-from .metrics import runs
 
 
 def smoothing(lag) -> str:
@@ -44,12 +43,11 @@ def confusion_report(modes, confusion) -> list[str]:
 def alarm_report(diagnosis) -> list[str]:
     """Lines on the alarms raised and, against the truth in the data, how well they detect."""
     rule, truth, lag = diagnosis.rule, diagnosis.truth, diagnosis.filter.lag
-    raised = runs(truth.alarms())
     lines = [f"alarms (healthy: {', '.join(rule.healthy)}; P(not healthy) > {rule.threshold:g} for "
-             f"{plural(rule.persistence, 'step')}): {len(raised)} raised"]
+             f"{plural(rule.persistence, 'step')}): {diagnosis.alarms.raised} raised"]
     if lag:
         lines[0] += f"; each is known {plural(lag, 'step')} after its row, later than the delays below"
-    scores = truth.scores()
+    scores = None if truth is None else truth.scores()
     if scores is None:
         return lines
     o, e, nab = scores.outlier, scores.events, scores.nab

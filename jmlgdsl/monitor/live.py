@@ -51,14 +51,6 @@ def monitor_options(*, algorithm: str = DEFAULT_ALGORITHM, particles: int | None
     return dict(locals())
 
 
-class _Unscored:
-    """Truth scoring, off: a live plant carries no true mode, and a record of every row's alarm would
-    make each checkpoint grow with the run."""
-
-    def add(self, row, alarm, t):
-        pass
-
-
 class Monitor:
     """Diagnose what a source delivers, into a store. `options` are the Diagnosis's (algorithm,
     particles, seed, resampling, ess_threshold, lag, prefilter), the alarm rule's (healthy, threshold,
@@ -77,8 +69,8 @@ class Monitor:
             options = self.options
             rule = AlarmRule(tuple(options["healthy"]), options["threshold"], options["persistence"])
             keys = ("algorithm", "particles", "seed", "resampling", "ess_threshold", "lag", "prefilter")
-            self.diagnosis = Diagnosis(model, rule=rule, sinks=[self], **{k: options[k] for k in keys})
-            self.diagnosis.truth = _Unscored()
+            self.diagnosis = Diagnosis(model, rule=rule, scored=False, sinks=[self],
+                                       **{k: options[k] for k in keys})
             self.assembler = None if source.rows else Assembler(model, tags, options["grace"], options["stale"],
                                                                 options["max_gap"])
             self.rows, self.position = 0, None
