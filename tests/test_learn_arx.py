@@ -25,14 +25,14 @@ def arx_data(T=800, noise=0.0, seed=0):
 
 def test_noise_free_coefficients_are_exact():
     y, u = arx_data()
-    fit = arx.fit(y, u, 2, 2, 1)
+    fit = arx.fit_arx(y, u, 2, 2, 1)
     assert np.allclose(fit.theta[:, 0], np.r_[PHI_TRUE, PSI_TRUE, C_TRUE], atol=1e-10)
     assert fit.order == (2, 2, 1)
 
 
 def test_covariance_is_sigma2_times_inverse_gram_and_errors_are_within_it():
     y, u = arx_data(noise=0.1, seed=1)
-    fit = arx.fit(y, u, 2, 2, 1)
+    fit = arx.fit_arx(y, u, 2, 2, 1)
     rows = np.arange(2, len(y))
     X = np.column_stack([y[rows - 1], y[rows - 2], u[rows - 1, 0], u[rows - 2, 0], np.ones(len(rows))])
     assert np.allclose(fit.cov, fit.noise[0, 0] * np.linalg.inv(X.T @ X), rtol=1e-8)
@@ -55,7 +55,7 @@ def test_several_outputs_share_one_factor_and_fit_a_var():
     y = np.zeros((T, 2))
     for t in range(1, T):
         y[t] = Phi @ y[t - 1] + Psi @ u[t] + c + L @ rng.standard_normal(2)
-    fit = arx.fit(y, u, 1, 1, 0)
+    fit = arx.fit_arx(y, u, 1, 1, 0)
     truth = np.vstack([Phi.T, Psi.T, c])
     z = (fit.theta.T.ravel() - truth.T.ravel()) / np.sqrt(np.diag(fit.cov))
     assert np.abs(z).max() < 4
@@ -77,7 +77,7 @@ def test_lagged_form_has_the_arx_impulse_response():
     """In the lagged basis of order max(na, nk + nb) = 3 the state holds 3 output lags and 2 input
     lags, and the noise-free realisation has the difference equation's impulse response."""
     y, u = arx_data(noise=0.05, seed=4)
-    fit = arx.fit(y, u, 2, 2, 1)
+    fit = arx.fit_arx(y, u, 2, 2, 1)
     mode = fit.lagged()
     assert mode.n == 3 and np.array_equal(mode.Psi[0, :1], [0.0])
     ss = replace(mode, c=np.zeros(1), mu0=np.zeros(3), Sigma0=np.zeros((3, 3))).statespace([0.0])
@@ -97,11 +97,11 @@ def test_lagged_form_has_the_arx_impulse_response():
 def test_equations_with_missing_values_are_left_out():
     y, u = arx_data()
     y[[10, 300]] = np.nan  # each missing output spoils the three equations it appears in
-    fit = arx.fit(y, u, 2, 2, 1)
+    fit = arx.fit_arx(y, u, 2, 2, 1)
     assert fit.n == len(y) - 2 - 6
     assert np.allclose(fit.theta[:, 0], np.r_[PHI_TRUE, PSI_TRUE, C_TRUE], atol=1e-10)
 
 
 def test_too_little_data_is_a_data_error():
     with pytest.raises(DataError, match="only 3 complete equations"):
-        arx.fit(np.arange(6.0), np.ones((6, 1)), 3, 3, 0)
+        arx.fit_arx(np.arange(6.0), np.ones((6, 1)), 3, 3, 0)

@@ -5,7 +5,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from jmlgdsl.learn import arx, lagged
+from jmlgdsl.learn import arx, basis
 from jmlgdsl.learn.em import forward
 
 
@@ -13,7 +13,7 @@ def two_output_mode():
     """Order 2, two outputs, one input, with the input acting from lag 0 and lag 1."""
     Phi = np.array([[0.9, 0.1, -0.2, 0.0], [0.05, 0.6, 0.0, 0.1]])
     Psi = np.array([[0.5, 0.2], [0.0, -0.3]])
-    return lagged.LaggedMode(lagged.Lags(2, 2, 0), Phi, Psi, np.array([1.0, -2.0]),
+    return basis.LaggedMode(basis.Lags(2, 2, 0), Phi, Psi, np.array([1.0, -2.0]),
                              np.array([[0.04, 0.01], [0.01, 0.02]]), np.array([[0.01, 0.0], [0.0, 0.03]]),
                              np.array([3.0, -4.0, 2.5, -3.5]), 0.1 * np.eye(4))
 
@@ -36,7 +36,7 @@ def test_the_realisation_and_the_reduced_model_have_the_same_likelihood():
     mode = two_output_mode()
     y, u = data(mode)
     full = forward(mode.statespace(u[0]), y, u).loglik
-    reduced = forward(mode.reduced(), y, lagged.lag_inputs(u, mode.n)).loglik
+    reduced = forward(mode.reduced(), y, basis.lag_inputs(u, mode.n)).loglik
     assert full == pytest.approx(reduced, rel=1e-12)
     assert mode.statespace(u[0]).nx == 2 * 2 + 1
 
@@ -53,11 +53,11 @@ def test_a_larger_basis_pads_with_zeros_and_keeps_the_response():
 def test_a_change_of_units_is_exact_both_ways():
     mode = two_output_mode()
     dy, my, du, mu = np.array([1e3, 1e-2]), np.array([5.0, -7.0]), np.array([4.0]), np.array([15.0])
-    scaled = lagged.transformed(mode, dy, my, du, mu)
+    scaled = basis.transformed(mode, dy, my, du, mu)
     _, u = data(mode, T=80)
     y_scaled = scaled.statespace(du * u[0] + mu).free_run(du * u + mu)
     assert np.allclose(y_scaled, dy * mode.statespace(u[0]).free_run(u) + my, rtol=1e-12, atol=1e-9)
-    back = lagged.transformed(scaled, 1 / dy, -my / dy, 1 / du, -mu / du)
+    back = basis.transformed(scaled, 1 / dy, -my / dy, 1 / du, -mu / du)
     for name in ("Phi", "Psi", "c", "Q", "R", "mu0", "Sigma0"):
         assert np.allclose(getattr(back, name), getattr(mode, name), rtol=1e-12, atol=1e-12), name
 
@@ -67,11 +67,11 @@ def test_em_fits_sensors_in_any_units_alike():
     those units, and the log-likelihood moves by exactly the Jacobian."""
     mode = two_output_mode()
     y, u = data(mode, seed=3)
-    start = arx.fit(y, u, 2, 2, 0).lagged()
-    fitted, result = lagged.fit(start, y, u, max_iter=15, tol=0.0)
+    start = arx.fit_arx(y, u, 2, 2, 0).lagged()
+    fitted, result = basis.fit_em(start, y, u, max_iter=15, tol=0.0)
     dy, my = np.array([1e3, 1e-3]), np.array([5.0, 0.0])
-    fitted2, result2 = lagged.fit(lagged.transformed(start, dy, my, [1.0], [0.0]), dy * y + my, u, max_iter=15, tol=0.0)
-    back = lagged.transformed(fitted2, 1 / dy, -my / dy, [1.0], [0.0])
+    fitted2, result2 = basis.fit_em(basis.transformed(start, dy, my, [1.0], [0.0]), dy * y + my, u, max_iter=15, tol=0.0)
+    back = basis.transformed(fitted2, 1 / dy, -my / dy, [1.0], [0.0])
     assert np.allclose(back.Phi, fitted.Phi, atol=1e-8) and np.allclose(back.Q, fitted.Q, rtol=1e-6)
     assert result2.loglik[-1] == pytest.approx(result.loglik[-1] - len(y) * np.log(dy).sum(), rel=1e-9)
     assert np.all(np.diff(result.loglik) >= -1e-9 * np.abs(result.loglik[:-1]))
@@ -81,10 +81,10 @@ def test_em_keeps_the_structure_and_finds_at_least_the_truths_likelihood():
     """Coefficients the structure leaves out stay zero; the maximum-likelihood fit is at least as
     likely as the true mode (a point of the same structure), and the steady-state gains, which the
     PRBS pins down, land near the truth."""
-    mode = replace(two_output_mode(), lags=lagged.Lags(2, 1, 0))
+    mode = replace(two_output_mode(), lags=basis.Lags(2, 1, 0))
     mode = replace(mode, Psi=mode.Psi * [1.0, 0.0])
     y, u = data(mode, T=2000, seed=4)
-    fitted, result = lagged.fit(arx.fit(y, u, 2, 1, 0).lagged(), y, u)
+    fitted, result = basis.fit_em(arx.fit_arx(y, u, 2, 1, 0).lagged(), y, u)
     assert np.array_equal(fitted.Psi[:, 1], [0.0, 0.0])
     assert result.converged
     truth = forward(mode.statespace(u[0]), y, u).loglik
@@ -93,6 +93,6 @@ def test_em_keeps_the_structure_and_finds_at_least_the_truths_likelihood():
 
 
 def test_state_names_say_which_lag():
-    assert lagged.state_names(("temp", "flow"), ("current",), 2) == (
+    assert basis.state_names(("temp", "flow"), ("current",), 2) == (
         "temp_lag1", "flow_lag1", "temp_lag2", "flow_lag2", "current_lag1")
-    assert lagged.state_names(("y",), (), 1) == ("y_lag1",)
+    assert basis.state_names(("y",), (), 1) == ("y_lag1",)

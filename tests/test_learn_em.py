@@ -182,13 +182,13 @@ def test_reusing_settled_covariances_changes_nothing_but_rounding(monkeypatch):
     assert len(fast.cov.distinct) < 120 and len(full.cov.distinct) == 601
 
 
-def test_runs_store_repeated_matrices_once():
+def test_step_matrices_store_repeated_ones_once():
     a, b, c = (np.full((2, 2), v) for v in (1.0, 2.0, 3.0))
-    runs = em_module.Runs.of([a, b, c], np.array([True, False, False, True, True, False]))
-    assert np.array_equal(runs.index, [0, 0, 0, 1, 2, 2])
-    assert np.array_equal(runs[:], [a, a, a, b, c, c]) and np.array_equal(runs[3], b)
-    assert np.array_equal(runs.sum(), 3 * a + b + 2 * c)
-    assert np.array_equal(runs.sum(where=np.array([1, 0, 0, 1, 0, 1], bool)), a + b + c)
-    tail = runs.part(slice(2, None))
-    both = em_module.Runs.concatenate([tail, runs.part(slice(None, 1))])
+    steps = em_module.StepMatrices.of([a, b, c], np.array([True, False, False, True, True, False]))
+    assert np.array_equal(steps.index, [0, 0, 0, 1, 2, 2])
+    assert np.array_equal(steps[:], [a, a, a, b, c, c]) and np.array_equal(steps[3], b)
+    assert np.array_equal(steps.sum(), 3 * a + b + 2 * c)
+    assert np.array_equal(steps.sum(where=np.array([1, 0, 0, 1, 0, 1], bool)), a + b + c)
+    tail = steps.part(slice(2, None))
+    both = em_module.StepMatrices.concatenate([tail, steps.part(slice(None, 1))])
     assert np.array_equal(both[:], [a, b, c, c, a]) and np.array_equal(both.sum(), 2 * a + b + 2 * c)

@@ -23,7 +23,7 @@ def step_data(gain=1.94, tau=30.45, delay=3, dt=1.0, T=300, at=50, noise=0.0, se
 
 def test_noise_free_step_is_recovered_exactly():
     y, u = step_data()
-    fit = steptest.fit(y, u, dt=1.0, max_delay=10)
+    fit = steptest.fit_fopdt(y, u, dt=1.0, max_delay=10)
     assert fit.delay == 3 and fit.step == 50
     assert fit.gain == pytest.approx(1.94, rel=1e-7)
     assert fit.tau == pytest.approx(30.45, rel=1e-6)
@@ -36,7 +36,7 @@ def test_noisy_step_within_its_standard_errors():
     s / (du sqrt(N)); the fit must land within a few of them (the time constant likewise)."""
     s, T, at = 0.05, 400, 50
     y, u = step_data(noise=s, T=T, at=at, seed=3)
-    fit = steptest.fit(y, u, dt=1.0)
+    fit = steptest.fit_fopdt(y, u, dt=1.0)
     assert fit.delay == 3
     assert abs(fit.gain - 1.94) < 6 * s / (5.0 * np.sqrt(T - at))
     assert abs(fit.tau - 30.45) / 30.45 < 0.03
@@ -46,7 +46,7 @@ def test_lagged_form_reproduces_the_fitted_response():
     """The fit in the lagged basis is the FOPDT itself: one output lag and the input at the dead
     time, order delay + 1, with the same response, gain and pole (and nothing else free for EM)."""
     y, u = step_data(delay=2, noise=0.02)
-    fit = steptest.fit(y, u, max_delay=6)
+    fit = steptest.fit_fopdt(y, u, max_delay=6)
     mode = fit.lagged()
     assert mode.n == fit.delay + 1 and mode.lags.free(1, 1).sum() == 3
     ss = replace(mode, mu0=np.full(mode.n, fit.y0), Sigma0=np.zeros((mode.n, mode.n))).statespace([u[0]])
@@ -59,9 +59,9 @@ def test_input_must_change_exactly_once():
     y, u = step_data()
     u[200:] = 15.0
     with pytest.raises(DataError, match="changes exactly once; this one changes 2 times"):
-        steptest.fit(y, u)
+        steptest.fit_fopdt(y, u)
     with pytest.raises(DataError, match="changes 0 times"):
-        steptest.fit(y, np.full_like(u, 15.0))
+        steptest.fit_fopdt(y, np.full_like(u, 15.0))
 
 
 def test_a_step_the_output_does_not_answer_is_refused():
@@ -70,8 +70,8 @@ def test_a_step_the_output_does_not_answer_is_refused():
     y, u = step_data(noise=0.1, seed=4)
     flat = y[0] + 0.1 * np.random.default_rng(4).standard_normal(len(y))
     with pytest.raises(DataError, match="does not respond to the input step at row 51 of the experiment"):
-        steptest.fit(flat, u)
-    assert steptest.fit(y, u, max_delay=5).delay == 3  # the same noise on a real response still fits
+        steptest.fit_fopdt(flat, u)
+    assert steptest.fit_fopdt(y, u, max_delay=5).delay == 3  # the same noise on a real response still fits
 
 
 def test_learn_names_the_file_and_the_step_without_a_response(tmp_path, capsys):

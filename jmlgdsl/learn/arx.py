@@ -19,7 +19,7 @@ from scipy.linalg import qr, solve_triangular
 from ..names import plural
 from ..errors import DataError
 from .em import segments
-from .lagged import LaggedMode, Lags, lag_inputs
+from .basis import LaggedMode, Lags, lag_inputs
 
 
 @dataclass(frozen=True)
@@ -71,7 +71,7 @@ def regressors(y, u, lags: Lags, start: int) -> tuple[np.ndarray, np.ndarray]:
     return X[complete], Y[complete]
 
 
-def fit(y, u, na, nb, nk=0, start=None) -> ArxFit:
+def fit_arx(y, u, na, nb, nk=0, start=None) -> ArxFit:
     """Least-squares ARX fit of outputs y (T, ny) or (T,) on inputs u (T, nu), or of several
     experiments of one model (lists of such arrays), whose equations are pooled; `start` is each
     experiment's first equation's time index (default: the largest lag, so that fits of different
@@ -104,4 +104,4 @@ def select_order(data, max_na=4, max_nb=4, max_nk=0, criterion="bic") -> tuple[i
         raise ValueError(f"criterion must be 'aic' or 'bic', not {criterion!r}")
     start = max(max_na, max_nk + max_nb - 1)
     grid = itertools.product(range(1, max_na + 1), range(1, max_nb + 1), range(max_nk + 1))
-    return min(grid, key=lambda order: sum(getattr(fit(y, u, *order, start=start), criterion) for y, u in data))
+    return min(grid, key=lambda order: sum(getattr(fit_arx(y, u, *order, start=start), criterion) for y, u in data))

@@ -1,6 +1,6 @@
 """From experiments to a mode bank: each mode's structure (ARX orders by information criterion, or
 FOPDT from step tests), EM inside the shared lagged basis from that start, validation, and the
-assembled Model, whose modes all speak of the same states (see `lagged`)."""
+assembled Model, whose modes all speak of the same states (see `basis`)."""
 
 from __future__ import annotations
 
@@ -15,9 +15,9 @@ from ..names import plural
 from ..errors import DataError
 from ..lang.probabilities import otherwise_uniform
 from ..model import Model
-from . import arx, lagged, steptest
+from . import arx, basis, steptest
 from .em import EMResult
-from .lagged import LaggedMode
+from .basis import LaggedMode
 from .statespace import StateSpace
 from .validate import Validation, validate
 
@@ -92,8 +92,8 @@ def learn_modes(experiments: dict, order="auto", fopdt=False, dt=1.0, max_order=
 
     `progress(text)`, when given, hears of each mode as it is learned (a bank can take minutes).
     """
-    runs = {k: tuple(v) if isinstance(v, (list, tuple)) else (v,) for k, v in experiments.items()}
-    for name, exps in runs.items():
+    by_mode = {k: tuple(v) if isinstance(v, (list, tuple)) else (v,) for k, v in experiments.items()}
+    for name, exps in by_mode.items():
         sources = ", ".join(e.source for e in exps)
         if np.isnan(np.vstack([e.y for e in exps])).all(axis=0).any():
             raise DataError(f"{sources}: an output of mode {name} is never measured")
@@ -102,57 +102,58 @@ def learn_modes(experiments: dict, order="auto", fopdt=False, dt=1.0, max_order=
                 raise DataError(f"{sources}: input {j + 1} never changes, so its effect cannot be told "
                                 "from the offset; excite it, e.g. with a PRBS")
     if fopdt:
-        for exps in runs.values():
+        for exps in by_mode.values():
             if len(exps) != 1 or exps[0].u.shape[1] != 1 or exps[0].y.shape[1] != 1:
                 raise DataError(f"{exps[0].source}: a mode's step test is one experiment with one input and one output")
-        fits = {k: _located(e, steptest.fit, e.y[:, 0], e.u[:, 0], dt) for k, (e,) in runs.items()}
+        steps = {k: _located(e, steptest.fit_fopdt, e.y[:, 0], e.u[:, 0], dt) for k, (e,) in by_mode.items()}
 
-        def learn(k, exps):
-            return _fit(k, exps, fits[k].lagged(), f"FOPDT gain {fits[k].gain:.4g}, tau {fits[k].tau:.4g} s, "
-                                                   f"dead time {fits[k].delay * fits[k].dt:g} s", max_iter, tol, fits[k])
+        def learn_mode(k, exps):
+            return _refine(k, exps, steps[k].lagged(), f"FOPDT gain {steps[k].gain:.4g}, tau {steps[k].tau:.4g} s, "
+                                                       f"dead time {steps[k].delay * steps[k].dt:g} s", max_iter, tol,
+                           steps[k])
     elif order != "auto":
-        def learn(k, exps):
-            return _fit_arx(k, exps, order, max_iter, tol)
+        def learn_mode(k, exps):
+            return _refine_arx(k, exps, order, max_iter, tol)
     else:
-        na, nb, nk = arx.select_order([(e.y, e.u) for exps in runs.values() for e in exps], max_order, max_order,
-                                      max_delay, criterion)
+        na, nb, nk = arx.select_order([(e.y, e.u) for exps in by_mode.values() for e in exps], max_order,
+                                      max_order, max_delay, criterion)
         orders = range(1, max(na, nk + nb) + 1)
 
-        def learn(k, exps):
-            return min((_fit_arx(k, exps, (n, n, 0), max_iter, tol) for n in orders),
+        def learn_mode(k, exps):
+            return min((_refine_arx(k, exps, (n, n, 0), max_iter, tol) for n in orders),
                        key=lambda lm: lm.criterion(criterion))
     learned = []
     start = time.perf_counter()
-    for i, (k, exps) in enumerate(runs.items(), 1):
-        learned.append(learn(k, exps))
+    for i, (k, exps) in enumerate(by_mode.items(), 1):
+        learned.append(learn_mode(k, exps))
         if progress is not None:
             lm = learned[-1]
-            progress(f"learned mode {i} of {len(runs)}, {k}: {lm.structure}, "
+            progress(f"learned mode {i} of {len(by_mode)}, {k}: {lm.structure}, "
                      f"EM {plural(lm.em.iterations, 'iteration')} "
                      f"({time.perf_counter() - start:.1f} s so far)")
     return learned
 
 
-def _fit_arx(name, exps, order, max_iter, tol) -> LearnedMode:
-    """One mode from an ARX start of the given order."""
-    fit = _located(exps[0], arx.fit, [e.y for e in exps], [e.u for e in exps], *order)
-    na, nb, nk = fit.order
+def _refine_arx(name, exps, order, max_iter, tol) -> LearnedMode:
+    """One mode refined by EM from an ARX start of the given order."""
+    start = _located(exps[0], arx.fit_arx, [e.y for e in exps], [e.u for e in exps], *order)
+    na, nb, nk = start.order
     structure = f"ARX({na},{nb},{nk})" if exps[0].u.shape[1] else f"AR({na})"
-    return _fit(name, exps, fit.lagged(), structure, max_iter, tol)
+    return _refine(name, exps, start.lagged(), structure, max_iter, tol)
 
 
-def _fit(name, exps, start: LaggedMode, structure, max_iter, tol, fopdt=None) -> LearnedMode:
+def _refine(name, exps, start: LaggedMode, structure, max_iter, tol, fopdt=None) -> LearnedMode:
     """EM inside the lagged basis from `start`, then validation on the mode's longest experiment."""
-    mode, result = lagged.fit(start, [e.y for e in exps], [e.u for e in exps], max_iter=max_iter, tol=tol)
+    mode, result = basis.fit_em(start, [e.y for e in exps], [e.u for e in exps], max_iter=max_iter, tol=tol)
     longest = max(exps, key=lambda e: len(e.y))
     return LearnedMode(name, exps, structure, start, result, mode,
                        validate(mode.statespace(longest.u[0]), longest.y, longest.u), fopdt)
 
 
-def _located(e: Experiment, fit, *args):
-    """fit(*args), with a DataError naming the experiment's file."""
+def _located(e: Experiment, estimate, *args):
+    """estimate(*args), with a DataError naming the experiment's file."""
     try:
-        return fit(*args)
+        return estimate(*args)
     except DataError as exc:
         raise DataError(f"{e.source}: {exc}") from None
 
@@ -203,4 +204,4 @@ def assemble(learned: list[LearnedMode], *, P, p0, operating_input=None, **names
         C=np.stack([m.C for m in mods]), G=np.stack([m.G for m in mods]), g=np.stack([m.g for m in mods]),
         B=B, D=np.stack([np.linalg.cholesky(m.R) for m in mods]), P=P, p0=p0, mu0=np.stack(x0),
         Sigma0=np.diag(spread), modes=tuple(lm.name for lm in learned),
-        states=lagged.state_names(outputs, inputs, n), **names)
+        states=basis.state_names(outputs, inputs, n), **names)

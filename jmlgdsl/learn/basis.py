@@ -184,7 +184,7 @@ def _spread(x) -> tuple[np.ndarray, np.ndarray]:
     return mean, np.where(sd > 0, sd, 1.0)
 
 
-def fit(start: LaggedMode, y, u, max_iter=100, tol=1e-5) -> tuple[LaggedMode, EMResult]:
+def fit_em(start: LaggedMode, y, u, max_iter=100, tol=1e-5) -> tuple[LaggedMode, EMResult]:
     """EM from `start` inside its structure, on one experiment (arrays) or several of the same mode
     (lists), standardised so that sensors in very different units are fitted alike (the SPD floor of
     the covariances is relative to their largest eigenvalue); the result is mapped back exactly,

@@ -23,7 +23,7 @@ SPD_FLOOR = 1e-10
 
 
 @dataclass(frozen=True)
-class Runs:
+class StepMatrices:
     """Per-step matrices kept once per run of equal ones: step t's matrix is distinct[index[t]].
     Settled Kalman covariances repeat for most steps, so storing, reading and summing them costs
     per run, not per step (at 50 states a step's covariance is 20 kB)."""
@@ -32,13 +32,13 @@ class Runs:
     index: np.ndarray  # (T,) non-decreasing
 
     @classmethod
-    def of(cls, distinct, new) -> "Runs":
-        """Runs from the distinct matrices and a mask (T,) that is True where a new one starts."""
+    def of(cls, distinct, new) -> "StepMatrices":
+        """The steps' matrices from the distinct ones and a mask (T,) that is True where a new one starts."""
         return cls(np.asarray(distinct), np.cumsum(new) - 1)
 
     @classmethod
-    def concatenate(cls, parts) -> "Runs":
-        """The steps of several Runs one after another."""
+    def concatenate(cls, parts) -> "StepMatrices":
+        """The steps of several StepMatrices one after another."""
         offsets = np.cumsum([0] + [len(p.distinct) for p in parts[:-1]])
         return cls(np.concatenate([p.distinct for p in parts]), np.concatenate([p.index + o for p, o in zip(parts, offsets)]))
 
@@ -49,9 +49,9 @@ class Runs:
         """Step t's matrix (or the stacked matrices of a slice or mask of steps)."""
         return self.distinct[self.index[t]]
 
-    def part(self, steps: slice) -> "Runs":
+    def part(self, steps: slice) -> "StepMatrices":
         """The same matrices for a slice of the steps."""
-        return Runs(self.distinct, self.index[steps])
+        return StepMatrices(self.distinct, self.index[steps])
 
     def sum(self, where=None) -> np.ndarray:
         """The sum of the steps' matrices (of the steps where `where` is True)."""
@@ -60,13 +60,13 @@ class Runs:
 
 
 @dataclass(frozen=True)
-class Smoothed:
+class SmoothedStates:
     """E-step output: smoothed means (T+1, nx) and covariances of x_0..x_T, lag-one
     cross-covariances Cov(x_t, x_{t-1}) for t = 1..T, and the log-likelihood log p(y_1:T)."""
 
     mean: np.ndarray
-    cov: Runs
-    cross: Runs
+    cov: StepMatrices
+    cross: StepMatrices
     loglik: float
 
 
@@ -78,20 +78,22 @@ class Moments:
     log-likelihood."""
 
     prev: np.ndarray
-    prev_cov: Runs
+    prev_cov: StepMatrices
     mean: np.ndarray
-    cov: Runs
-    cross: Runs
+    cov: StepMatrices
+    cross: StepMatrices
     first: np.ndarray
     first_cov: np.ndarray
     loglik: float
 
     @classmethod
-    def of(cls, parts: list[Smoothed]) -> "Moments":
+    def of(cls, parts: list[SmoothedStates]) -> "Moments":
         """The moments of segments smoothed one by one."""
-        return cls(np.concatenate([e.mean[:-1] for e in parts]), Runs.concatenate([e.cov.part(slice(None, -1)) for e in parts]),
-                   np.concatenate([e.mean[1:] for e in parts]), Runs.concatenate([e.cov.part(slice(1, None)) for e in parts]),
-                   Runs.concatenate([e.cross for e in parts]), np.array([e.mean[0] for e in parts]),
+        return cls(np.concatenate([e.mean[:-1] for e in parts]),
+                   StepMatrices.concatenate([e.cov.part(slice(None, -1)) for e in parts]),
+                   np.concatenate([e.mean[1:] for e in parts]),
+                   StepMatrices.concatenate([e.cov.part(slice(1, None)) for e in parts]),
+                   StepMatrices.concatenate([e.cross for e in parts]), np.array([e.mean[0] for e in parts]),
                    np.array([e.cov[0] for e in parts]), sum(e.loglik for e in parts))
 
     def initial(self) -> tuple[np.ndarray, np.ndarray]:
@@ -123,9 +125,9 @@ class Filtered:
     whose covariances were reused once settled."""
 
     mean_pred: np.ndarray
-    cov_pred: Runs
+    cov_pred: StepMatrices
     mean: np.ndarray
-    cov: Runs
+    cov: StepMatrices
     innovation: np.ndarray
     loglik: float
     settled: np.ndarray
@@ -190,10 +192,11 @@ def forward(ss: StateSpace, y, u) -> Filtered:
     for s, e, (m, _, Linv, logdet) in runs:
         z = innov[s:e, m] @ Linv.T
         loglik -= 0.5 * (np.einsum("ij,ij->", z, z) + (e - s) * (logdet + int(m.sum()) * kalman.LOG_2PI))
-    return Filtered(mu_p, Runs.of(pred, new), mu_f, Runs.of(filt, np.r_[True, new]), innov, loglik, ~new)
+    return Filtered(mu_p, StepMatrices.of(pred, new), mu_f, StepMatrices.of(filt, np.r_[True, new]), innov, loglik,
+                    ~new)
 
 
-def smooth(ss: StateSpace, y, u) -> Smoothed:
+def smooth(ss: StateSpace, y, u) -> SmoothedStates:
     """Rauch-Tung-Striebel smoother over the forward pass for y (T, ny) and inputs u (T, nu).
 
     Where the forward covariances have settled, the smoothed covariance settles too (going back
@@ -206,7 +209,7 @@ def smooth(ss: StateSpace, y, u) -> Smoothed:
     # Smoother gains J_t = Sig_f[t] A' Sig_p[t]^-1 (Sig_p symmetric), one per run, solved at once.
     starts = np.flatnonzero(~constant)
     J = np.swapaxes(np.linalg.solve(fw.cov_pred[starts], ss.A @ fw.cov[starts]), 1, 2)
-    gains = Runs.of(J, ~constant)
+    gains = StepMatrices.of(J, ~constant)
     mu_s = fw.mean.copy()
     for k, (s, e) in reversed(list(enumerate(zip(starts, np.r_[starts[1:], T])))):
         Jk = J[k]
@@ -225,12 +228,12 @@ def smooth(ss: StateSpace, y, u) -> Smoothed:
         computed[t] = True
         steady = bool(constant[t] and t + 1 < T and constant[t + 1]
                       and kalman.settled(smoothed[-1], later))
-    cov = Runs.of(smoothed[::-1], np.r_[True, computed[:-1]])
+    cov = StepMatrices.of(smoothed[::-1], np.r_[True, computed[:-1]])
     # Cov(x_{t+1}, x_t) = Sig_s[t+1] J_t': one per run of equal factors.
     pairs = np.stack([cov.index[1:], gains.index])
     changes = np.diff(pairs, axis=1, prepend=-1).any(axis=0)
     cross = cov.distinct[pairs[0, changes]] @ np.swapaxes(J[pairs[1, changes]], 1, 2)
-    return Smoothed(mu_s, cov, Runs.of(cross, changes), fw.loglik)
+    return SmoothedStates(mu_s, cov, StepMatrices.of(cross, changes), fw.loglik)
 
 
 def m_step(ss: StateSpace, y, u, e: Moments, offset=True, feedthrough=True) -> StateSpace:

@@ -17,7 +17,7 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 
 from ..errors import DataError
-from .lagged import LaggedMode, Lags
+from .basis import LaggedMode, Lags
 
 
 @dataclass(frozen=True)
@@ -86,7 +86,7 @@ def check_response(y, step: int):
                         "a step test needs a step that the output answers")
 
 
-def fit(y, u, dt: float = 1.0, max_delay: int | None = None) -> FopdtFit:
+def fit_fopdt(y, u, dt: float = 1.0, max_delay: int | None = None) -> FopdtFit:
     """FOPDT fit of output y (T,) to a single step in input u (T,); dead times 0..max_delay samples."""
     y = np.asarray(y, float).ravel()
     u = np.asarray(u, float).ravel()
