@@ -11,8 +11,7 @@ from ..infer.algorithms import ALGORITHMS
 from ..infer.engine import FilterError
 from ..lang.parse import parse_file
 from ..lang.syntax import Spec
-from .estimate import Fit
-from .estimate import fit as _fit
+from .estimate import Fit, maximise
 from .family import Family, FitError
 from .rewrite import fitted_text
 
@@ -40,7 +39,7 @@ def fit(spec, data, *, algorithm: str = "imm", samples: int = 0, starts: int = 1
                   for d in (data if isinstance(data, (list, tuple)) else [data])]
     if not recordings:
         raise FitError("no data to fit to")
-    result = _fit(family, recordings, algorithm, samples, seed, progress, starts)
+    result = maximise(family, recordings, algorithm, samples, seed, progress, starts)
     sources = ", ".join(Path(d.source).name for d in recordings)
     result.text = fitted_text(spec, family.unknowns, result.estimate, result.se,
                               f"Fitted by 'jmlgdsl fit' to {sources}: log-likelihood {result.loglik_start:.6g} "

@@ -36,7 +36,7 @@ PRIOR_SHARE = 1.25  # posterior curvature below this multiple of the prior's: th
 
 @dataclass
 class Fit:
-    """What `fit` found: estimates with Laplace standard errors, the fitted Model and how it went."""
+    """What `maximise` found: estimates with Laplace standard errors, the fitted Model and how it went."""
 
     names: list[str]
     priors: list
@@ -115,8 +115,8 @@ class Posterior:
         return np.array([(self(z + s) - f0) / GRADIENT_STEP for s in steps])
 
 
-def fit(family: Family, datasets, algorithm: str = "imm", samples: int = 0, seed=None, progress=None,
-        starts: int = 1) -> Fit:
+def maximise(family: Family, datasets, algorithm: str = "imm", samples: int = 0, seed=None, progress=None,
+             starts: int = 1) -> Fit:
     """The maximum a posteriori values of the family's unknowns given the datasets (jmlgdsl.data.Data),
     with Laplace standard errors; `samples` > 0 adds that many Metropolis draws. The search starts at
     the priors' medians and, with `starts` > 1, also at starts - 1 draws from the priors, keeping the
