@@ -10,7 +10,7 @@ from conftest import assert_located, errors_of
 from jmlgdsl.cli import main
 from jmlgdsl.compile.lower import compile_text
 from jmlgdsl.lang.limits import (MAX_ERRORS, MAX_LET_CHAIN, MAX_MODES, MAX_NESTING, MAX_ORDER, MAX_SIZE,
-                                MAX_VARIABLES)
+                                MAX_TIME_INDEX, MAX_VARIABLES)
 from jmlgdsl.lang.parse import parse_file
 from jmlgdsl.lang.report import Report
 from jmlgdsl.lang.syntax import Pos
@@ -307,6 +307,44 @@ def test_pi_in_an_ode():
     np.testing.assert_allclose(compile_text(text).mu0[0], [np.pi])
 
 
+# ------------------------------------------------------------------ 12. numbers of thousands of digits
+
+HUGE = "1" + "0" * 20_000  # beyond the 4,300 digits Python's int() converts from a string
+
+
+@pytest.mark.parametrize("change", [
+    ("0.5 * x[t-1]", f"0.5 * x[t-{HUGE}]"),           # a state equation
+    ("Normal(x[t]", f"Normal(x[t-{HUGE}]"),             # an output
+    ("mode m {", f"mode m {{ x[{HUGE}] = 1;"),          # an initial value
+], ids=["state", "output", "initial"])
+def test_a_time_index_of_thousands_of_digits_is_located_at_the_number(change):
+    text = spec().replace(*change)
+    located(text, HUGE, "time index 100...000 (20,001 digits) is too large: write t, t-1 or 0")
+
+
+def test_a_time_index_beyond_the_limit_says_the_limit():
+    text = spec(mean=f"0.5 * x[t-{MAX_TIME_INDEX + 1}]")
+    located(text, str(MAX_TIME_INDEX + 1), f"the number in a time index is at most {MAX_TIME_INDEX:,}")
+    located(spec(mean=f"0.5 * x[t-{MAX_TIME_INDEX}]"), f"x[t-{MAX_TIME_INDEX}]",
+            "a state equation uses states at t-1")  # within the limit: what the equation needs
+
+
+@pytest.mark.parametrize("change, message", [
+    (("0.5 * x", f"{HUGE} * x"), "this is not a finite real number"),
+    (("0.5 * x", f"{HUGE}.5 * x"), "this is not a finite real number"),
+    (("0.5 * x", f"2 ^ {HUGE} * x"), "this is not a finite real number"),
+    (("mode m {", f"mode m {{ C = [{HUGE}];"), "this is not a finite real number"),
+    (("mode m {", f"mode m {{ C = [1, ({HUGE})];"), "this is not a finite real number"),
+    (("sample 1 s", f"sample {HUGE} s"), "the sample time is not a finite number of seconds"),
+    (("noise process 0.1", f"noise process {HUGE}"), "this is not a finite real number"),
+    (("state x\n", f"state x = {HUGE}\n"), "this is not a finite real number"),
+    (("y ~ Normal(x[t], 0.2)", f"y ~ arx(u, a [{HUGE}], b [1])"), "this is not a finite real number"),
+    (("y ~ Normal(x[t], 0.2)", f"y ~ fopdt(u, gain 1, tau 1, delay {HUGE})"), "this is not a finite real number"),
+], ids=["number", "decimal", "exponent", "matrix", "matrix-entry", "sample", "noise", "state", "arx", "fopdt"])
+def test_a_number_of_thousands_of_digits_is_located_at_the_number(change, message):
+    located(spec().replace(*change), HUGE, message)
+
+
 # ------------------------------------------------------------------ the command line: exit 2, no traceback
 
 @pytest.mark.parametrize("text", [
@@ -314,7 +352,8 @@ def test_pi_in_an_ode():
     spec().replace("mode m {", "mode m { C = eye(18446744073709551616);"),
     spec(decls="param a = 0", mean="2.5 / a * u"),
     spec().replace("sample 1 s", "sample 1e308 min"),
-], ids=["nesting", "eye", "division", "sample"])
+    spec(mean=f"0.5 * x[t-{HUGE}]"),
+], ids=["nesting", "eye", "division", "sample", "time index"])
 def test_check_exits_2_with_a_located_message(tmp_path, capsys, text):
     path = tmp_path / "bad.jmlg"
     path.write_text(text)

@@ -2,6 +2,7 @@
 a slip (a stray digit, a wrong unit) is a located error instead of a crash or an exhausted memory."""
 
 MAX_NESTING = 100  # operators, calls and signs inside one another in one expression
+MAX_TIME_INDEX = 1000  # the k of h[t-k] or h[k]; only t, t-1 and 0 mean anything, and up to this an error says which
 MAX_LET_CHAIN = 20  # lets expanded inside one another (a uses b, which uses c, ...)
 MAX_EXPONENT = 100  # a whole-number power of an expression in variables (sympy expands it term by term)
 MAX_SIZE = 1000  # rows or columns of eye(), zeros() and ones()

@@ -13,7 +13,7 @@ from lark.exceptions import UnexpectedCharacters, UnexpectedEOF, UnexpectedInput
 
 from ..errors import Diagnostic, SpecError
 from . import syntax as S
-from .limits import MAX_NESTING
+from .limits import MAX_NESTING, MAX_TIME_INDEX
 
 # How the terminals that are not fixed text read in an error message; fixed text (keywords,
 # punctuation, '->') is shown as written.
@@ -193,12 +193,25 @@ class _Builder(Transformer):
     def time_index(self, meta, c):
         """("abs", n) for x[n]; ("lag", -k) for x[t-k]."""
         if c[0].type == "INT":
-            return ("abs", int(c[0]))
+            return ("abs", self._time_number(c[0]))
         if str(c[0]) != "t":
-            self.errors.append(Diagnostic(
-                f"a time index is t, t-1, ... or a whole number, not {str(c[0])!r}", self.spec.path,
-                c[0].line, c[0].column, self.spec.lines[c[0].line - 1]))
-        return ("lag", -int(c[1]) if len(c) > 1 else 0)
+            self._error(f"a time index is t, t-1, ... or a whole number, not {str(c[0])!r}", c[0])
+        return ("lag", -self._time_number(c[1]) if len(c) > 1 else 0)
+
+    def _time_number(self, tok: Token) -> int:
+        """The whole number written in a time index. One beyond MAX_TIME_INDEX is a located error
+        (and 0 stands in for it), judged on its digits: int() of thousands of digits would raise."""
+        digits = str(tok).lstrip("0") or "0"
+        if len(digits) <= len(str(MAX_TIME_INDEX)) and int(digits) <= MAX_TIME_INDEX:
+            return int(digits)
+        shown = digits if len(digits) <= 12 else f"{digits[:3]}...{digits[-3:]} ({len(digits):,} digits)"
+        self._error(f"time index {shown} is too large: write t, t-1 or 0 (the number in a time index is at most "
+                    f"{MAX_TIME_INDEX:,})", tok)
+        return 0
+
+    def _error(self, message: str, tok: Token):
+        """A located error at a token of the tree being built."""
+        self.errors.append(Diagnostic(message, self.spec.path, tok.line, tok.column, self.spec.lines[tok.line - 1]))
 
     def indexed(self, meta, c):
         kind, value = c[1]
