@@ -79,6 +79,13 @@ class Engine(Protocol):
         `screen`)."""
 
 
+# A reading farther than this many times the gate plus `mode_span` from every hypothesis's
+# prediction is absurd. A lasting real change beyond the modes can go well past the gate plus the
+# span (up to 6.8 times on the SKAB benchmark's anomalies, which the cap must let through); a failed
+# sensor's +-1e9 goes millions of times past it on every published plant.
+ABSURD = 100.0
+
+
 def beyond(r, distance) -> np.ndarray:
     """(m,) True for the readings whose residuals r (J, m) exceed distance (J, m) under every one of the
     J hypotheses."""
@@ -102,15 +109,16 @@ def screen(engine: Engine, y, mask, u, gate: Gate, r, sd):
     (ny,), or None): the closer look at residuals r (J, m) with standard deviations sd (J, m).
 
     A reading beyond the gate under every hypothesis is flagged, and left out while the gate is
-    enforced on it. One beyond the gate by more than `mode_span` as well is absurd: no switch of mode
-    could bring the plant there, so it is the sensor, however long it lasts. It is left out like a
-    missing reading and is not flagged: it neither counts towards a change that lasts nor lifts the
-    gate, so a burst of garbage leaves the filter where a gap in the data would."""
+    enforced on it. One ABSURD times farther than the gate plus `mode_span` is absurd: far beyond
+    where any switch of mode, or a lasting change the modes do not describe, takes the plant, so it
+    is the sensor, however long it lasts. It is left out like a missing reading and is not flagged:
+    it neither counts towards a change that lasts nor lifts the gate, so a burst of garbage leaves
+    the filter where a gap in the data would."""
     gated = gate.limit[mask] * sd
     flags = beyond(r, gated)
     if not flags.any():
         return None, None
-    absurd = flags & beyond(r, gated + mode_span(engine.model, u)[mask])
+    absurd = beyond(r, ABSURD * (gated + mode_span(engine.model, u)[mask]))
     measured = np.flatnonzero(mask)
     flagged = np.zeros(len(mask), dtype=bool)
     flagged[measured[flags & ~absurd]] = True
