@@ -11,7 +11,7 @@ import numpy as np
 from .errors import DataError
 from .gaussian import psd_sqrt
 from .model import Model
-from .random import generator
+from .seeds import generator
 
 _PIECE = re.compile(r"^\s*(\d+)\s*(?:-\s*(\d+))?\s*:\s*([A-Za-z_][\w]*)\s*$")
 

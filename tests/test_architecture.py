@@ -12,7 +12,7 @@ import pytest
 
 PACKAGE = Path(__file__).resolve().parents[1] / "jmlgdsl"
 LAYERS = [
-    {"errors", "names", "random", "gaussian", "output", "priors", "progress", "version", "drawing"},
+    {"errors", "names", "seeds", "gaussian", "output", "priors", "progress", "version", "drawing"},
     {"model", "data"},
     {"lang"},
     {"compile"},

@@ -21,7 +21,7 @@ from scipy.optimize import minimize
 from ..compile.assemble import twins
 from ..errors import JmlgError
 from ..model import Model
-from ..random import generator
+from ..seeds import generator
 from .family import Family, FitError
 from .likelihood import labelled, loglik
 

@@ -15,7 +15,7 @@ import numpy as np
 
 from ..errors import DataError
 from ..model import Model
-from ..random import generator
+from ..seeds import generator
 from .algorithms import ALGORITHMS, DEFAULT_ALGORITHM
 from .engine import FilterError, Gate, Resampler, offsets
 from .lagged import Genealogies, ImmWindow
