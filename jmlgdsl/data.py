@@ -29,7 +29,7 @@ from typing import Iterator
 import numpy as np
 
 from .errors import DataError
-from .names import suggest
+from .names import plural, suggest
 from .output import check_file, writing
 
 MISSING = {"", "na", "nan", "n/a"}
@@ -350,7 +350,7 @@ def iter_rows(stream, model, source="<data>", outputs=True) -> Iterator[Row]:
         where = f"{source}:{line}"
         if len(cells) < len(names) or any(c.strip() for c in cells[len(names):]):
             hint = "; decimal commas (1,5) split numbers in two: write 1.5" if len(cells) > len(names) else ""
-            raise DataError(f"{where}: {len(cells)} cells, but the header has {len(names)} columns{hint}")
+            raise DataError(f"{where}: {plural(len(cells), 'cell')}, but the header has {plural(len(names), 'column')}{hint}")
         y = np.array([_number(cells, c, n, where) for c, n in zip(y_cols, model.outputs)])
         u = np.array([_number(cells, c, n, where) for c, n in zip(u_cols, model.inputs)])
         lacking = np.isnan(u) & np.isnan(defaults)

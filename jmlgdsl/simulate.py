@@ -11,6 +11,7 @@ import numpy as np
 from .errors import DataError
 from .gaussian import psd_sqrt
 from .model import Model
+from .names import plural
 from .seeds import generator
 
 _PIECE = re.compile(r"^\s*(\d+)\s*(?:-\s*(\d+))?\s*:\s*([A-Za-z_][\w]*)\s*$")
@@ -58,7 +59,7 @@ def parse_schedule(text: str, model: Model, T: int | None = None) -> np.ndarray:
         modes += [model.modes.index(name)] * (end - start + 1)
         expected = end + 1
     if T is not None and len(modes) != T:
-        raise DataError(f"mode schedule covers steps 1-{len(modes)} but {T} steps were asked for")
+        raise DataError(f"mode schedule covers steps 1-{len(modes)} but {plural(T, 'step')} were asked for")
     return np.array(modes, dtype=np.int64)
 
 
@@ -73,7 +74,7 @@ def _mode_sequence(model, T, modes, rng):
         return z0, seq
     seq = np.asarray([model.mode_index(k) if isinstance(k, str) else int(k) for k in modes], dtype=np.int64)
     if len(seq) != T:
-        raise DataError(f"{len(seq)} modes given for {T} steps")
+        raise DataError(f"{plural(len(seq), 'mode')} given for {plural(T, 'step')}")
     if ((seq < 0) | (seq >= model.K)).any():
         raise DataError(f"mode indices must lie in 0..{model.K - 1}")
     return int(seq[0]), seq

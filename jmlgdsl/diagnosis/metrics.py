@@ -14,6 +14,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from ..errors import DataError
+from ..names import plural
 
 WINDOW = 60.0  # seconds: the NAB window to the right of each true change point (SKAB leaderboard)
 
@@ -40,7 +41,7 @@ def _pair(pred, truth, pred_name: str, truth_name: str):
     """Two 0/1 series of the same length."""
     pred, truth = _binary(pred, pred_name), _binary(truth, truth_name)
     if len(pred) != len(truth):
-        raise ValueError(f"{pred_name} has {len(pred)} rows, {truth_name} {len(truth)}")
+        raise ValueError(f"{pred_name} has {plural(len(pred), 'row')}, {truth_name} {len(truth)}")
     return pred, truth
 
 

@@ -27,6 +27,7 @@ import numpy as np
 
 from ..errors import JmlgError
 from ..gaussian import symmetrize
+from ..names import plural
 from . import kalman
 from .engine import offsets
 from .imm import IMM
@@ -120,7 +121,7 @@ def _exact_forward(model, y, u) -> list:
     """One _Level per step s = 0..T: every mode history with its Kalman filter."""
     K, T = model.K, len(y)
     if K ** (T + 1) > MAX_HISTORIES:
-        raise SmoothError(f"exact smoothing of {T} steps would carry {K}^{T + 1} = {K ** (T + 1)} mode "
+        raise SmoothError(f"exact smoothing of {plural(T, 'step')} would carry {K}^{T + 1} = {K ** (T + 1)} mode "
                           f"histories, more than the limit of {MAX_HISTORIES}; use imm for longer data")
     b, c = offsets(model, u)
     with np.errstate(divide="ignore"):

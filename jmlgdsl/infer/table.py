@@ -16,6 +16,7 @@ import numpy as np
 from ..data import CsvWriter, open_source, open_target
 from ..errors import DataError
 from ..model import Model
+from ..names import plural
 from .result import Result, Step
 
 
@@ -24,7 +25,7 @@ SMOOTHED = "smoothed"
 
 def given(lag: int | None) -> str:
     """What a table's probabilities are conditioned on, in words."""
-    return "the data so far" if lag == 0 else "all the data" if lag is None else f"the data up to {lag} rows later"
+    return "the data so far" if lag == 0 else "all the data" if lag is None else f"the data up to {plural(lag, 'row')} later"
 
 
 def columns(model: Model, with_time: bool, with_alarm: bool = True) -> list[str]:
