@@ -83,6 +83,17 @@ def test_located_error(case, text, line, column, fragment):
     assert_located(text, "tank.jmlg", line, column, fragment)
 
 
+@pytest.mark.parametrize("text, message", [
+    (replace("input q = 1", "input q = nope"), "unknown name 'nope' in the value of q"),
+    (replace("state h = 3", "state h = nope"), "unknown name 'nope' in the value of h"),
+    (BASE + "linearize at h = nope\n", "unknown name 'nope' in the value of h"),
+], ids=["input", "guess", "point"])
+def test_a_value_that_cannot_be_evaluated_is_not_also_missing(text, message):
+    """A written value with an error is reported once, not also as 'needs an operating value', 'needs a
+    guess' or 'the operating point needs every state'."""
+    assert [d.message for d in errors_of(text)] == [message]
+
+
 def test_no_steady_state_says_the_residual_and_what_to_try():
     d = errors_of(replace("(q - out) / area", "1 + h^2"))[0]
     residual = float(d.message.split("is still ")[1].split(" ")[0])

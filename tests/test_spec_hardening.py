@@ -282,6 +282,44 @@ def test_one_bad_term_is_one_error_without_a_cascade(mean, message):
     assert [d.message.split(";")[0] for d in diagnostics] == [message]
 
 
+TWO_MODES = """\
+plant p
+sample 1 s
+input u = 1
+output y
+state x1, x2, x3
+noise process 0.1, measurement 0.2
+modes m, n
+transitions [0.9 0.1; 0.1 0.9]
+initial [0.5 0.5]
+mode m { A = 0.5 * eye(3); F = [1; 0; 0]; C = [1 0 0] }
+mode n like m { u = 2 }
+"""
+
+
+@pytest.mark.parametrize("change, message", [
+    (("A = 0.5 * eye(3)", "A = eye(2^64)"), "eye() of size 18446744073709551616 is too large: at most 1000"),
+    (("C = [1 0 0]", "C = [1 0 nope]"), "unknown name 'nope'"),
+    (("A = 0.5 * eye(3);", "x1[t] ~ Normal(nope * x1[t-1], 0.1); x2[t] ~ Normal(x2[t-1], 0.1); "
+                           "x3[t] ~ Normal(x3[t-1], 0.1);"), "unknown name 'nope'"),  # also in mode n, like m
+    (("[0.9 0.1; 0.1 0.9]", "[0.9 nope; 0.1 0.9]"), "unknown name 'nope'"),
+    (("[0.9 0.1; 0.1 0.9]", "[0.9 0.1 0; 0.1 0.9 0]"), "the transition matrix must be 2 x 2 for 2 modes, got 2 x 3"),
+    (("[0.5 0.5]", "[0.5 nope]"), "unknown name 'nope'"),
+    (("initial [0.5 0.5]", "initial m nope, n 0.5"), "unknown name 'nope' in a probability"),
+    (("[0.9 0.1; 0.1 0.9]", "n nope, otherwise uniform"), "unknown name 'nope' in a probability"),
+    (("output y", "output y outliers nope"), "unknown name 'nope' in the outlier gate of y"),
+    (("{ u = 2 }", "{ noise scale nope }"), "unknown name 'nope' in scale noise"),
+    (("input u = 1", "input u = nope"), "unknown name 'nope' in the value of u"),
+], ids=["eye", "matrix", "like", "transitions", "shape", "initial", "initial-rules", "transition-rules", "gate",
+        "scale", "input"])
+def test_a_value_that_cannot_be_evaluated_is_one_error(change, message):
+    """The value's error is the only one: its statement still counts as written (no 'has no equation',
+    no probabilities that sum to 0, no 'got nan')."""
+    text = TWO_MODES.replace(*change)
+    assert text != TWO_MODES
+    assert [d.message for d in errors_of(text, PATH)] == [message]
+
+
 def test_a_lowercase_distribution_is_one_error():
     text = spec().replace("x[t] ~ Normal(", "x[t] ~ normal(")
     diagnostics = errors_of(text, PATH)

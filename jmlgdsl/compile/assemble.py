@@ -40,7 +40,7 @@ def outlier_gates(plant: Plant, outputs: list[str], report: Report) -> np.ndarra
             gates[i] = np.inf
             continue
         gates[i] = evaluate_number(d.gate, plant.nominal, report, what=f"the outlier gate of {d.name.text}")
-        if not gates[i] > 0 or not np.isfinite(gates[i]):
+        if gates[i] <= 0:  # NaN: not evaluated, reported
             report.error(f"an outlier gate is a positive number of standard deviations (or 'off'); got {gates[i]:g}",
                          d.gate.pos)
     return gates
@@ -62,10 +62,10 @@ def input_shifts(plant: Plant, mode: ModeInfo, params: dict, declared: np.ndarra
     for a in mode.inputs:
         i = names.index(a.name.text)
         value = evaluate_number(a.expr, params, report, what=f"the value of {a.name.text} in mode {mode.name!r}")
-        if np.isnan(declared[i]):
+        if plant.inputs[i].value is None:
             report.error(f"mode {mode.name!r} sets input {a.name.text!r}, which has no declared value to differ from: "
                          f"declare it as 'input {a.name.text} = VALUE'", a.name.pos)
-        elif np.isfinite(value):
+        elif np.isfinite(value - declared[i]):  # either NaN: not evaluated, reported
             shift[i] = value - declared[i]
     return shift
 

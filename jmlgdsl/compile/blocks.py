@@ -46,7 +46,7 @@ class Layout:
 
 @dataclass
 class ModeArrays:
-    """One mode's matrices while they are being filled in, with what has been defined so far."""
+    """One mode's matrices while they are being filled in, and the states and outputs its statements define."""
 
     A: np.ndarray
     F: np.ndarray
@@ -171,18 +171,30 @@ class Lowering:
 
     # ------------------------------------------------------------- statements
     def lower(self, arrays: ModeArrays, statements: list[Statement]):
-        """Write the mode's statements into its arrays, in order. A statement with an error still
-        accounts for the variable it defines, so the root cause is not followed by 'has no equation'."""
+        """Write the mode's statements into its arrays, in order. Each statement accounts for what it
+        defines whether or not it lowers: one with an error (reported there, or already reported for
+        the mode it is `like`) is the root cause, not to be followed by 'has no equation'."""
         for st in statements:
-            errors = self.report.error_count
+            states, outputs = self._defines(st)
+            arrays.states_defined.update(states)
+            arrays.outputs_defined.update(outputs)
             if st.kind == "sample":
                 self._sample(arrays, st)
             elif st.kind == "assign":
                 self._assign(arrays, st)
-            if self.report.error_count > errors and st.target is not None:
-                name = st.target.name.text
-                (arrays.states_defined if name in self.layout.states else arrays.outputs_defined).add(name)
-                arrays.states_defined.update(self.layout.block_states.get(name, ()))
+
+    def _defines(self, st: Statement) -> tuple[list[str], list[str]]:
+        """The states and outputs a statement gives equations to: its target (an output's block states
+        with it) for `~` and `NAME[t] = ...`, every state for a matrix A, every output for a matrix C."""
+        lay, target = self.layout, st.target
+        if st.kind not in ("sample", "assign") or target.index is not None:
+            return [], []
+        name = target.name.text
+        if st.kind == "assign" and target.lag is None:
+            return lay.states if name == "A" else [], lay.outputs if name == "C" else []
+        if name in lay.block_states:
+            return lay.block_states[name], [name]
+        return ([name], []) if name in lay.states else ([], [name])
 
     def _sample(self, m: ModeArrays, st: Statement):
         lay, name = self.layout, st.target.name.text
@@ -208,7 +220,6 @@ class Lowering:
                 self._fopdt(m, dist, j)
             else:
                 self._arx(m, dist, j)
-            m.outputs_defined.add(name)
         else:
             self.report.error(f"{self._unknown(name)}: the left side of '~' is a state or an output",
                               st.target.name.pos)
@@ -234,12 +245,10 @@ class Lowering:
             m.A[state], m.F[state], m.f[state] = ax, au, c
             m.B[state] = 0.0
             m.B[state, state] = sd
-            m.states_defined.add(self.layout.states[state])
         else:
             m.C[output], m.G[output], m.g[output] = ax, au, c
             m.D[output] = 0.0
             m.D[output, output] = sd
-            m.outputs_defined.add(self.layout.outputs[output])
 
     def _assign(self, m: ModeArrays, st: Statement):
         lay, t, name = self.layout, st.target, st.target.name.text
@@ -291,10 +300,6 @@ class Lowering:
             m.x0 = value
         else:
             getattr(m, name)[...] = value
-        if name == "A":
-            m.states_defined.update(lay.states)
-        if name == "C":
-            m.outputs_defined.update(lay.outputs)
 
     # ------------------------------------------------------------- block forms
     def _keywords(self, d: Dist, allowed: tuple, required: tuple) -> dict | None:
@@ -411,14 +416,12 @@ class Lowering:
                     m.A[i, idx[register_name(out, key, n - 1)]] = 1.0
                 else:
                     m.F[i, lay.inputs.index(feed)] = 1.0
-        m.states_defined.update(names)
         return idx
 
     def _measure(self, m: ModeArrays, j: int, state: int):
         """The output reads the block's state directly."""
         m.C[j] = m.G[j] = m.g[j] = 0.0
         m.C[j, state] = 1.0
-        m.outputs_defined.add(self.layout.outputs[j])
 
     def _fopdt(self, m: ModeArrays, d: Dist, j: int):
         """The sum over the inputs of K e^{-θs}/(τs+1), with zero-order hold: exact for any dead time

@@ -200,8 +200,8 @@ def linearise(plant: Plant, system: OdeSystem, report: Report, locate_divisors: 
     for mode, env in zip(plant.modes, params) if locate_divisors else ():
         _check_divisors(plant, mode.name, env, report)
     u_bar = declared_values(plant, plant.inputs, report)
-    for d, value in zip(plant.inputs, u_bar):
-        if np.isnan(value):
+    for d in plant.inputs:
+        if d.value is None:
             report.error(f"input {d.name.text!r} needs an operating value to linearise around: "
                          f"input {d.name.text} = VALUE", d.name.pos)
     report.raise_errors()
@@ -294,8 +294,8 @@ def _operating_points(plant: Plant, system: OdeSystem, pvecs, u_bar, shifts, rep
 def _guesses(plant: Plant, report: Report) -> np.ndarray:
     """The declared state values, which an ODE plant uses as starting guesses for its steady states."""
     guess = declared_values(plant, plant.states, report)
-    for d, value in zip(plant.states, guess):
-        if np.isnan(value):
+    for d in plant.states:
+        if d.value is None:
             report.error(f"state {d.name.text!r} needs a guess of its steady state: state {d.name.text} = VALUE",
                          d.name.pos)
     return guess
@@ -314,7 +314,8 @@ def _given_point(plant: Plant, system: OdeSystem, how: S.Linearize, u_bar, repor
         else:
             report.error(f"{name!r} is not a state or an input{suggest(name, system.states + system.inputs)}",
                          a.name.pos)
-    missing = [s for s, v in zip(system.states, x) if np.isnan(v)]
+    given = {a.name.text for a in how.point}
+    missing = [s for s in system.states if s not in given]
     if missing:
         report.error(f"the operating point needs every state: add {', '.join(f'{s} = ...' for s in missing)}",
                      how.pos)

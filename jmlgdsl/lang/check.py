@@ -275,7 +275,7 @@ def noise_values(stmts: list[S.Noise], env, report: Report, plant_level: bool) -
                              "'mode anomaly like normal { noise scale 3 }'", name.pos)
                 continue
             value = evaluate_number(expr, env, report, what=f"{name.text} noise")
-            if name.text == "scale" and not value > 0:
+            if name.text == "scale" and value <= 0:  # NaN: not evaluated, reported
                 report.error(f"a noise scale must be a positive number (got {value:g})", expr.pos)
             elif value < 0:
                 report.error(f"a noise standard deviation cannot be negative (got {value:g})", expr.pos)

@@ -22,6 +22,12 @@ def otherwise_uniform(p: np.ndarray) -> np.ndarray:
     return np.where(rest, max(1.0 - np.nansum(p), 0.0) / rest.sum(), p)
 
 
+def _stand_in(shape) -> np.ndarray:
+    """Uniform probabilities in place of a vector or matrix that could not be evaluated (reported
+    where it is written): zeros or open entries there would add errors about its sums."""
+    return np.full(shape, 1.0 / max(shape[-1], 1))
+
+
 def _probability_value(expr: S.Expr, env, report: Report) -> float:
     """One probability, reported when outside [0, 1]."""
     value = evaluate_number(expr, env, report, what="a probability")
@@ -33,10 +39,11 @@ def _probability_value(expr: S.Expr, env, report: Report) -> float:
 
 
 def _rule_vector(items, modes: list[str], env, report: Report, stay: int | None):
-    """A probability vector from rules: `name p`, `stay p` (the row's own mode) and `otherwise uniform`."""
+    """A probability vector from rules: `name p`, `stay p` (the row's own mode) and `otherwise uniform`;
+    a uniform stand-in when a value cannot be evaluated (NaN, which otherwise marks an open entry)."""
     K = len(modes)
     p = np.full(K, np.nan)
-    otherwise = None
+    otherwise, failed = None, False
     for it in items:
         if it.kind == "otherwise":
             if it.name.text != "uniform":
@@ -57,6 +64,9 @@ def _rule_vector(items, modes: list[str], env, report: Report, stay: int | None)
             by_stay = " ('stay' gives it in its own row)" if stay == k else ""
             report.error(f"probability for {modes[k]!r} given twice{by_stay}", it.pos)
         p[k] = _probability_value(it.value, env, report)
+        failed = failed or np.isnan(p[k])
+    if failed:
+        return _stand_in((K,)), None
     if otherwise is not None:
         return otherwise_uniform(p), otherwise.pos
     return p, None
@@ -148,7 +158,8 @@ def initial_distribution(spec: S.Spec, modes: list[str], env, report: Report) ->
 
 
 def _matrix_value(expr: S.Expr, shape, what: str, env, report: Report) -> np.ndarray:
-    """A numeric vector/matrix of a required shape (a row or column is accepted for a vector)."""
+    """A numeric vector/matrix of a required shape (a row or column is accepted for a vector); a
+    uniform stand-in when it cannot be evaluated or has another shape."""
     def lookup(node):
         if node.args[0] not in env:
             raise UnknownName(f"unknown name {node.args[0]!r}{suggest(node.args[0], env)}", node)
@@ -158,13 +169,13 @@ def _matrix_value(expr: S.Expr, shape, what: str, env, report: Report) -> np.nda
         value = np.atleast_2d(np.asarray(finite_numeric(expr, lookup), float))
     except EvalError as exc:
         report.error(str(exc), exc.node.pos)
-        return np.zeros(shape)
+        return _stand_in(shape)
     if len(shape) == 1 and 1 in value.shape:
         value = value.ravel()
     if value.shape != tuple(shape):
         report.error(f"{what} must be {' x '.join(map(str, shape))} for {shape[0]} modes, "
                      f"got {' x '.join(map(str, value.shape))}", expr.pos)
-        return np.zeros(shape)
+        return _stand_in(shape)
     for bad in zip(*np.nonzero(value < 0)):
         report.error(f"{what} has a negative entry {value[bad]:g}", expr.pos)
         break
