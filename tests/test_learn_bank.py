@@ -11,7 +11,7 @@ import jmlgdsl
 from jmlgdsl.cli import main
 from jmlgdsl.data import write_columns
 from jmlgdsl.infer import filter as run_filter
-from jmlgdsl.learn import bank, figures
+from jmlgdsl.learn import bank, figures, learn
 from jmlgdsl.learn.em import forward
 from jmlgdsl.learn.prbs import prbs
 from jmlgdsl.learn.statespace import StateSpace
@@ -242,14 +242,51 @@ def test_cli_learn_without_template_writes_the_spec_to_standard_output(dryer, ex
 
 @pytest.mark.parametrize("argv, message", [
     (["--mode", "normal"], "--mode takes NAME=CSV"),
-    (["--mode", "a=x.csv", "--order", "0"], "--order must be auto, N or NA,NB,NK"),
-    (["--mode", "a=x.csv"], "name the output column with --output"),
-    (["--mode", "a=x.csv", "--max-order", "0"], "--max-order must be at least 1, not 0"),
-    (["--mode", "a=x.csv", "--max-delay", "-1"], "--max-delay must be at least 0, not -1"),
-    (["--mode", "a=x.csv", "--max-iter", "-1"], "--max-iter must be at least 0, not -1"),
-    (["--mode", "a=x.csv", "--dt", "0"], "--dt must be a positive number of seconds, not 0.0"),
+    (["--mode", "a=x.csv", "--order", "0"], "order must be auto, N or NA,NB,NK"),
+    (["--mode", "a=x.csv"], "name the outputs (the output columns), or give a template"),
+    (["--mode", "a=x.csv", "--max-order", "0"], "max_order must be at least 1, not 0"),
+    (["--mode", "a=x.csv", "--max-delay", "-1"], "max_delay must be at least 0, not -1"),
+    (["--mode", "a=x.csv", "--max-iter", "-1"], "max_iter must be at least 0, not -1"),
+    (["--mode", "a=x.csv", "--dt", "0"], "dt must be a positive number of seconds, not 0.0"),
+    (["--mode", "a=x.csv", "--output", "y", "--stay", "2"], "stay must be a probability, not 2.0"),
     (["--mode", "normal=x.csv", "--template", str(DRYER)], "give one experiment for each"),
 ])
 def test_cli_learn_user_errors(argv, message, capsys):
     assert main(["learn"] + argv) == 2
     assert message in capsys.readouterr().err
+
+
+def test_learn_is_the_command_as_a_library(dryer, experiments, tmp_path, capsys):
+    """`learn` returns the spec `jmlgdsl learn` writes and the report it prints, and draws its figures."""
+    paths = write_experiments(dryer, experiments, tmp_path)
+    spec = tmp_path / "command.jmlg"
+    assert main(["learn", "--template", str(DRYER), "--order", "1", "--max-iter", "5", "-q", "-o", str(spec)]
+                + [f"--mode={n}={p}" for n, p in paths.items()]) == 0
+    printed = capsys.readouterr().out
+    learned = learn({n: str(p) for n, p in paths.items()}, dryer, order=1, max_iter=5)
+    assert learned.text == spec.read_text() and printed == f"wrote {spec}\n{learned.report()}\n"
+    learned.write(tmp_path / "library.jmlg")
+    assert (tmp_path / "library.jmlg").read_text() == learned.text
+    drawn = learned.write_figures(tmp_path / "figures")
+    assert [p.name for p in drawn] == [f"validation_{m}.png" for m in dryer.modes]
+    assert all(p.read_bytes().startswith(b"\x89PNG") for p in drawn)
+
+
+def test_learn_takes_experiments_as_arrays(dryer, experiments):
+    learned = learn(experiments, dryer, order=(1, 1, 0), max_iter=5)
+    assert learned.text.startswith("# Learned by jmlgdsl learn from normal, fan, grill, fan_grill\n"
+                                   "# Structure: ARX order 1,1,0; EM up to 5 iterations")
+    direct = bank.learn_modes(experiments, order=(1, 1, 0), max_iter=5)
+    assert learned.report().splitlines() == [lm.summary() for lm in direct]
+    with pytest.raises(jmlgdsl.JmlgError, match="plant dryer has modes normal, fan, grill, fan_grill; give one "
+                                               "experiment for each"):
+        learn({"normal": experiments["normal"]}, dryer)
+
+
+def test_package_example(monkeypatch):
+    import doctest
+
+    import jmlgdsl.learn
+
+    monkeypatch.chdir(DRYER.parents[1])
+    assert doctest.testmod(jmlgdsl.learn).failed == 0

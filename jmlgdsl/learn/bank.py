@@ -166,6 +166,14 @@ def default_transitions(K: int, stay: float) -> np.ndarray:
     return np.array([otherwise_uniform(np.where(np.arange(K) == k, stay, np.nan)) for k in range(K)])
 
 
+def healthy_prior(K: int, p: float) -> np.ndarray:
+    """The first mode (the healthy one) with probability p, the rest shared evenly: written back as
+    `initial NAME p, otherwise uniform`, so the first rows of a run do not alarm."""
+    if K == 1:
+        return np.ones(1)
+    return np.r_[p, np.full(K - 1, (1 - p) / (K - 1))]
+
+
 def _stable(ss: StateSpace) -> bool:
     """Whether every pole lies inside the unit circle."""
     return bool(np.abs(ss.poles()).max() < 1)
