@@ -1,5 +1,21 @@
 """jmlgdsl: describe a plant's modes in a small language, compile it to a jump Markov linear
-Gaussian model, and diagnose which mode the plant is in with particle filters."""
+Gaussian model, and diagnose which mode the plant is in with particle filters.
+
+    >>> import jmlgdsl
+    >>> model = jmlgdsl.load("specs/dryer.jmlg")       # parse, check and compile a spec
+    >>> model.modes
+    ('normal', 'fan', 'grill', 'fan_grill')
+    >>> data = jmlgdsl.read_csv("examples/dryer_seq1.csv", model)   # columns bound by the spec's names
+    >>> result = jmlgdsl.filter(model, data.y, data.u)  # IMM; algorithm="la-rbpf", particles=..., seed=...
+    >>> result.mode_posterior.shape, round(result.diagnosis_error(data.modes), 2)
+    ((1000, 4), 1.0)
+    >>> sim = jmlgdsl.simulate(model, 100, seed=1, modes="1-50:normal,51-100:fan")
+    >>> [model.modes[k] for k in jmlgdsl.smooth(model, sim.y, sim.u, lag=5).map_modes[[0, 99]]]
+    ['normal', 'fan']
+
+The diagnosis of a row source as one object, with sinks and checkpoints, is `jmlgdsl.diagnosis`;
+learning a bank from experiments `jmlgdsl.learn`; fitting a spec's unknowns `jmlgdsl.fit`.
+"""
 
 from __future__ import annotations
 
