@@ -46,6 +46,10 @@ def register(subparsers):
     bus.add_argument("--password-env", metavar="VAR", help="the environment variable that holds the password")
     bus.add_argument("--password-file", metavar="FILE", help="the file that holds the password (its first line)")
     bus.add_argument("--ca-file", metavar="FILE", help="certificate authority for mqtts:// (default the system's)")
+    bus.add_argument("--security", metavar="POLICY,MODE",
+                     help="OPC UA security, e.g. Basic256Sha256,SignAndEncrypt (default None: no security)")
+    bus.add_argument("--certificate", metavar="FILE", help="the client's OPC UA certificate (with --security)")
+    bus.add_argument("--private-key", metavar="FILE", help="the client's OPC UA private key (with --security)")
     p.add_argument("--filter", default=DEFAULT_ALGORITHM, choices=list(ALGORITHMS),
                    help=f"filtering algorithm (default {DEFAULT_ALGORITHM})")
     p.add_argument("--particles", type=int, help="number of particles (default depends on the filter)")
@@ -86,7 +90,8 @@ def main(args) -> int:
         persistence=args.persistence, grace=args.grace, stale=args.stale, max_gap=args.max_gap)
     source = open_bus(args.source, model, tags, follow=not args.no_follow, client_id=args.client_id,
                       credentials=credentials(args.username, args.password_env, args.password_file),
-                      ca_file=args.ca_file)
+                      ca_file=args.ca_file, security=args.security, certificate=args.certificate,
+                      private_key=args.private_key)
     stop = threading.Event()
     for signum in (signal.SIGTERM, signal.SIGINT):
         signal.signal(signum, lambda *_: stop.set())

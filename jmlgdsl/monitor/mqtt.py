@@ -15,7 +15,7 @@ import time
 
 import paho.mqtt.client as mqtt
 
-from .assemble import Event
+from . import bus
 from .payload import Malformed, decode
 from .urls import address
 
@@ -43,7 +43,7 @@ class MqttSource:
         client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=self.client_id, clean_session=False,
                              protocol=mqtt.MQTTv311)
         client.manual_ack_set(True)
-        client.reconnect_delay_set(1, 30)
+        client.reconnect_delay_set(int(bus.FIRST_RETRY), int(bus.LAST_RETRY))
         if self.credentials is not None:
             client.username_pw_set(*self.credentials)
         if self.tls:
@@ -54,22 +54,20 @@ class MqttSource:
             if reason.is_failure:
                 if reason.value in REFUSED:
                     client.disconnect()
-                    put(("fatal", f"{self.name}: the broker refused the connection ({reason}); check --username "
-                                  "and the password (--password-env, --password-file)"))
+                    put(("fatal", bus.refused(self.name, "broker", reason)))
                 else:
-                    put(("event", Event("disconnect", None, f"{where} refused the connection: {reason}")))
+                    put(("event", bus.unreachable(where, f"it refused the connection: {reason}")))
                 return
             client.subscribe([(topic, 1) for topic in self.topics])
             resumed = "resumed its session" if flags.session_present else "a new session"
-            put(("event", Event("connect", None, f"connected to {where} as {self.client_id} ({resumed})")))
+            put(("event", bus.connected(where, f"as {self.client_id}, {resumed}")))
 
         def on_connect_fail(client, userdata):
-            put(("event", Event("disconnect", None, f"cannot reach {where}; trying again")))
+            put(("event", bus.unreachable(where, "no answer")))
 
         def on_disconnect(client, userdata, flags, reason, properties):
             if self.client is not None:
-                put(("event", Event("disconnect", None, f"lost the connection to {where} ({reason}); "
-                                                        "reconnecting")))
+                put(("event", bus.lost(where, reason)))
 
         def on_message(client, userdata, message):
             token = (message.mid, message.qos)

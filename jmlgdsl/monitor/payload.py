@@ -30,19 +30,19 @@ def decode(payload: bytes, name: str | None, names) -> list[tuple[str, float, fl
     except UnicodeDecodeError:
         raise Malformed(f"{name or 'sample'}: payload {shown(payload)} is not UTF-8 text") from None
     if name is not None and _plain_number(text):
-        return [(name, _value(float(text), name, text), None)]
+        return [(name, number(float(text), name, text), None)]
     try:
         data = json.loads(text, parse_constant=lambda constant: constant)
     except ValueError:
         raise Malformed(f"{name or 'sample'}: payload {shown(text)} is neither a number nor JSON") from None
     if name is not None:
         if isinstance(data, dict) and "v" in data and set(data) <= {"t", "v"}:
-            return [(name, _value(data["v"], name, text), _time(data.get("t"), name, text))]
+            return [(name, number(data["v"], name, text), _time(data.get("t"), name, text))]
         raise Malformed(f"{name}: payload {shown(text)} is not a number or {{\"t\": ..., \"v\": ...}}")
     if not isinstance(data, dict):
         raise Malformed(f"sample: payload {shown(text)} is not a JSON object of names and values")
     time = _time(data.get("t"), "sample", text)
-    found = [(key, _value(data[key], key, text), time) for key in names if key in data]
+    found = [(key, number(data[key], key, text), time) for key in names if key in data]
     if not found:
         raise Malformed(f"sample: payload {shown(text)} holds none of the names {', '.join(names)}")
     return found
@@ -64,7 +64,9 @@ def _plain_number(text: str) -> bool:
     return text.isascii() and "_" not in text and any(c.isdigit() for c in text)
 
 
-def _value(value, name, text) -> float:
+def number(value, name, text) -> float:
+    """A reading's value as a float (None: NaN, not measured); anything else, or a number too large
+    to be a measurement, is Malformed, quoting `text` (the payload it came in)."""
     if value is None:
         return math.nan
     if isinstance(value, bool) or not isinstance(value, (int, float)):

@@ -2,6 +2,7 @@
 
     path/to/data.csv, -              CsvSource (jmlgdsl.monitor.follow)
     mqtt://HOST:PORT/PREFIX          MqttSource (jmlgdsl.monitor.mqtt); mqtts:// over TLS
+    opc.tcp://HOST:PORT/PATH         OpcuaSource (jmlgdsl.monitor.opcua)
 """
 
 from __future__ import annotations
@@ -38,16 +39,33 @@ def credentials(username: str | None, env: str | None, path: str | None) -> tupl
 
 
 def open_bus(url: str, model, tags, *, follow: bool = True, client_id: str | None = None, credentials=None,
-             ca_file: str | None = None):
-    """The source a --source URL names (not yet started)."""
+             ca_file: str | None = None, security: str | None = None, certificate: str | None = None,
+             private_key: str | None = None):
+    """The source a --source URL names (not yet started); an option its kind does not take is refused."""
     scheme = urlsplit(url).scheme if "://" in url else ""
+    given = {"--username": credentials is not None, "--client-id": client_id, "--ca-file": ca_file,
+             "--security": security, "--certificate": certificate, "--private-key": private_key}
     if scheme in ("mqtt", "mqtts"):
         from .mqtt import MqttSource
 
+        _refuse(url, "an MQTT source", given, "--security", "--certificate", "--private-key")
         return MqttSource(url, model, tags, client_id=client_id or f"jmlgdsl-{model.name}",
                           credentials=credentials, ca_file=ca_file)
+    if scheme == "opc.tcp":
+        from .opcua import OpcuaSource
+
+        _refuse(url, "an OPC UA source", given, "--client-id", "--ca-file")
+        return OpcuaSource(url, model, tags, credentials=credentials, security=security, certificate=certificate,
+                           private_key=private_key)
     if scheme:
-        raise JmlgError(f"--source {url}: unknown scheme {scheme!r}; use a CSV file, -, mqtt:// or mqtts://")
-    if credentials is not None or client_id or ca_file:
-        raise JmlgError(f"--source {url}: a CSV source takes no --username, --client-id or --ca-file")
+        raise JmlgError(f"--source {url}: unknown scheme {scheme!r}; use a CSV file, -, mqtt://, mqtts:// or "
+                        "opc.tcp://")
+    _refuse(url, "a CSV source", given, *given)
     return CsvSource(url, model, follow)
+
+
+def _refuse(url, kind, given, *options):
+    """An error naming the first of `options` given for a source that does not take it."""
+    for option in options:
+        if given[option]:
+            raise JmlgError(f"--source {url}: {kind} takes no {option}")

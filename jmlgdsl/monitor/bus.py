@@ -1,0 +1,42 @@
+"""What the data-bus sources (MQTT, OPC UA) share: the events of their connection, the growing delay
+between attempts to connect, and the message of a refused password.
+
+A bus source hands the monitor `put(("readings", [(name, value, time or None)], arrival, token))`,
+`put(("malformed", message, token))`, `put(("event", Event))` and, for what trying again cannot
+mend, `put(("fatal", message))`; the monitor calls `acknowledge(tokens)` after the commit that holds
+them and `stop()` at the end.
+"""
+
+from __future__ import annotations
+
+from .assemble import Event
+
+FIRST_RETRY, LAST_RETRY = 1.0, 30.0  # seconds between connection attempts: doubling from the first to the last
+
+
+def delays():
+    """The delays between attempts to connect: 1, 2, 4, ... seconds, then 30 s for ever."""
+    delay = FIRST_RETRY
+    while True:
+        yield delay
+        delay = min(2 * delay, LAST_RETRY)
+
+
+def connected(where: str, detail: str) -> Event:
+    return Event("connect", None, f"connected to {where} ({detail})")
+
+
+def unreachable(where: str, why, delay: float | None = None) -> Event:
+    """A connection attempt that failed; `delay`: when the next one is (None: the client library's)."""
+    again = "trying again" if delay is None else f"trying again in {delay:g} s"
+    return Event("disconnect", None, f"cannot reach {where} ({why}); {again}")
+
+
+def lost(where: str, why) -> Event:
+    return Event("disconnect", None, f"lost the connection to {where} ({why}); reconnecting")
+
+
+def refused(source: str, who: str, why) -> str:
+    """The message of a source whose user name, password or certificate was refused."""
+    return (f"{source}: the {who} refused the connection ({why}); check --username and the password "
+            "(--password-env, --password-file)")

@@ -1,0 +1,235 @@
+"""`jmlgdsl monitor` on an OPC UA server (asyncua, started here in a thread on 127.0.0.1): the dryer
+recording written to the server's nodes row by row, each value with its source time stamp, is
+diagnosed into the store and exported as the very table `jmlgdsl run -o` writes for it, even when the
+server comes up only after the monitor; a monitor killed with SIGKILL and started again diagnoses no
+row twice; a wrong password is refused by name."""
+
+import asyncio
+import csv
+import os
+import signal
+import socket
+import sqlite3
+import subprocess
+import threading
+import time
+from datetime import datetime, timedelta, timezone
+
+import pytest
+from conftest import ROOT, jmlgdsl_command
+
+from jmlgdsl.cli import main
+
+asyncua = pytest.importorskip("asyncua")
+from asyncua import Server, ua  # noqa: E402
+from asyncua.crypto.permission_rules import User, UserRole  # noqa: E402
+
+SPEC = str(ROOT / "specs" / "dryer.jmlg")
+DATA = ROOT / "examples" / "dryer_seq1.csv"
+WAIT = 30
+EPOCH = datetime(1970, 1, 1, tzinfo=timezone.utc)
+NODES = {"temp": "Dryer.Temp", "current": "Dryer.Current"}
+
+
+def free_port():
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class Passwords:
+    """The server's user manager: user 'plant' with password 'secret', nobody else."""
+
+    def get_user(self, iserver, username=None, password=None, certificate=None):
+        return User(role=UserRole.User) if (username, password) == ("plant", "secret") else None
+
+
+class Plant:
+    """An asyncua server on 127.0.0.1 in a thread with its own event loop, with a node per dryer tag."""
+
+    def __init__(self, port, password=False):
+        self.port, self.password = port, password
+        self.loop = asyncio.new_event_loop()
+        self.ready, self.done = threading.Event(), None
+        self.thread = threading.Thread(target=self.loop.run_forever, daemon=True)
+        self.thread.start()
+        self.call(self._start())
+
+    def call(self, coroutine):
+        return asyncio.run_coroutine_threadsafe(coroutine, self.loop).result(WAIT)
+
+    async def _start(self):
+        self.server = Server(user_manager=Passwords() if self.password else None)
+        await self.server.init()
+        self.server.set_endpoint(f"opc.tcp://127.0.0.1:{self.port}/dryer")
+        self.server.set_security_policy([ua.SecurityPolicyType.NoSecurity])
+        if self.password:
+            self.server.set_security_IDs(["Username"])
+        ns = await self.server.register_namespace("urn:jmlgdsl:test:dryer")
+        self.nodes = {name: await self.server.nodes.objects.add_variable(ua.NodeId(node, ns), name, 0.0)
+                      for name, node in NODES.items()}
+        for node in self.nodes.values():  # no value until the first row is written
+            await self.server.write_attribute_value(node.nodeid, ua.DataValue(
+                ua.Variant(0.0, ua.VariantType.Double), StatusCode=ua.StatusCode(ua.StatusCodes.BadWaitingForInitialData)))
+        await self.server.start()
+
+    def write(self, rows):
+        """Each row's current, then its temp, stamped with the row's time."""
+        async def write():
+            for row in rows:
+                stamp = EPOCH + timedelta(seconds=float(row["time"]))
+                for name in ("current", "temp"):
+                    value = ua.DataValue(ua.Variant(float(row[name]), ua.VariantType.Double), SourceTimestamp=stamp)
+                    await self.server.write_attribute_value(self.nodes[name].nodeid, value)
+        self.call(write())
+
+    def stop(self):
+        async def stop():
+            await self.server.stop()
+            rest = [task for task in asyncio.all_tasks() if task is not asyncio.current_task()]
+            for task in rest:
+                task.cancel()
+            await asyncio.gather(*rest, return_exceptions=True)
+        self.call(stop())
+        self.loop.call_soon_threadsafe(self.loop.stop)
+        self.thread.join(WAIT)
+        self.loop.close()
+
+
+@pytest.fixture
+def plants():
+    started = []
+
+    def start(port=None, password=False):
+        started.append(Plant(port or free_port(), password))
+        return started[-1]
+    yield start
+    for plant in started:
+        plant.stop()
+
+
+@pytest.fixture
+def tags(tmp_path):
+    path = tmp_path / "tags.toml"
+    path.write_text("".join(f'[tags.{name}]\nnode = "ns=2;s={node}"\n' for name, node in NODES.items()))
+    return str(path)
+
+
+def rows():
+    with open(DATA) as stream:
+        return list(csv.DictReader(stream))
+
+
+def query(store, sql):
+    if not os.path.exists(store):
+        return None
+    db = sqlite3.connect(store)
+    try:
+        return db.execute(sql).fetchone()[0]
+    except sqlite3.OperationalError:
+        return None
+    finally:
+        db.close()
+
+
+def until(condition, what, process):
+    deadline = time.monotonic() + WAIT
+    while not condition():
+        if process.poll() is not None:
+            pytest.fail(f"the monitor stopped while waiting for {what}: {process.stderr.read()}")
+        assert time.monotonic() < deadline, f"gave up waiting for {what}"
+        time.sleep(0.02)
+
+
+def events(store, kind):
+    return lambda: query(store, f"SELECT count(*) FROM event WHERE kind = '{kind}'") or 0
+
+
+def monitor(port, store, tags, *extra, env=None):
+    return subprocess.Popen([*jmlgdsl_command(), "monitor", SPEC, "--source", f"opc.tcp://127.0.0.1:{port}/dryer",
+                             "--tags", tags, "--store", store, *extra], stderr=subprocess.PIPE, text=True,
+                            env=None if env is None else {**os.environ, **env})
+
+
+def stop(process):
+    process.send_signal(signal.SIGTERM)
+    _, err = process.communicate(timeout=WAIT)
+    assert process.returncode == 0, err
+    return err
+
+
+def expected_table(tmp_path):
+    out = tmp_path / "run.csv"
+    assert main(["run", SPEC, str(DATA), "-o", str(out)]) == 0
+    return out.read_text()
+
+
+def exported(tmp_path, store):
+    out = tmp_path / "export.csv"
+    assert main(["export", store, "-o", str(out)]) == 0
+    return out.read_text()
+
+
+def test_recording_written_to_nodes_is_diagnosed_as_run_diagnoses_it(plants, tags, tmp_path):
+    port, store = free_port(), str(tmp_path / "dryer.db")
+    process = monitor(port, store, tags)
+    try:
+        until(lambda: events(store, "disconnect")() >= 1, "the monitor to find no server", process)
+        plant = plants(port)  # the server comes up after the monitor: it is tried again
+        until(lambda: events(store, "connect")() == 1, "the monitor to connect", process)
+        plant.write(rows())
+        until(lambda: query(store, "SELECT count(*) FROM result") == 1000, "every row stored", process)
+        err = stop(process)
+    finally:
+        process.kill()
+    assert f"monitor: disconnect: cannot reach 127.0.0.1:{port} (" in err and "trying again in 1 s" in err
+    assert exported(tmp_path, store) == expected_table(tmp_path)
+    kinds = dict(sqlite3.connect(store).execute("SELECT kind, count(*) FROM event WHERE kind != 'disconnect' "
+                                                "GROUP BY kind"))
+    assert kinds == {"start": 1, "connect": 1}
+
+
+def test_killed_monitor_diagnoses_no_row_twice(plants, tags, tmp_path):
+    plant, store = plants(), str(tmp_path / "dryer.db")
+    recording = rows()
+    first = monitor(plant.port, store, tags)
+    second = None
+    try:
+        until(lambda: events(store, "connect")() == 1, "the monitor to connect", first)
+        plant.write(recording[:600])
+        until(lambda: query(store, "SELECT count(*) FROM result") == 600, "600 rows stored", first)
+        first.send_signal(signal.SIGKILL)
+        first.wait(WAIT)
+        second = monitor(plant.port, store, tags)
+        # on connecting, the server sends each node's current value: row 600's, diagnosed already
+        until(lambda: events(store, "late")() == 2, "the current values, late", second)
+        plant.write(recording[600:])
+        until(lambda: query(store, "SELECT count(*) FROM result") == 1000, "every row stored", second)
+        stop(second)
+    finally:
+        for process in (first, second):
+            if process is not None:
+                process.kill()
+    assert query(store, "SELECT count(DISTINCT time) FROM sample") == 1000
+    assert exported(tmp_path, store) == expected_table(tmp_path)
+
+
+def test_wrong_password_is_refused(plants, tags, tmp_path):
+    plant, store = plants(password=True), str(tmp_path / "dryer.db")
+    secret = tmp_path / "password"
+    secret.write_text("wrong\n")
+    done = subprocess.run([*jmlgdsl_command(), "monitor", SPEC, "--source", f"opc.tcp://127.0.0.1:{plant.port}/dryer",
+                           "--tags", tags, "--store", store, "--username", "plant", "--password-file", str(secret)],
+                          capture_output=True, text=True, timeout=WAIT)
+    assert done.returncode == 2, done.stderr
+    assert (f"error: opc.tcp://127.0.0.1:{plant.port}/dryer: the server refused the connection "
+            "(BadUserAccessDenied); check --username and the password" in done.stderr)
+    assert "wrong" not in done.stderr
+    process = monitor(plant.port, store, tags, "--username", "plant", "--password-env", "PLANT_PASSWORD",
+                      env={"PLANT_PASSWORD": "secret"})
+    try:
+        until(lambda: events(store, "connect")() == 1, "the monitor to connect with the right password", process)
+        stop(process)
+    finally:
+        process.kill()
+    assert "secret" not in (query(store, "SELECT group_concat(options) FROM run") or "")
