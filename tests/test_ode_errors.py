@@ -1,9 +1,12 @@
 """The mistakes a user meets in an ODE plant, each reported at file:line:col with a clear message."""
 
+import subprocess
+
 import pytest
-from conftest import assert_located
+from conftest import ROOT, assert_located, jmlgdsl_command
 from conftest import errors_of as shared_errors_of
 
+import jmlgdsl.compile.ode as ode
 from jmlgdsl.compile.lower import compile_text
 from jmlgdsl.errors import SpecWarning
 
@@ -100,6 +103,37 @@ def test_no_steady_state_says_the_residual_and_what_to_try():
     assert residual >= 1.0  # 1 + h^2 never falls below 1
     assert "give better guesses ('state h = ...')" in d.message
     assert "linearize at h = ..." in d.message
+
+
+NO_STEADY_STATE = replace("(q - out) / area", "1 + h^2")  # settling runs away: h grows without bound
+
+
+def test_no_steady_state_prints_only_the_located_error(tmp_path):
+    """The command's output is the located error alone: nothing on standard output, no integrator
+    messages on standard error (LSODA's Fortran code in older scipy releases printed dozens of lines)."""
+    path = tmp_path / "tank.jmlg"
+    path.write_text(NO_STEADY_STATE)
+    done = subprocess.run([*jmlgdsl_command(), "check", str(path)], cwd=ROOT, capture_output=True, text=True,
+                          timeout=120)
+    assert done.returncode == 2
+    assert done.stdout == ""
+    expected = [d.format() for d in shared_errors_of(NO_STEADY_STATE, str(path))]
+    assert done.stderr.rstrip("\n") == "\n".join(expected)
+
+
+def test_the_steady_state_search_does_not_integrate_with_lsoda(monkeypatch):
+    """Whatever scipy's version, the search settles the plant with an integrator that cannot write to the
+    terminal: LSODA's Fortran code writes its warnings to the process's own standard output."""
+    methods = []
+
+    def solve_ivp(*args, **kwargs):
+        methods.append(kwargs["method"])
+        return real(*args, **kwargs)
+
+    real = ode.solve_ivp
+    monkeypatch.setattr(ode, "solve_ivp", solve_ivp)
+    errors_of(NO_STEADY_STATE)
+    assert methods and "LSODA" not in methods
 
 
 def test_unstable_linearisation_is_a_warning_with_the_eigenvalue():

@@ -32,6 +32,9 @@ from .blocks import Layout, ModeArrays
 
 STEADY_TOLERANCE = 1e-8  # largest accepted |der(x)| at a steady state, relative to 1 + |x|
 SETTLE_SPAN = 1e6  # how long (in the derivatives' unit) guesses are let settle when root finding fails
+# How they settle: scipy's BDF, written in Python. LSODA's Fortran code (in older scipy releases) writes its
+# warnings straight to the terminal, and a plant with no steady state to settle to makes dozens of them.
+SETTLE_METHOD = "BDF"
 RTOL, ATOL = 1e-9, 1e-12  # integration tolerances, far below the noise of any realistic plant
 MAX_EVALUATIONS = 10_000  # an integration that needs more has run away (settling takes a few hundred)
 
@@ -328,7 +331,7 @@ def steady_state(system: OdeSystem, guess, u, p, mode: str, pos: S.Pos, report: 
     says the largest residual left when neither converges."""
     x, residual = _root(system, guess, u, p)
     if not _steady(x, residual):
-        settled, _ = flow(system, guess, u, p, SETTLE_SPAN)
+        settled, _ = flow(system, guess, u, p, SETTLE_SPAN, SETTLE_METHOD)
         if settled is not None:
             x_settled, residual_settled = _root(system, settled, u, p)
             if _steady(x_settled, residual_settled):
@@ -358,9 +361,10 @@ class _OverBudget(Exception):
     """Raised inside an integration that needs more than MAX_EVALUATIONS evaluations."""
 
 
-def flow(system: OdeSystem, x, u, p, span: float) -> tuple[np.ndarray | None, str]:
+def flow(system: OdeSystem, x, u, p, span: float, method: str = "LSODA") -> tuple[np.ndarray | None, str]:
     """Integrate the equations from x over `span` (in the derivatives' unit) with u held, by scipy's
-    LSODA with the exact Jacobian: (end state, "") or (None, why the integration failed)."""
+    `method` (LSODA, the fastest over a simulation's many short spans) with the exact Jacobian:
+    (end state, "") or (None, why the integration failed)."""
     calls = itertools.count()
 
     def rate(_, state):
@@ -370,7 +374,7 @@ def flow(system: OdeSystem, x, u, p, span: float) -> tuple[np.ndarray | None, st
 
     try:
         with np.errstate(all="ignore"):
-            sol = solve_ivp(rate, (0.0, span), x, method="LSODA", jac=lambda _, s: system.jacobian("f_x", s, u, p),
+            sol = solve_ivp(rate, (0.0, span), x, method=method, jac=lambda _, s: system.jacobian("f_x", s, u, p),
                             rtol=RTOL, atol=ATOL)
     except _OverBudget:
         return None, f"the equations needed more than {MAX_EVALUATIONS} evaluations"
