@@ -281,12 +281,3 @@ def test_learn_takes_experiments_as_arrays(dryer, experiments):
     with pytest.raises(jmlgdsl.JmlgError, match="plant dryer has modes normal, fan, grill, fan_grill; give one "
                                                "experiment for each"):
         learn({"normal": experiments["normal"]}, dryer)
-
-
-def test_package_example(monkeypatch):
-    import doctest
-
-    import jmlgdsl.learn
-
-    monkeypatch.chdir(DRYER.parents[1])
-    assert doctest.testmod(jmlgdsl.learn).failed == 0
