@@ -2,7 +2,9 @@
 recording published as one JSON object per sample is diagnosed into the store and exported as the
 very table `jmlgdsl run -o` writes for it; killed with SIGKILL mid-stream, the monitor's persistent
 session keeps what is published while it is down, and the restarted monitor loses and repeats no
-row; malformed and late readings are counted events; a wrong password is refused by name."""
+row; a broker down at start is tried again, and one stopped mid-stream and started again leaves a
+gap of missing readings for what could not be published meanwhile; malformed and late readings are
+counted events; a wrong password is refused by name."""
 
 import csv
 import getpass
@@ -36,19 +38,21 @@ def free_port():
         return s.getsockname()[1]
 
 
-@pytest.fixture
-def broker(tmp_path):
-    """A mosquitto on 127.0.0.1 (anonymous, or with user 'plant' and password 'secret' when asked)."""
-    started = []
+class Brokers:
+    """Mosquittos on 127.0.0.1, each on its own port (anonymous, or with user 'plant' and password
+    'secret' when asked), stopped and started again on the same port when a test says so."""
 
-    def start(password=False):
-        port = free_port()
-        config = tmp_path / f"mosquitto-{port}.conf"
-        # run as this user (a broker started by root would drop to 'mosquitto', who cannot read tmp_path)
+    def __init__(self, folder):
+        self.folder, self.running = folder, {}
+
+    def __call__(self, password=False, port=None):
+        port = port or free_port()
+        config = self.folder / f"mosquitto-{port}.conf"
+        # run as this user (a broker started by root would drop to 'mosquitto', who cannot read the folder)
         lines = [f"listener {port} 127.0.0.1", f"user {getpass.getuser()}", "persistence false",
                  "max_queued_messages 0"]
         if password:
-            passwords = tmp_path / "passwords"
+            passwords = self.folder / "passwords"
             passwords.write_text("")
             subprocess.run(["mosquitto_passwd", "-b", str(passwords), "plant", "secret"], check=True, timeout=WAIT)
             lines += ["allow_anonymous false", f"password_file {passwords}"]
@@ -57,7 +61,7 @@ def broker(tmp_path):
         config.write_text("\n".join(lines) + "\n")
         process = subprocess.Popen([MOSQUITTO, "-c", str(config)], stdout=subprocess.DEVNULL,
                                    stderr=subprocess.DEVNULL)
-        started.append(process)
+        self.running[port] = process
         deadline = time.monotonic() + WAIT
         while True:
             try:
@@ -66,10 +70,19 @@ def broker(tmp_path):
             except OSError:
                 assert process.poll() is None and time.monotonic() < deadline, "mosquitto did not start"
                 time.sleep(0.02)
-    yield start
-    for process in started:
+
+    def stop(self, port):
+        process = self.running.pop(port)
         process.terminate()
         process.wait(WAIT)
+
+
+@pytest.fixture
+def broker(tmp_path):
+    brokers = Brokers(tmp_path)
+    yield brokers
+    for port in list(brokers.running):
+        brokers.stop(port)
 
 
 def samples():
@@ -139,8 +152,12 @@ def exported(tmp_path, store):
     return out.read_text()
 
 
-def connected(store):
-    return lambda: (query(store, "SELECT count(*) FROM event WHERE kind = 'connect'") or 0) >= 1
+def connected(store, times=1):
+    return lambda: (query(store, "SELECT count(*) FROM event WHERE kind = 'connect'") or 0) >= times
+
+
+def stored(store, rows):
+    return lambda: query(store, "SELECT count(*) FROM result") == rows
 
 
 def test_published_recording_is_diagnosed_as_run_diagnoses_it(broker, tmp_path):
@@ -205,3 +222,52 @@ def test_wrong_password_is_refused(broker, tmp_path):
     finally:
         process.kill()
     assert "secret" not in (query(store, "SELECT group_concat(options) FROM run") or "")
+
+
+def test_broker_down_at_start_is_tried_again(broker, tmp_path):
+    port, store = free_port(), str(tmp_path / "dryer.db")
+    process = monitor(port, store)
+    try:
+        until(lambda: (query(store, "SELECT count(*) FROM event WHERE kind = 'disconnect'") or 0) >= 1,
+              "the monitor to find no broker", process)
+        broker(port=port)
+        until(connected(store), "the monitor to connect", process)
+        publish(port, samples())
+        until(stored(store, 1000), "every row stored", process)
+        err = stop(process)
+    finally:
+        process.kill()
+    assert f"monitor: disconnect: cannot reach 127.0.0.1:{port} (no answer); trying again" in err
+    assert exported(tmp_path, store) == expected_table(tmp_path)
+
+
+def test_broker_stopped_mid_stream_leaves_a_gap(broker, tmp_path):
+    """The broker (without persistence) forgets the session when it stops, and what the plant could not
+    publish meanwhile never arrives: the rows of the outage are a gap of missing readings."""
+    port, store = broker(), str(tmp_path / "dryer.db")
+    messages = samples()
+    process = monitor(port, store)
+    try:
+        until(connected(store), "the monitor to connect", process)
+        publish(port, messages[:500])
+        until(stored(store, 500), "500 rows stored", process)
+        broker.stop(port)
+        until(lambda: (query(store, "SELECT count(*) FROM event WHERE kind = 'disconnect'") or 0) >= 1,
+              "the lost connection", process)
+        broker(port=port)  # rows 501 to 600 were not published while it was down
+        until(connected(store, 2), "the monitor to connect again", process)
+        publish(port, messages[600:])
+        until(stored(store, 1000), "every row stored", process)
+        stop(process)
+    finally:
+        process.kill()
+    db = sqlite3.connect(store)
+    assert dict(db.execute("SELECT kind, count(*) FROM event WHERE kind != 'disconnect' GROUP BY kind")) == {
+        "start": 1, "connect": 2, "stale": 2, "gap": 1, "fresh": 2}
+    assert db.execute("SELECT detail FROM event WHERE kind = 'gap'").fetchall() == [
+        ("no readings for 100 s from 501 s: 100 rows of missing readings",)]
+    assert db.execute("SELECT min(time), max(time), count(DISTINCT time) FROM sample WHERE y = '[null]'"
+                      ).fetchone() == (501.0, 600.0, 100)
+    assert db.execute("SELECT count(*), count(DISTINCT time) FROM sample").fetchone() == (1000, 1000)
+    expected = expected_table(tmp_path).splitlines()
+    assert exported(tmp_path, store).splitlines()[:501] == expected[:501]
