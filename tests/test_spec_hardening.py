@@ -5,7 +5,7 @@ import time
 
 import numpy as np
 import pytest
-from conftest import assert_located, errors_of
+from conftest import ROOT, assert_located, errors_of
 
 from jmlgdsl.cli import main
 from jmlgdsl.compile.lower import compile_text
@@ -398,3 +398,11 @@ def test_check_exits_2_with_a_located_message(tmp_path, capsys, text):
     assert main(["check", str(path)]) == 2
     err = capsys.readouterr().err
     assert err.startswith(f"{path}:") and "Traceback" not in err
+
+
+def test_a_long_number_in_a_matrix_is_read_at_once():
+    """A number of 20,000 digits in a matrix over several lines is one token (the number pattern
+    cannot backtrack over its digits: it took minutes to parse)."""
+    text = (ROOT / "specs" / "cstr4.jmlg").read_text().replace("0.99825 0.001", "0.99825 0." + "1" * 20000, 1)
+    diagnostics = errors_of(text, "cstr4.jmlg")
+    assert [d.message for d in diagnostics] == ["transition row 1 (normal) sums to 1.11011, not 1"]
