@@ -3,11 +3,14 @@ recording published as one JSON object per sample is diagnosed into the store an
 very table `jmlgdsl run -o` writes for it; killed with SIGKILL mid-stream, the monitor's persistent
 session keeps what is published while it is down, and the restarted monitor loses and repeats no
 row; a broker down at start is tried again, and one stopped mid-stream and started again leaves a
-gap of missing readings for what could not be published meanwhile; malformed and late readings are
+gap of missing readings for what could not be published meanwhile; an mqtts:// broker is trusted
+through --ca-file and refused by name without it; malformed and late readings are
 counted events; a wrong password is refused by name."""
 
 import csv
+import datetime
 import getpass
+import ipaddress
 import json
 import os
 import shutil
@@ -45,12 +48,15 @@ class Brokers:
     def __init__(self, folder):
         self.folder, self.running = folder, {}
 
-    def __call__(self, password=False, port=None):
+    def __call__(self, password=False, port=None, tls=None):
+        """Start one; `tls`: (certificate file, key file) of a TLS listener."""
         port = port or free_port()
         config = self.folder / f"mosquitto-{port}.conf"
         # run as this user (a broker started by root would drop to 'mosquitto', who cannot read the folder)
         lines = [f"listener {port} 127.0.0.1", f"user {getpass.getuser()}", "persistence false",
                  "max_queued_messages 0"]
+        if tls:
+            lines += [f"certfile {tls[0]}", f"keyfile {tls[1]}"]
         if password:
             passwords = self.folder / "passwords"
             passwords.write_text("")
@@ -92,9 +98,12 @@ def samples():
                 for r in csv.DictReader(stream)]
 
 
-def publish(port, messages, topic="dryer"):
-    """Publish (topic, payload) pairs, or payloads to `topic`, at QoS 1, each one acknowledged."""
+def publish(port, messages, topic="dryer", ca_file=None):
+    """Publish (topic, payload) pairs, or payloads to `topic`, at QoS 1, each one acknowledged (over TLS
+    trusting `ca_file` when given)."""
     client = paho.Client(paho.CallbackAPIVersion.VERSION2, client_id="recorder")
+    if ca_file:
+        client.tls_set(ca_certs=ca_file)
     client.connect("127.0.0.1", port)
     client.loop_start()
     try:
@@ -237,7 +246,7 @@ def test_broker_down_at_start_is_tried_again(broker, tmp_path):
         err = stop(process)
     finally:
         process.kill()
-    assert f"monitor: disconnect: cannot reach 127.0.0.1:{port} (no answer); trying again" in err
+    assert f"monitor: disconnect: cannot reach 127.0.0.1:{port} ([Errno 111] Connection refused); trying again" in err
     assert exported(tmp_path, store) == expected_table(tmp_path)
 
 
@@ -271,3 +280,56 @@ def test_broker_stopped_mid_stream_leaves_a_gap(broker, tmp_path):
     assert db.execute("SELECT count(*), count(DISTINCT time) FROM sample").fetchone() == (1000, 1000)
     expected = expected_table(tmp_path).splitlines()
     assert exported(tmp_path, store).splitlines()[:501] == expected[:501]
+
+
+def certificates(folder):
+    """A certificate authority and a server certificate for 127.0.0.1 that it signed: (ca, cert, key) files."""
+    from cryptography import x509
+    from cryptography.hazmat.primitives import hashes, serialization
+    from cryptography.hazmat.primitives.asymmetric import ec
+    from cryptography.x509.oid import NameOID
+
+    def name(text):
+        return x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, text)])
+
+    def signed(subject, key, issuer, issuer_key, ca):
+        now = datetime.datetime.now(datetime.timezone.utc)
+        builder = (x509.CertificateBuilder().subject_name(name(subject)).issuer_name(name(issuer))
+                   .public_key(key.public_key()).serial_number(x509.random_serial_number())
+                   .not_valid_before(now - datetime.timedelta(minutes=5)).not_valid_after(now + datetime.timedelta(days=1))
+                   .add_extension(x509.BasicConstraints(ca=ca, path_length=None), critical=True))
+        if not ca:
+            builder = builder.add_extension(x509.SubjectAlternativeName(
+                [x509.IPAddress(ipaddress.ip_address("127.0.0.1"))]), critical=False)
+        return builder.sign(issuer_key, hashes.SHA256())
+
+    ca_key, server_key = ec.generate_private_key(ec.SECP256R1()), ec.generate_private_key(ec.SECP256R1())
+    ca = signed("jmlgdsl test authority", ca_key, "jmlgdsl test authority", ca_key, True)
+    server = signed("127.0.0.1", server_key, "jmlgdsl test authority", ca_key, False)
+    files = folder / "ca.pem", folder / "server.pem", folder / "server.key"
+    files[0].write_bytes(ca.public_bytes(serialization.Encoding.PEM))
+    files[1].write_bytes(server.public_bytes(serialization.Encoding.PEM))
+    files[2].write_bytes(server_key.private_bytes(serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8,
+                                                  serialization.NoEncryption()))
+    return tuple(str(f) for f in files)
+
+
+def test_mqtts_broker_is_trusted_through_its_certificate_authority(broker, tmp_path):
+    ca, cert, key = certificates(tmp_path)
+    port, store = broker(tls=(cert, key)), str(tmp_path / "dryer.db")
+    url = f"mqtts://127.0.0.1:{port}/dryer"
+    done = subprocess.run([*jmlgdsl_command(), "monitor", SPEC, "--source", url, "--store", store],
+                          capture_output=True, text=True, timeout=WAIT)
+    assert done.returncode == 2
+    assert (f"error: {url}: the broker's certificate is not trusted (unable to get local issuer certificate); "
+            "give the certificate authority that signed it with --ca-file") in done.stderr
+    process = subprocess.Popen([*jmlgdsl_command(), "monitor", SPEC, "--source", url, "--store", store, "--ca-file",
+                                ca], stderr=subprocess.PIPE, text=True)
+    try:
+        until(connected(store), "the monitor to connect over TLS", process)
+        publish(port, samples(), ca_file=ca)
+        until(stored(store, 1000), "every row stored", process)
+        stop(process)
+    finally:
+        process.kill()
+    assert exported(tmp_path, store) == expected_table(tmp_path)

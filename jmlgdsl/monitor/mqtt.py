@@ -6,11 +6,14 @@ broker keeps what is published while the monitor is down and delivers it when it
 are acknowledged by hand, only once the monitor has committed them to its store: a crash between
 the two leaves them unacknowledged, and the broker delivers them again. A broker that is down, at
 start or later, is retried with a growing delay (1 s to 30 s), each attempt an event; a refused
-user name or password stops the monitor with a message that says so.
+user name or password, or an mqtts:// broker whose certificate --ca-file (or the system) does not
+trust, stops the monitor with a message that says so.
 """
 
 from __future__ import annotations
 
+import ssl
+import sys
 import time
 
 import paho.mqtt.client as mqtt
@@ -63,7 +66,15 @@ class MqttSource:
             put(("event", bus.connected(where, f"as {self.client_id}, {resumed}")))
 
         def on_connect_fail(client, userdata):
-            put(("event", bus.unreachable(where, "no answer")))
+            error = sys.exc_info()[1]  # paho calls this while it handles the connection's OSError
+            if isinstance(error, ssl.SSLCertVerificationError):
+                put(("fatal", f"{self.name}: the broker's certificate is not trusted ({error.verify_message}); give "
+                              "the certificate authority that signed it with --ca-file"))
+            elif isinstance(error, ssl.SSLError):
+                put(("fatal", f"{self.name}: no TLS connection ({error.reason or error}): is {self.port} the "
+                              "broker's TLS port?"))
+            else:
+                put(("event", bus.unreachable(where, error or "no answer")))
 
         def on_disconnect(client, userdata, flags, reason, properties):
             if self.client is not None:
