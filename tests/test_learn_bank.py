@@ -10,6 +10,7 @@ import pytest
 import jmlgdsl
 from jmlgdsl.cli import main
 from jmlgdsl.data import write_columns
+from jmlgdsl.errors import JmlgError
 from jmlgdsl.infer import filter as run_filter
 from jmlgdsl.learn import bank, figures, learn
 from jmlgdsl.learn.em import forward
@@ -244,16 +245,38 @@ def test_cli_learn_without_template_writes_the_spec_to_standard_output(dryer, ex
     (["--mode", "normal"], "--mode takes NAME=CSV"),
     (["--mode", "a=x.csv", "--order", "0"], "order must be auto, N or NA,NB,NK"),
     (["--mode", "a=x.csv"], "name the outputs (the output columns), or give a template"),
-    (["--mode", "a=x.csv", "--max-order", "0"], "max_order must be at least 1, not 0"),
-    (["--mode", "a=x.csv", "--max-delay", "-1"], "max_delay must be at least 0, not -1"),
-    (["--mode", "a=x.csv", "--max-iter", "-1"], "max_iter must be at least 0, not -1"),
-    (["--mode", "a=x.csv", "--dt", "0"], "dt must be a positive number of seconds, not 0.0"),
-    (["--mode", "a=x.csv", "--output", "y", "--stay", "2"], "stay must be a probability, not 2.0"),
     (["--mode", "normal=x.csv", "--template", str(DRYER)], "give one experiment for each"),
 ])
 def test_cli_learn_user_errors(argv, message, capsys):
     assert main(["learn"] + argv) == 2
     assert message in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--max-order", "0"], "argument --max-order: must be at least 1, not 0"),
+    (["--max-delay", "-1"], "argument --max-delay: must be at least 0, not -1"),
+    (["--max-iter", "-1"], "argument --max-iter: must be at least 0, not -1"),
+    (["--dt", "0"], "argument --dt: must be positive, not 0"),
+    (["--dt", "nan"], "argument --dt: expected a finite number, not 'nan'"),
+    (["--stay", "2"], "argument --stay: must be a probability (0 to 1), not 2"),
+    (["--initial", "x"], "argument --initial: expected a number, not 'x'"),
+])
+def test_cli_learn_refuses_options_out_of_range_by_name(argv, message, capsys):
+    with pytest.raises(SystemExit) as done:
+        main(["learn", "--mode", "a=x.csv", "--output", "y"] + argv)
+    assert done.value.code == 2 and capsys.readouterr().err.endswith(f"error: {message}\n")
+
+
+@pytest.mark.parametrize("options, message", [
+    (dict(max_order=0), "max_order must be at least 1, not 0"),
+    (dict(max_delay=-1), "max_delay must be at least 0, not -1"),
+    (dict(max_iter=-1), "max_iter must be at least 0, not -1"),
+    (dict(dt=0.0), "dt must be a positive number of seconds, not 0.0"),
+    (dict(stay=2.0), "stay must be a probability, not 2.0"),
+])
+def test_learn_refuses_values_out_of_range_by_keyword(options, message):
+    with pytest.raises(JmlgError, match=f"^{message}$"):
+        learn({"a": "x.csv"}, outputs=("y",), **options)
 
 
 def test_learn_is_the_command_as_a_library(dryer, experiments, tmp_path, capsys):

@@ -5,6 +5,7 @@ from __future__ import annotations
 import sys
 
 from ..errors import JmlgError
+from . import positive, probability, whole
 
 
 def register(subparsers):
@@ -30,20 +31,20 @@ def register(subparsers):
     structure.add_argument("--fopdt", action="store_true",
                            help="the experiments are step tests: first order plus dead time")
     p.add_argument("--criterion", choices=("bic", "aic"), default="bic", help="order selection criterion")
-    p.add_argument("--max-order", type=int, default=4, help="largest na and nb tried by --order auto")
-    p.add_argument("--max-delay", type=int, default=0, help="largest input delay nk tried by --order auto")
+    p.add_argument("--max-order", type=whole(1), default=4, help="largest na and nb tried by --order auto")
+    p.add_argument("--max-delay", type=whole(0), default=0, help="largest input delay nk tried by --order auto")
     p.add_argument("--input", dest="inputs", type=names, default=(), metavar="NAMES",
                    help="input column names, comma separated (without --template)")
     p.add_argument("--output", dest="outputs", type=names, default=(), metavar="NAMES",
                    help="output column names, comma separated (without --template)")
-    p.add_argument("--dt", type=float, default=1.0, help="sample time in seconds (without --template)")
+    p.add_argument("--dt", type=positive, default=1.0, help="sample time in seconds (without --template)")
     p.add_argument("--name", default="plant", help="plant name (without --template)")
-    p.add_argument("--stay", type=float, default=0.99,
+    p.add_argument("--stay", type=probability, default=0.99,
                    help="probability of staying in a mode, the rest uniform (without --template)")
-    p.add_argument("--initial", type=float, default=0.99, metavar="P",
+    p.add_argument("--initial", type=probability, default=0.99, metavar="P",
                    help="prior probability of the first --mode, taken as the healthy one; the rest is "
                         "shared uniformly (without --template; default 0.99)")
-    p.add_argument("--max-iter", type=int, default=100, help="EM iteration cap (default 100)")
+    p.add_argument("--max-iter", type=whole(0), default=100, help="EM iteration cap (default 100)")
     p.add_argument("--tol", type=float, default=1e-5, help="EM relative log-likelihood tolerance (default 1e-5)")
     p.add_argument("--figures", metavar="DIR", help="write validation (and step-fit) figures here")
     p.add_argument("-q", "--quiet", action="store_true", help="do not report each mode as it is learned")
