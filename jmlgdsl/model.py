@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import JmlgError
+from .output import replacing
 
 ARRAYS = ("A", "B", "C", "D", "F", "G", "f", "g", "P", "p0", "mu0", "Sigma0", "input_defaults")
 NAMES = ("modes", "states", "inputs", "outputs")
@@ -246,7 +247,8 @@ class Model:
         a file that cannot be written is a ModelError."""
         path = Path(path)
         try:
-            self._write(path)
+            with replacing(path) as temporary:  # whole or not at all; the same suffix, so the same format
+                self._write(temporary)
         except OSError as exc:
             raise ModelError(f"cannot write model file {path}: {exc.strerror or exc}") from None
         return path

@@ -44,8 +44,10 @@ def test_run_refuses_zero_particles(files, capsys):
 def test_learn_checks_its_output_and_sample_time(files, capsys, tmp_path):
     _, data = files
     refused(["learn", "--mode", f"normal={data}", "--output", "temp", "--dt", "1", "-o", str(data)], capsys, "")
-    refused(["learn", "--mode", f"normal={data}", "--output", "temp", "--dt", "inf", "-o", str(tmp_path / "s.jmlg")],
-            capsys, "--dt")
+    with pytest.raises(SystemExit):
+        main(["learn", "--mode", f"normal={data}", "--output", "temp", "--dt", "inf", "-o", str(tmp_path / "s.jmlg")])
+    assert capsys.readouterr().err.endswith("error: argument --dt: expected a finite number, not 'inf'\n")
+    assert not (tmp_path / "s.jmlg").exists()
 
 
 @pytest.mark.parametrize("extra, message", [

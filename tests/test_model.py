@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 import jmlgdsl
-from jmlgdsl import Model, ModelError
+from jmlgdsl import JmlgError, Model, ModelError
 
 
 def random_model(seed=0, K=3, nx=2, ny=2, nu=1):
@@ -105,9 +105,18 @@ def test_unreadable_model_files_are_model_errors_naming_the_file(tmp_path, name,
         jmlgdsl.load(tmp_path / name)
 
 
-def test_unwritable_model_file_is_a_model_error(tmp_path):
-    with pytest.raises(ModelError, match="cannot write model file .*m.json"):
+def test_an_unwritable_model_file_is_a_clear_error(tmp_path):
+    with pytest.raises(JmlgError, match="^cannot write .*m.json: No such file or directory$"):
         random_model().save(tmp_path / "no" / "such" / "folder" / "m.json")
+
+
+def test_a_model_file_is_written_whole_or_not_at_all(tmp_path, monkeypatch):
+    path = tmp_path / "m.json"
+    path.write_text("the old model")
+    monkeypatch.setattr(Model, "to_dict", lambda self: 1 / 0)
+    with pytest.raises(ZeroDivisionError):
+        random_model().save(path)
+    assert path.read_text() == "the old model" and [p.name for p in tmp_path.iterdir()] == ["m.json"]
 
 
 def test_cli_reports_a_damaged_model_file_without_traceback(tmp_path, capsys):

@@ -21,7 +21,7 @@ def run(args) -> int:
 
     from .. import load
     from ..names import plural
-    from ..output import MODEL, check_file, replacing
+    from ..output import MODEL, check_file
 
     check_file(args.output, inputs=[args.spec], suffixes=MODEL)
     model = load(args.spec)
@@ -30,8 +30,7 @@ def run(args) -> int:
 
         print(jacobian_report(args.spec))
     if args.output:
-        with replacing(args.output) as temporary:
-            model.save(temporary)
+        model.save(args.output)
         print(f"wrote {args.output} ({plural(model.K, 'mode')}, nx={model.nx}, ny={model.ny}, nu={model.nu})")
     elif not args.show_jacobian:
         with np.printoptions(precision=6, suppress=True, linewidth=110):

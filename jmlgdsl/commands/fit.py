@@ -40,17 +40,14 @@ def register(subparsers):
 
 def main(args) -> int:
     from ..fitting import fit
-    from ..output import check_file, replacing
+    from ..output import check_file
 
     check_file(args.output, inputs=[args.spec, *args.data])  # before the work: never over an input
     progress = None if args.quiet else (lambda text: print(text, file=sys.stderr, flush=True))
     result = fit(args.spec, args.data, algorithm=args.filter, samples=args.samples, starts=args.starts,
                  seed=args.seed, progress=progress)
     print(result.report(), file=sys.stderr)
-    if args.output == "-":
-        sys.stdout.write(result.text)
-    else:
-        with replacing(args.output) as temporary:  # whole or not at all
-            result.write(temporary)
+    result.write(args.output)
+    if args.output != "-":
         print(f"wrote {args.output}", file=sys.stderr)
     return 0

@@ -13,7 +13,6 @@ import itertools
 import math
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 from scipy.optimize import minimize
@@ -21,6 +20,7 @@ from scipy.optimize import minimize
 from ..compile.assemble import twins
 from ..errors import JmlgError
 from ..model import Model
+from ..output import writing
 from ..seeds import generator
 from .family import Family, FitError
 from .likelihood import labelled, loglik
@@ -54,8 +54,9 @@ class Fit:
     text: str = ""  # the spec rewritten with the fitted values
 
     def write(self, path) -> None:
-        """Write the fitted spec."""
-        Path(path).write_text(self.text, encoding="utf-8")
+        """Write the fitted spec, whole or not at all ('-': standard output)."""
+        with writing(path) as stream:
+            stream.write(self.text)
 
     def values(self) -> dict[str, float]:
         """{unknown: estimate}."""
