@@ -1,5 +1,6 @@
-"""The subcommands of `jmlgdsl`, one module each (see jmlgdsl/cli.py), and the argument types they
-share: a value out of range is refused by argparse, naming the option, before any work starts."""
+"""The subcommands of `jmlgdsl`, one module each (see jmlgdsl/cli.py), and what they share: argument
+types (a value out of range is refused by argparse, naming the option, before any work starts) and
+the options of a diagnosis (`run` and `monitor`)."""
 
 from __future__ import annotations
 
@@ -45,3 +46,28 @@ def probability(text) -> float:
     if not 0 <= value <= 1:
         raise argparse.ArgumentTypeError(f"must be a probability (0 to 1), not {text}")
     return value
+
+
+def add_filter_options(p):
+    """The filter's options: --filter, --particles, --seed, --resampling, --ess-threshold."""
+    from ..infer import ALGORITHMS, DEFAULT_ALGORITHM
+    from ..infer.resample import SCHEMES
+
+    p.add_argument("--filter", default=DEFAULT_ALGORITHM, choices=list(ALGORITHMS),
+                   help=f"filtering algorithm (default {DEFAULT_ALGORITHM})")
+    p.add_argument("--particles", type=int, help="number of particles (default depends on the filter)")
+    p.add_argument("--seed", type=int, help="random seed (the same seed gives the same output)")
+    p.add_argument("--resampling", default="systematic", choices=list(SCHEMES), help="resampling scheme")
+    p.add_argument("--ess-threshold", type=float, default=1.0,
+                   help="resample when ESS < this fraction of the particles (1 = every step)")
+
+
+def add_alarm_options(p):
+    """The alarm rule's options: --healthy, --threshold, --persistence."""
+    alarm = p.add_argument_group("alarm rule")
+    alarm.add_argument("--healthy", metavar="MODE[,MODE...]",
+                       help="the modes that raise no alarm (default: the first mode of the spec)")
+    alarm.add_argument("--threshold", type=float, default=0.5,
+                       help="alarm when P(not healthy) is above this (default 0.5)")
+    alarm.add_argument("--persistence", type=int, default=1, metavar="K",
+                       help="... at K consecutive steps; the alarm starts on the K-th (default 1)")

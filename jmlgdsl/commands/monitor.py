@@ -5,11 +5,10 @@ from __future__ import annotations
 
 import sys
 
+from . import add_alarm_options, add_filter_options
+
 
 def register(subparsers):
-    from ..infer import ALGORITHMS, DEFAULT_ALGORITHM
-    from ..infer.resample import SCHEMES
-
     p = subparsers.add_parser(
         "monitor", help="diagnose a running plant live, keeping every conclusion in a store",
         description="Diagnose a plant's data as they arrive, from a CSV file followed as it grows, standard "
@@ -50,20 +49,8 @@ def register(subparsers):
                      help="OPC UA security, e.g. Basic256Sha256,SignAndEncrypt (default None: no security)")
     bus.add_argument("--certificate", metavar="FILE", help="the client's OPC UA certificate (with --security)")
     bus.add_argument("--private-key", metavar="FILE", help="the client's OPC UA private key (with --security)")
-    p.add_argument("--filter", default=DEFAULT_ALGORITHM, choices=list(ALGORITHMS),
-                   help=f"filtering algorithm (default {DEFAULT_ALGORITHM})")
-    p.add_argument("--particles", type=int, help="number of particles (default depends on the filter)")
-    p.add_argument("--seed", type=int, help="random seed (the same seed gives the same output)")
-    p.add_argument("--resampling", default="systematic", choices=list(SCHEMES), help="resampling scheme")
-    p.add_argument("--ess-threshold", type=float, default=1.0,
-                   help="resample when ESS < this fraction of the particles (1 = every step)")
-    alarm = p.add_argument_group("alarm rule")
-    alarm.add_argument("--healthy", metavar="MODE[,MODE...]",
-                       help="the modes that raise no alarm (default: the first mode of the spec)")
-    alarm.add_argument("--threshold", type=float, default=0.5,
-                       help="alarm when P(not healthy) is above this (default 0.5)")
-    alarm.add_argument("--persistence", type=int, default=1, metavar="K",
-                       help="... at K consecutive steps; the alarm starts on the K-th (default 1)")
+    add_filter_options(p)
+    add_alarm_options(p)
     p.add_argument("--lag", type=int, default=0, metavar="L",
                    help="fixed-lag smoothing: store each row once L more rows have arrived, with "
                         "p(mode | data up to L rows later)")

@@ -8,11 +8,10 @@ from __future__ import annotations
 
 import sys
 
+from . import add_alarm_options, add_filter_options
+
 
 def register(subparsers):
-    from ..infer import ALGORITHMS, DEFAULT_ALGORITHM
-    from ..infer.resample import SCHEMES
-
     p = subparsers.add_parser(
         "run", help="diagnose the mode of a plant from measured data",
         description="Filter measured data through a plant model: the most probable mode and the "
@@ -29,25 +28,13 @@ def register(subparsers):
     p.add_argument("data", help="CSV data file, or - to read rows from standard input as they arrive "
                                 "(each row's results are then written to standard output at once, "
                                 "the summary to standard error at the end)")
-    p.add_argument("--filter", default=DEFAULT_ALGORITHM, choices=list(ALGORITHMS),
-                   help=f"filtering algorithm (default {DEFAULT_ALGORITHM})")
-    p.add_argument("--particles", type=int, help="number of particles (default depends on the filter)")
-    p.add_argument("--seed", type=int, help="random seed (the same seed gives the same output)")
-    p.add_argument("--resampling", default="systematic", choices=list(SCHEMES), help="resampling scheme")
-    p.add_argument("--ess-threshold", type=float, default=1.0,
-                   help="resample when ESS < this fraction of the particles (1 = every step)")
+    add_filter_options(p)
     p.add_argument("-o", "--output", help="write one CSV row per time step here (- = standard output, "
                                           "the default when the data come from standard input)")
     p.add_argument("--plot", metavar="FILE.png",
                    help="draw the mode posterior over time, the MAP and true modes, and measured vs "
                         "predicted outputs with residuals")
-    alarm = p.add_argument_group("alarm rule")
-    alarm.add_argument("--healthy", metavar="MODE[,MODE...]",
-                       help="the modes that raise no alarm (default: the first mode of the spec)")
-    alarm.add_argument("--threshold", type=float, default=0.5,
-                       help="alarm when P(not healthy) is above this (default 0.5)")
-    alarm.add_argument("--persistence", type=int, default=1, metavar="K",
-                       help="... at K consecutive steps; the alarm starts on the K-th (default 1)")
+    add_alarm_options(p)
     when = p.add_mutually_exclusive_group()
     when.add_argument("--lag", type=int, metavar="L",
                       help="fixed-lag smoothing: report each row once L more rows have arrived, with "
