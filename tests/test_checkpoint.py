@@ -9,7 +9,7 @@ import sys
 
 import numpy as np
 import pytest
-from conftest import ROOT, SOURCE
+from conftest import ROOT, SOURCE, STARTUP_ENV
 
 import jmlgdsl
 from jmlgdsl.diagnosis.alarms import AlarmRule
@@ -81,7 +81,7 @@ def test_a_resumed_diagnosis_continues_bit_for_bit_in_a_fresh_process(tmp_path):
             d.feed(row)
         saved[name, lag] = (d.checkpoint(), kept.rows, data[cut:])
     (tmp_path / "cases.pickle").write_bytes(pickle.dumps(saved))
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT / "tests")] + ([str(ROOT)] if SOURCE else []))}
+    env = {**STARTUP_ENV, "PYTHONPATH": os.pathsep.join([str(ROOT / "tests")] + ([str(ROOT)] if SOURCE else []))}
     script = "import test_checkpoint\n" + RESUME
     subprocess.run([sys.executable, "-c", script, "cases.pickle", str(SPEC), "resumed.pickle"], cwd=tmp_path,
                    env=env, check=True, timeout=600)
