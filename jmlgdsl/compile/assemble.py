@@ -11,7 +11,7 @@ import numpy as np
 from ..lang.check import ModeInfo, Plant, noise_values
 from ..lang.evaluate import evaluate_number
 from ..lang.limits import MAX_MAGNITUDE, MAX_STACKED, MAX_VARIABLES, check_sd
-from ..lang.report import Report
+from ..lang.plant import Report
 from ..model import DEFAULT_GATE, Model
 from .blocks import MATRIX_NAMES, Layout, ModeArrays
 

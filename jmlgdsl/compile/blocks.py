@@ -15,7 +15,7 @@ import sympy as sp
 from ..lang.evaluate import (NOT_FINITE, EvalError, LetExpander, UnknownName, finite_numeric,
                                 finite_real, show, symbolic)
 from ..lang.limits import MAX_DELAY_SAMPLES, MAX_ORDER, check_sd
-from ..lang.report import Report
+from ..lang.plant import Report
 from ..lang.syntax import Dist, Expr, Name, Statement
 from ..lang.units import time_in_seconds
 from ..names import suggest

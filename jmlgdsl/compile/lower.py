@@ -7,8 +7,8 @@ import numpy as np
 
 from ..lang.check import Plant, check
 from ..lang.parse import parse_file, parse_text
-from ..lang.report import Report
-from ..lang.syntax import Pos, Spec
+from ..lang.plant import Pos, Report
+from ..lang.syntax import Spec
 from ..model import Model
 from .assemble import (check_size, declared_values, input_shifts, mode_noise, shift_inputs, stack, steady_mean,
                        steady_state)

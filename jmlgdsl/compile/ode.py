@@ -23,7 +23,7 @@ from ..lang.check import Plant, check
 from ..lang.parse import parse_file
 from ..lang.evaluate import (NOT_FINITE, EvalError, LetExpander, UnknownName, evaluate_number,
                                 finite_real, show, symbolic)
-from ..lang.report import Report
+from ..lang.plant import Report
 from ..lang.units import time_in_seconds
 from ..model import Model
 from ..names import suggest

@@ -4,13 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-
-@dataclass(frozen=True)
-class Pos:
-    """A 1-based line and column in the source file."""
-
-    line: int = 0
-    column: int = 0
+from .plant import Pos
 
 
 @dataclass(frozen=True)

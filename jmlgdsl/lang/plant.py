@@ -1,13 +1,22 @@
-"""Collects located diagnostics while checking and compiling a spec, so that every error in a file
-is reported at once; warnings are issued as SpecWarning."""
+"""The checked plant: what the checker (jmlgdsl.lang.check) hands to the compiler (jmlgdsl.compile).
+So far the positions and the report that located diagnostics go to, while checking and compiling:
+the compiler reports what it finds through them."""
 
 from __future__ import annotations
 
 import warnings
+from dataclasses import dataclass
 
 from ..errors import Diagnostic, SpecError, SpecWarning
 from .limits import MAX_ERRORS
-from .syntax import Pos
+
+
+@dataclass(frozen=True)
+class Pos:
+    """A 1-based line and column in the source file."""
+
+    line: int = 0
+    column: int = 0
 
 
 class Report:
