@@ -147,3 +147,10 @@ def test_package_example(monkeypatch):
 
     monkeypatch.chdir(ROOT)
     assert doctest.testmod(jmlgdsl.monitor).failed == 0
+
+
+def test_particles_for_a_filter_without_particles_are_refused_before_the_store_is_made(tmp_path, capsys):
+    assert main(["monitor", str(SPEC), "--source", str(DATA), "--no-follow", "--store", str(tmp_path / "s.db"),
+                 "--filter", "imm", "--particles", "5"]) == 2
+    assert capsys.readouterr().err.startswith("error: --particles: the imm filter uses no particles")
+    assert list(tmp_path.iterdir()) == []

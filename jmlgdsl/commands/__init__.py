@@ -71,3 +71,22 @@ def add_alarm_options(p):
                        help="alarm when P(not healthy) is above this (default 0.5)")
     alarm.add_argument("--persistence", type=int, default=1, metavar="K",
                        help="... at K consecutive steps; the alarm starts on the K-th (default 1)")
+
+
+def check_particles(args, model):
+    """Refuse --particles for a filter without particles, or a count beyond this machine's memory."""
+    from ..errors import JmlgError
+    from ..infer import ALGORITHMS, particle_bytes
+    from ..output import check_count
+
+    if args.particles is None:
+        return
+    if not ALGORITHMS[args.filter].uses_particles:
+        raise JmlgError(f"--particles: the {args.filter} filter uses no particles (the particle filters "
+                        f"are {', '.join(n for n, a in ALGORITHMS.items() if a.uses_particles)})")
+    check_count("--particles", args.particles, particle_bytes(model))
+
+
+def healthy_modes(args) -> list[str] | None:
+    """The modes --healthy names (None: the spec's first mode)."""
+    return [m.strip() for m in args.healthy.split(",")] if args.healthy else None

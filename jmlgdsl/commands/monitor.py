@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import sys
 
-from . import add_alarm_options, add_filter_options
+from . import add_alarm_options, add_filter_options, check_particles, healthy_modes
 
 
 def register(subparsers):
@@ -69,11 +69,12 @@ def main(args) -> int:
     from ..diagnosis.prefilter import parse
 
     model = jmlgdsl.load(args.spec)
+    check_particles(args, model)
     tags = read_tags(args.tags, model)
     options = monitor_options(
         algorithm=args.filter, particles=args.particles, seed=args.seed, resampling=args.resampling,
         ess_threshold=args.ess_threshold, lag=args.lag, prefilter=parse(args.prefilter),
-        healthy=[m.strip() for m in args.healthy.split(",")] if args.healthy else None, threshold=args.threshold,
+        healthy=healthy_modes(args), threshold=args.threshold,
         persistence=args.persistence, grace=args.grace, stale=args.stale, max_gap=args.max_gap)
     source = open_bus(args.source, model, tags, follow=not args.no_follow, client_id=args.client_id,
                       credentials=credentials(args.username, args.password_env, args.password_file),

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import sys
 
-from . import add_alarm_options, add_filter_options
+from . import add_alarm_options, add_filter_options, check_particles, healthy_modes
 
 
 def register(subparsers):
@@ -57,10 +57,8 @@ def main(args) -> int:
     from ..diagnosis.alarms import AlarmRule
     from ..data import iter_rows, open_source, open_target
     from ..diagnosis import Diagnosis, Kept, TableSink
-    from ..errors import DataError, JmlgError
-    from ..infer import ALGORITHMS, particle_bytes
-    from ..output import FIGURE, check_count, check_file, replacing
-    from ..diagnosis.figure import result_figure
+    from ..errors import DataError
+    from ..output import FIGURE, check_file
     from ..diagnosis.prefilter import parse
     from ..progress import Progress
 
@@ -71,12 +69,8 @@ def main(args) -> int:
     check_file(args.plot, inputs=[args.spec, args.data], suffixes=FIGURE, option="--plot")
     window = parse(args.prefilter)
     model = jmlgdsl.load(args.spec)
-    if args.particles is not None:
-        if not ALGORITHMS[args.filter].uses_particles:
-            raise JmlgError(f"--particles: the {args.filter} filter uses no particles (the particle filters "
-                            f"are {', '.join(n for n, a in ALGORITHMS.items() if a.uses_particles)})")
-        check_count("--particles", args.particles, particle_bytes(model))
-    healthy = [m.strip() for m in args.healthy.split(",")] if args.healthy else [model.modes[0]]
+    check_particles(args, model)
+    healthy = healthy_modes(args) or model.modes[:1]
     kept = Kept() if args.plot else None
     # a running count on a terminal, unless the table itself is streaming to the screen
     ticker = Progress(None, None if args.output == "-" else sys.stderr, "rows")
@@ -97,7 +91,6 @@ def main(args) -> int:
     out = sys.stderr if args.output == "-" else sys.stdout
     print(diagnosis.report(), file=out)
     if args.plot:
-        with replacing(args.plot) as temporary:
-            result_figure(kept.result(diagnosis), temporary, true_modes=kept.true_modes())
+        kept.draw(diagnosis, args.plot)
         print(f"figure: {args.plot}", file=out)
     return 0

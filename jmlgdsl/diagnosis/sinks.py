@@ -9,6 +9,7 @@ import numpy as np
 
 from ..infer import Result
 from ..infer.table import TableWriter
+from ..output import replacing
 
 
 class TableSink:
@@ -41,6 +42,13 @@ class Kept:
         f = diagnosis.filter
         return dataclasses.replace(Result.from_steps(f.model, f.algorithm, f.particles, [d.step for d in self.rows],
                                                      f.seconds), lag=f.lag)
+
+    def draw(self, diagnosis, path):
+        """The figure of the kept rows (`figure.result_figure`), written whole or not at all."""
+        from .figure import result_figure
+
+        with replacing(path) as temporary:
+            result_figure(self.result(diagnosis), temporary, true_modes=self.true_modes())
 
     def true_modes(self) -> np.ndarray | None:
         """(T,) the true mode of every kept row, or None unless every row has one."""
