@@ -21,24 +21,15 @@ import subprocess
 import time
 
 import pytest
-from conftest import ROOT, jmlgdsl_command
+from conftest import jmlgdsl_command
+from monitor_servers import DATA, SPEC, WAIT, exported, expected_table, free_port, query, stop, until
 
-from jmlgdsl.cli import main
 
 paho = pytest.importorskip("paho.mqtt.client")
 MOSQUITTO = shutil.which("mosquitto") or next(
     (p for p in ("/usr/sbin/mosquitto",) if os.access(p, os.X_OK)), None)
 pytestmark = pytest.mark.skipif(MOSQUITTO is None, reason="no mosquitto broker on PATH (.ci/run installs it: "
                                                           "apt-get install mosquitto)")
-SPEC = str(ROOT / "specs" / "dryer.jmlg")
-DATA = ROOT / "examples" / "dryer_seq1.csv"
-WAIT = 30
-
-
-def free_port():
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 class Brokers:
@@ -115,50 +106,10 @@ def publish(port, messages, topic="dryer", ca_file=None):
         client.loop_stop()
 
 
-def query(store, sql):
-    if not os.path.exists(store):
-        return None
-    db = sqlite3.connect(store)
-    try:
-        return db.execute(sql).fetchone()[0]
-    except sqlite3.OperationalError:
-        return None
-    finally:
-        db.close()
-
-
-def until(condition, what, process):
-    deadline = time.monotonic() + WAIT
-    while not condition():
-        if process.poll() is not None:
-            pytest.fail(f"the monitor stopped while waiting for {what}: {process.stderr.read()}")
-        assert time.monotonic() < deadline, f"gave up waiting for {what}"
-        time.sleep(0.02)
-
-
 def monitor(port, store, *extra, env=None):
     return subprocess.Popen([*jmlgdsl_command(), "monitor", SPEC, "--source", f"mqtt://127.0.0.1:{port}/dryer",
                              "--store", store, *extra], stderr=subprocess.PIPE, text=True,
                             env=None if env is None else {**os.environ, **env})
-
-
-def stop(process):
-    process.send_signal(signal.SIGTERM)
-    _, err = process.communicate(timeout=WAIT)
-    assert process.returncode == 0, err
-    return err
-
-
-def expected_table(tmp_path):
-    out = tmp_path / "run.csv"
-    assert main(["run", SPEC, str(DATA), "-o", str(out)]) == 0
-    return out.read_text()
-
-
-def exported(tmp_path, store):
-    out = tmp_path / "export.csv"
-    assert main(["export", store, "-o", str(out)]) == 0
-    return out.read_text()
 
 
 def connected(store, times=1):

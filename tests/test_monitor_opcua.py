@@ -8,33 +8,22 @@ import asyncio
 import csv
 import os
 import signal
-import socket
 import sqlite3
 import subprocess
 import threading
-import time
 from datetime import datetime, timedelta, timezone
 
 import pytest
-from conftest import ROOT, jmlgdsl_command
+from conftest import jmlgdsl_command
+from monitor_servers import DATA, SPEC, WAIT, exported, expected_table, free_port, query, stop, until
 
-from jmlgdsl.cli import main
 
 asyncua = pytest.importorskip("asyncua")
 from asyncua import Server, ua  # noqa: E402
 from asyncua.crypto.permission_rules import User, UserRole  # noqa: E402
 
-SPEC = str(ROOT / "specs" / "dryer.jmlg")
-DATA = ROOT / "examples" / "dryer_seq1.csv"
-WAIT = 30
 EPOCH = datetime(1970, 1, 1, tzinfo=timezone.utc)
 NODES = {"temp": "Dryer.Temp", "current": "Dryer.Current"}
-
-
-def free_port():
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 class Passwords:
@@ -120,27 +109,6 @@ def rows():
         return list(csv.DictReader(stream))
 
 
-def query(store, sql):
-    if not os.path.exists(store):
-        return None
-    db = sqlite3.connect(store)
-    try:
-        return db.execute(sql).fetchone()[0]
-    except sqlite3.OperationalError:
-        return None
-    finally:
-        db.close()
-
-
-def until(condition, what, process):
-    deadline = time.monotonic() + WAIT
-    while not condition():
-        if process.poll() is not None:
-            pytest.fail(f"the monitor stopped while waiting for {what}: {process.stderr.read()}")
-        assert time.monotonic() < deadline, f"gave up waiting for {what}"
-        time.sleep(0.02)
-
-
 def events(store, kind):
     return lambda: query(store, f"SELECT count(*) FROM event WHERE kind = '{kind}'") or 0
 
@@ -149,25 +117,6 @@ def monitor(port, store, tags, *extra, env=None):
     return subprocess.Popen([*jmlgdsl_command(), "monitor", SPEC, "--source", f"opc.tcp://127.0.0.1:{port}/dryer",
                              "--tags", tags, "--store", store, *extra], stderr=subprocess.PIPE, text=True,
                             env=None if env is None else {**os.environ, **env})
-
-
-def stop(process):
-    process.send_signal(signal.SIGTERM)
-    _, err = process.communicate(timeout=WAIT)
-    assert process.returncode == 0, err
-    return err
-
-
-def expected_table(tmp_path):
-    out = tmp_path / "run.csv"
-    assert main(["run", SPEC, str(DATA), "-o", str(out)]) == 0
-    return out.read_text()
-
-
-def exported(tmp_path, store):
-    out = tmp_path / "export.csv"
-    assert main(["export", store, "-o", str(out)]) == 0
-    return out.read_text()
 
 
 def test_recording_written_to_nodes_is_diagnosed_as_run_diagnoses_it(plants, tags, tmp_path):
