@@ -109,3 +109,21 @@ def test_no_cycle_between_packages_and_no_import_from_a_layer_above():
                                              ({"a": {"b"}, "b": set()}, None)])
 def test_the_cycle_finder_finds_cycles(edges, expected):
     assert cycle(edges) == expected
+
+
+# The package root holds the model and the data, the public entry points and the leaf helpers; the
+# rest lives in packages whose names say what they hold.
+ROOT_MODULES = {"__init__", "__main__", "cli", "version", "errors", "names", "seeds", "gaussian", "output", "priors",
+                "progress", "drawing", "model", "data", "simulate", "nonlinear"}
+PACKAGES = {"lang", "compile", "infer", "diagnosis", "studies", "learn", "fitting", "monitor", "commands", "grammars"}
+
+
+def test_the_root_holds_only_the_model_entry_points_and_leaf_helpers():
+    assert {p.stem for p in PACKAGE.glob("*.py")} == ROOT_MODULES
+    assert {p.name for p in PACKAGE.iterdir() if p.is_dir() and (p / "__init__.py").exists()} == PACKAGES
+
+
+def test_no_command_imports_another_command():
+    for name, targets in graph().items():
+        if name.startswith("jmlgdsl.commands."):
+            assert not {t for t in targets if t.startswith("jmlgdsl.commands.")}, name
