@@ -124,7 +124,7 @@ mode slower like slow
     plant, report = check(parse_text(text), {"a": 0.3, "slow.a": 0.8})
     assert not report.errors
     assert [u.name for u in plant.unknowns] == ["a", "slow.a"]
-    assert [plant.mode_params(m, report)["a"] for m in plant.modes] == [0.3, 0.8, 0.8]
+    assert [m.params["a"] for m in plant.modes] == [0.3, 0.8, 0.8]
     np.testing.assert_allclose(Family(parse_text(text)).model([0.3, 0.8]).A[:, 0, 0], [0.3, 0.8, 0.8])
 
 

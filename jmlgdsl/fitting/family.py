@@ -1,5 +1,6 @@
-"""A spec whose unknowns are left open: the Model for any values of them, compiled without re-reading
-the file, and for a nonlinear plant without rebuilding its symbolic Jacobian (only re-linearised)."""
+"""A spec whose unknowns are left open: the Model for any values of them, checked again without
+re-reading the file, and for a nonlinear plant without rebuilding its equations or their symbolic
+Jacobian (only re-linearised)."""
 
 from __future__ import annotations
 
@@ -9,7 +10,9 @@ from ..compile.lower import lower_linear
 from ..compile.ode import linearise, ode_system
 from ..errors import JmlgError
 from ..lang.check import check
+from ..lang.declarations import declare
 from ..lang.syntax import Spec
+from ..lang.values import evaluate, ode_equations
 from ..model import Model
 
 
@@ -21,23 +24,23 @@ class Family:
     """The Models of one spec as its unknowns vary: `model(theta)` for theta in the order of `unknowns`."""
 
     def __init__(self, spec: Spec):
-        plant, report = check(spec)  # at the priors' medians: every unknown named, the structure checked
-        report.raise_errors()
-        if not plant.unknowns:
+        declared, report = declare(spec)  # at the priors' medians: every unknown named, the structure checked
+        if not declared.unknowns:
             raise FitError(f"{spec.path}: the spec has no unknowns to fit; give a parameter or a noise level a "
                            "prior, e.g. 'param U ~ LogNormal(log(1.2), 0.3)' (docs/fit.md)")
-        self.spec, self.unknowns = spec, plant.unknowns
-        self.names = [u.name for u in plant.unknowns]
-        self.priors = [u.prior for u in plant.unknowns]
-        self._system = ode_system(plant, report) if spec.ode else None
+        self.spec, self.unknowns = spec, declared.unknowns
+        self.names = [u.name for u in declared.unknowns]
+        self.priors = [u.prior for u in declared.unknowns]
+        self._equations = self._system = None
+        if spec.ode:  # the equations once, for every model: zero divisors are refused as not finite numbers
+            plant = evaluate(declared, report, ode_equations(declared, report))
+            self._equations, self._system = plant.equations, ode_system(plant, report)
 
     def model(self, theta) -> Model:
         """The compiled Model with the unknowns at theta (SpecError when those values make no model:
         a mode without a steady state, a negative noise level)."""
-        plant, report = check(self.spec, dict(zip(self.names, map(float, theta))))
-        report.raise_errors()
-        return linearise(plant, self._system, report, locate_divisors=False) if self._system \
-            else lower_linear(plant, report)
+        plant, report = check(self.spec, dict(zip(self.names, map(float, theta))), self._equations)
+        return linearise(plant, self._system, report) if self._system else lower_linear(plant, report)
 
     def medians(self) -> np.ndarray:
         """Each unknown's prior median: what the spec runs with unfitted, and where a fit starts."""

@@ -1,4 +1,5 @@
-"""The .jmlg language: parse text into a syntax tree (parse, syntax), evaluate what the user wrote
-(evaluate, units) and check it into a Plant (check, probabilities), reporting located diagnostics
-(plant: the positions and the report, beside the checked plant's types). It imports nothing from
+"""The .jmlg language: parse text into a syntax tree (parse, syntax), then check it (check): its
+declarations (declarations, probabilities, unknowns), then every mode's values (values: statements,
+equations), evaluating what the user wrote (evaluate, units) into a checked Plant (plant: the values
+the compiler reads, the positions and the report of located diagnostics). It imports nothing from
 jmlgdsl.compile, which lowers a checked Plant to a Model."""

@@ -282,11 +282,6 @@ def finite_real(e: sp.Expr) -> bool:
     return not e.has(sp.zoo, sp.oo, -sp.oo, sp.nan, sp.I)
 
 
-def show(expr: sp.Expr) -> str:
-    """A sympy expression as the language writes it (powers with ^)."""
-    return str(expr).replace("**", "^")
-
-
 def unknown_function(name: str) -> str:
     """The message for a call of a function the language does not have, with a did-you-mean."""
     return f"unknown function {name!r}{suggest(name, FUNCTION_NAMES)}"
