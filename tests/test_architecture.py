@@ -127,3 +127,44 @@ def test_no_command_imports_another_command():
     for name, targets in graph().items():
         if name.startswith("jmlgdsl.commands."):
             assert not {t for t in targets if t.startswith("jmlgdsl.commands.")}, name
+
+
+CHECKED_PLANT = "jmlgdsl.lang.plant"  # the checked plant's types: values, positions, the report
+CHECKER_ENTRIES = {"check_file", "check_text", "check_ode_file"}  # lang.check: a spec file or text to a checked plant
+
+
+def language_imports(name, path):
+    """(module of jmlgdsl.lang, names) for each import of the language in a module."""
+    package = name if path.name == "__init__.py" else name.rsplit(".", 1)[0]
+    found = []
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.ImportFrom):
+            base = package.split(".")[:len(package.split(".")) - node.level + 1] if node.level else []
+            target = ".".join(base + ([node.module] if node.module else []))
+            names = {alias.name for alias in node.names}
+            if target == "jmlgdsl.lang":  # `from ..lang import plant`: the names are modules
+                found += [(f"{target}.{n}", set()) for n in names]
+            elif target.startswith("jmlgdsl.lang."):
+                found.append((target, names))
+        elif isinstance(node, ast.Import):
+            found += [(alias.name, set()) for alias in node.names if alias.name.startswith("jmlgdsl.lang")]
+    return found
+
+
+def test_the_compiler_reads_the_checked_plant_and_evaluates_nothing():
+    """compile/ takes from the language only the checked plant's types (lang.plant) and the checker's
+    entry points that turn a spec file or text into a checked plant: never the evaluator, the parser,
+    the syntax tree, units or limits. What the user wrote is evaluated once, by the checker."""
+    compiler = {name: path for name, path in modules().items() if layer(name) == "compile"}
+    assert compiler
+    for name, path in compiler.items():
+        for target, names in language_imports(name, path):
+            allowed = target == CHECKED_PLANT or (target == "jmlgdsl.lang.check" and names <= CHECKER_ENTRIES)
+            assert allowed, f"{name} imports {sorted(names) or 'the module'} from {target}"
+
+
+def test_the_pin_sees_an_import_of_the_evaluator(tmp_path):
+    path = tmp_path / "lower.py"
+    path.write_text("from ..lang.evaluate import evaluate_number\nfrom ..lang.plant import Plant\n")
+    assert language_imports("jmlgdsl.compile.lower", path) == [("jmlgdsl.lang.evaluate", {"evaluate_number"}),
+                                                               (CHECKED_PLANT, {"Plant"})]
