@@ -45,7 +45,7 @@ def warm(spec: Path, repeats: int) -> tuple[int, float, float, float]:
         t1 = time.perf_counter()
         plant, report = check(parse_file(spec))
         t2 = time.perf_counter()
-        system = ode_system(plant, report)
+        system = ode_system(plant)
         t3 = time.perf_counter()
         linearise(plant, system, report)
         t4 = time.perf_counter()

@@ -40,11 +40,11 @@ class NonlinearPlant:
 def load_nonlinear(path) -> NonlinearPlant:
     """Parse, check and compile a spec with an `ode` block, keeping its equations for simulation."""
     plant, report = check_ode_file(path, "a nonlinear simulation")
-    system = ode_system(plant, report)
+    system = ode_system(plant)
     model = linearise(plant, system, report)
     report.finish()
-    params, vectors = mode_parameters(plant, system, report)
-    return NonlinearPlant(system, model, vectors, mode_input_shifts(plant, params, model.input_defaults, report))
+    _, vectors = mode_parameters(plant, system)
+    return NonlinearPlant(system, model, vectors, mode_input_shifts(plant))
 
 
 def simulate_nonlinear(plant, T: int | None = None, seed=None, modes=None, u=None) -> Simulation:

@@ -135,8 +135,8 @@ def test_continuous_jacobian_and_affine_term_of_the_normal_mode(cstr4):
     """E.19: the continuous-time matrices at the steady state as printed in Table E.1 (rounded to
     four decimals: at the exact one, cstr4.mu0, the Tr entry of c moves by 2e-4)."""
     plant, report = check(parse_file(SPECS / "cstr4.jmlg"))
-    system = ode_system(plant, report)
-    p = mode_parameters(plant, system, report)[1][0]
+    system = ode_system(plant)
+    p = mode_parameters(plant, system)[1][0]
     x, u = np.array([3.5955, 190.0611, 120.0222]), np.zeros(0)
     J = system.jacobian("f_x", x, u, p)
     c = system.derivative(x, u, p) - J @ x

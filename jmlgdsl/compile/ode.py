@@ -63,14 +63,14 @@ class OdeSystem:
 
 def lower_ode(plant: Plant, report: Report) -> Model:
     """The Model of a plant whose dynamics are an `ode` block (errors raised as SpecError)."""
-    return linearise(plant, ode_system(plant, report), report)
+    return linearise(plant, ode_system(plant), report)
 
 
 # ------------------------------------------------------------------ building the symbolic system
 
-def ode_system(plant: Plant, report: Report) -> OdeSystem:
-    """Differentiate the checked equations and compile them to numpy functions (once per plant).
-    (`report`: not used, kept for the callers; the checker reported every problem of the equations.)"""
+def ode_system(plant: Plant) -> OdeSystem:
+    """Differentiate the checked equations and compile them to numpy functions (once per plant; the
+    checker has reported every problem of the equations)."""
     eq = plant.equations
     args = list(eq.symbols)
     jacobians = {"f_x": _jacobian(eq.f, args[0]), "f_u": _jacobian(eq.f, args[1]), "h_x": _jacobian(eq.h, args[0]),
@@ -90,7 +90,7 @@ def _jacobian(M: sp.Matrix, symbols: list) -> sp.Matrix:
 
 def linearise(plant: Plant, system: OdeSystem, report: Report) -> Model:
     """Linearise every mode of the plant at its operating point and discretise with a zero-order hold."""
-    _, pvecs = mode_parameters(plant, system, report)
+    _, pvecs = mode_parameters(plant, system)
     u_bar = plant.layout.input_defaults
     points, u_lins, per_mode = _operating_points(plant, system, pvecs, report)
     report.raise_errors()
@@ -110,17 +110,17 @@ def linearise(plant: Plant, system: OdeSystem, report: Report) -> Model:
     return stack(plant, modes, report)
 
 
-def mode_parameters(plant: Plant, system: OdeSystem, report: Report) -> tuple[list[dict], np.ndarray]:
-    """Each mode's parameter values: by name, and as the vectors p (K, n_params) the functions take.
-    (`report`: not used, kept for the callers; the checker evaluated the values.)"""
+def mode_parameters(plant: Plant, system: OdeSystem) -> tuple[list[dict], np.ndarray]:
+    """Each mode's parameter values (the checker's): by name, and as the vectors p (K, n_params) the
+    functions take."""
     params = [mode.params for mode in plant.modes]
     return params, np.array([[env[n] for n in system.params] for env in params]).reshape(len(params), -1)
 
 
-def mode_input_shifts(plant: Plant, params: list[dict], u_bar: np.ndarray, report: Report) -> np.ndarray:
-    """(K, n_inputs): how far each mode's own input values are from the declared ones; the equations of
-    mode k see the data's input u as u + shifts[k] (a nonlinear simulation must add them too).
-    (`params`, `u_bar`, `report`: not used, kept for the callers; the checker evaluated the shifts.)"""
+def mode_input_shifts(plant: Plant) -> np.ndarray:
+    """(K, n_inputs): how far each mode's own input values are from the declared ones (the checker's);
+    the equations of mode k see the data's input u as u + shifts[k] (a nonlinear simulation must add
+    them too)."""
     return np.array([mode.shift for mode in plant.modes]).reshape(len(plant.modes), len(plant.layout.inputs))
 
 
@@ -235,4 +235,4 @@ def jacobian_text(system: OdeSystem) -> str:
 def jacobian_report(path) -> str:
     """`jmlgdsl compile SPEC --show-jacobian`: the Jacobian text of the ODE plant in a spec file."""
     plant, report = check_ode_file(path, "--show-jacobian")
-    return jacobian_text(ode_system(plant, report))
+    return jacobian_text(ode_system(plant))

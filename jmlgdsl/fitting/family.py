@@ -34,7 +34,7 @@ class Family:
         self._equations = self._system = None
         if spec.ode:  # the equations once, for every model: zero divisors are refused as not finite numbers
             plant = evaluate(declared, report, ode_equations(declared, report))
-            self._equations, self._system = plant.equations, ode_system(plant, report)
+            self._equations, self._system = plant.equations, ode_system(plant)
 
     def model(self, theta) -> Model:
         """The compiled Model with the unknowns at theta (SpecError when those values make no model:
