@@ -54,12 +54,11 @@ def main(args) -> int:
 
     import jmlgdsl
 
-    from ..diagnosis.alarms import AlarmRule
     from ..data import iter_rows, open_source, open_target
-    from ..diagnosis import Diagnosis, Kept, TableSink
+    from ..diagnosis import AlarmRule, Diagnosis, Kept, TableSink
+    from ..diagnosis.prefilter import parse
     from ..errors import DataError
     from ..output import FIGURE, check_file
-    from ..diagnosis.prefilter import parse
     from ..progress import Progress
 
     streaming = args.data == "-"
