@@ -99,6 +99,12 @@ class Model:
         return _readonly(self.B @ np.swapaxes(self.B, 1, 2))
 
     @cached_property
+    def settles(self) -> bool:
+        """Whether every mode settles to a steady state under constant inputs (every eigenvalue of
+        every A inside the unit circle): an unstable or integrating mode can take its outputs anywhere."""
+        return not (np.abs(np.linalg.eigvals(self.A)) >= 1.0).any()
+
+    @cached_property
     def R(self) -> np.ndarray:
         """Measurement noise covariances D D' per mode, (K, ny, ny)."""
         return _readonly(self.D @ np.swapaxes(self.D, 1, 2))
