@@ -145,10 +145,9 @@ class Source:
             if self._after_cr and chunk[:1] == b"\n":  # the LF of a CR LF that came in two pieces
                 chunk = chunk[1:]
             self._after_cr = chunk[-1:] == b"\r"
-            if b"\n" not in chunk and b"\r" not in chunk:
-                self._rest += chunk
-                continue
             self._rest += chunk
+            if b"\n" not in chunk and b"\r" not in chunk:
+                continue
             lines = self._rest.splitlines(keepends=True)  # at LF, CR LF and CR alone
             self._rest = lines.pop() if not lines[-1].endswith((b"\n", b"\r")) else bytearray()
             self._lines, self._next = lines, 0
