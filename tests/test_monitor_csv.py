@@ -97,7 +97,7 @@ def test_killed_and_restarted_loses_and_repeats_nothing(tmp_path):
             if process is not None and process.poll() is None:
                 process.kill()
     assert second.returncode == 0, err
-    assert f"resume: run 1 resumed after row" in err
+    assert "resume: run 1 resumed after row" in err
     expected = table("run", SPEC, str(DATA), "--lag", "2", tmp_path=tmp_path, name="run.csv").splitlines(True)
     exported = table("export", store, tmp_path=tmp_path)
     assert exported == "".join(expected[:-2])  # the last 2 rows wait for the 2 rows after them

@@ -287,7 +287,7 @@ def unknown_function(name: str) -> str:
     return f"unknown function {name!r}{suggest(name, FUNCTION_NAMES)}"
 
 
-def evaluate_number(expr: S.Expr, env: dict, report: Report, what: str) -> float:
+def evaluate_number(expr: Expr, env: dict, report: Report, what: str) -> float:
     """A scalar value from known names in env; reports unknown names and non-scalars."""
     def lookup(node):
         name = node.args[0]

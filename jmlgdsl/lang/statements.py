@@ -343,8 +343,8 @@ class Statements:
             return (np.array([self.number(u_expr, "an operating input")]),
                     self.number(y_expr, "an operating output"))
         if d.at is not None:
-            self.report.error(f"a block with several inputs gives its operating point as 'u_ss [...], y_ss VALUE', "
-                              f"with one u_ss value per input", d.at[0].pos)
+            self.report.error("a block with several inputs gives its operating point as 'u_ss [...], y_ss VALUE', "
+                              "with one u_ss value per input", d.at[0].pos)
             return none
         given = [k for k in OPERATING_KEYS if k in kw]
         if len(given) == 1:
