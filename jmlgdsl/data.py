@@ -199,9 +199,12 @@ def open_target(path):
 
 def _records(stream, source):
     """(line number, cells) for each line that is neither blank nor a # comment, read one at a time;
-    the separator is chosen on the first such line (the header)."""
+    the separator is chosen on the first such line (the header). A stream that numbers its own lines
+    (a `number` attribute: a followed file read on from the middle) gives the line numbers."""
     delimiter = None
-    for number, line in enumerate(iter(stream.readline, ""), start=1):
+    numbered = hasattr(stream, "number")
+    for count, line in enumerate(iter(stream.readline, ""), start=1):
+        number = stream.number if numbered else count
         if line.strip() and not line.lstrip().startswith("#"):
             if delimiter is None:
                 delimiter = ";" if ";" in line and "," not in line else ","

@@ -117,6 +117,21 @@ def test_bad_line_is_an_event(tmp_path, capsys):
     assert table("export", store, tmp_path=tmp_path) == table("run", SPEC, str(DATA), tmp_path=tmp_path, name="r.csv")
 
 
+def test_a_restarted_monitor_names_bad_lines_by_their_line_in_the_file(tmp_path, capsys):
+    data, store = tmp_path / "bad.csv", str(tmp_path / "dryer.db")
+    bad = "99,15,hot,fan,50\n"
+    lines = ["# two comment lines\n", "#\n"] + LINES[:101] + [bad] + LINES[101:]  # bad: line 104
+    data.write_text("".join(lines[:151]))
+    assert main(["monitor", SPEC, "--source", str(data), "--store", store, "--no-follow"]) == 0
+    assert f"monitor: malformed: {data}:104: column 'temp'" in capsys.readouterr().err
+    with open(data, "a") as out:  # read on from the saved offset: a header, then line 152 on
+        out.writelines(lines[151:301] + [bad] + lines[301:])  # bad: line 302
+    assert main(["monitor", SPEC, "--source", str(data), "--store", store, "--no-follow"]) == 0
+    err = capsys.readouterr().err
+    assert f"monitor: malformed: {data}:302: column 'temp'" in err and "resumed after row 147" in err
+    assert table("export", store, tmp_path=tmp_path) == table("run", SPEC, str(DATA), tmp_path=tmp_path, name="r.csv")
+
+
 def test_store_of_another_run_is_refused(tmp_path, capsys):
     store = str(tmp_path / "dryer.db")
     assert main(["monitor", SPEC, "--source", str(DATA), "--store", store, "--no-follow"]) == 0

@@ -21,23 +21,24 @@ POLL = 0.05  # seconds between looks at a followed file that has not grown
 
 class Lines:
     """A stream's lines, decoded, for iter_rows, from a byte offset on (with the line number there):
-    at the end it waits for more while `follow`, and ends when `stop` is set. `again()` hands the
-    header line out once more, then blank lines standing in for the lines already read, so that a
-    new iter_rows reads on with the same line numbers (after a bad line, or from a saved offset)."""
+    at the end it waits for more while `follow`, and ends when `stop` is set. `number` is the line
+    number of the line last handed out, which iter_rows takes for its messages. `again()` hands the
+    header line out once more, so that a new iter_rows reads on (after a bad line, or from a saved
+    offset)."""
 
     def __init__(self, stream, name: str, follow: bool, stop: threading.Event, offset: int = 0, line: int = 0):
         self.stream, self.name, self.follow, self.stop = stream, name, follow, stop
-        self.offset, self.line = offset, line  # just after the last line handed on
+        self.offset, self.line = offset, line  # just after the last line read
+        self.number = line
         self.header = None  # (text, line number) of the header line
-        self._pending, self._rest = [], b""
+        self._again, self._rest = False, b""
         if offset:
             self.header = self._header()
             stream.seek(offset)
             self.again()
 
     def again(self):
-        text, number = self.header
-        self._pending = [text] + ["\n"] * (self.line - number)
+        self._again = True
 
     def _header(self):
         self.stream.seek(0)
@@ -48,13 +49,15 @@ class Lines:
         raise DataError(f"{self.name}: the header line is gone from the file being followed")
 
     def readline(self) -> str:
-        if self._pending:
-            return self._pending.pop(0)
+        if self._again:
+            self._again = False
+            text, self.number = self.header
+            return text
         raw = self._next()
         if not raw:
             return ""
         self.offset += len(raw)
-        self.line += 1
+        self.line = self.number = self.line + 1
         try:
             text = raw.decode("utf-8")
         except UnicodeDecodeError:
