@@ -36,6 +36,7 @@ class ScaleCheck:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)  # an output never measured: all NaN
             typical = np.nanmedian(np.array(self.seen), axis=0)
+        self.seen = []  # judged: a long-running diagnosis (and its checkpoint) need not carry them
         for name, size in zip(self.model.outputs, typical):
             if size > self.factor:
                 unit = self.model.units.get(name)

@@ -24,6 +24,9 @@ from .store import Store
 IDLE = 0.1  # seconds without input before the monitor commits and moves the wall clock on
 QUEUE = 10_000  # items a source may hand over ahead of the diagnosis
 BATCH = 1_000  # rows (or acknowledgements held back) before a commit even while input keeps coming
+# Seconds a handled reading or event may wait for the commit that acknowledges it while no finished
+# row waits: a row is committed as soon as the input pauses, the readings between rows in groups.
+GROUP = 0.05
 
 
 class MonitorError(JmlgError):
@@ -81,6 +84,7 @@ class Monitor:
         self.resumed = saved is not None
         self.samples, self.results, self.events, self.tokens = [], [], [], []
         self.dirty = False
+        self.committed = clock.monotonic()
         self.counts = {}
         self.started_rows = self.rows
 
@@ -120,7 +124,8 @@ class Monitor:
                     self.commit()
                     continue
                 ended = self._handle(item)
-                if items.empty() or len(self.samples) >= BATCH or len(self.tokens) >= BATCH:
+                if len(self.samples) >= BATCH or len(self.tokens) >= BATCH or items.empty() and (
+                        self.results or clock.monotonic() - self.committed >= GROUP):
                     self.commit()
             if ended:
                 self.diagnosis.finish()
@@ -183,6 +188,7 @@ class Monitor:
                         self.diagnosis.checkpoint(), None if self.assembler is None else pickle.dumps(self.assembler),
                         self.position)
         self.samples, self.results, self.events, self.dirty = [], [], [], False
+        self.committed = clock.monotonic()
         tokens, self.tokens = self.tokens, []
         self.source.acknowledge(tokens)
 

@@ -98,8 +98,9 @@ def now() -> str:
 
 
 def vector(values) -> str:
-    """A vector as a JSON array, exactly (shortest round-trip digits), NaN as null."""
-    return json.dumps([None if math.isnan(v) else v for v in np.asarray(values, float).tolist()])
+    """A vector as a JSON array, exactly (shortest round-trip digits, as json writes a float), NaN as null."""
+    return "[" + ", ".join(repr(v) if math.isfinite(v) else "null" if v != v else json.dumps(v)
+                           for v in np.asarray(values, float).tolist()) + "]"
 
 
 def unvector(text) -> np.ndarray:
