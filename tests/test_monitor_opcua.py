@@ -1,8 +1,8 @@
 """`jmlgdsl monitor` on an OPC UA server (asyncua, started here in a thread on 127.0.0.1): the dryer
 recording written to the server's nodes row by row, each value with its source time stamp, is
 diagnosed into the store and exported as the very table `jmlgdsl run -o` writes for it, even when the
-server comes up only after the monitor; a monitor killed with SIGKILL and started again diagnoses no
-row twice; a wrong password is refused by name."""
+server comes up only after the monitor, and through an endpoint that signs and encrypts; a monitor
+killed with SIGKILL and started again diagnoses no row twice; a wrong password is refused by name."""
 
 import asyncio
 import csv
@@ -36,8 +36,8 @@ class Passwords:
 class Plant:
     """An asyncua server on 127.0.0.1 in a thread with its own event loop, with a node per dryer tag."""
 
-    def __init__(self, port, password=False):
-        self.port, self.password = port, password
+    def __init__(self, port, password=False, certificate=None):
+        self.port, self.password, self.certificate = port, password, certificate
         self.loop = asyncio.new_event_loop()
         self.ready, self.done = threading.Event(), None
         self.thread = threading.Thread(target=self.loop.run_forever, daemon=True)
@@ -51,7 +51,12 @@ class Plant:
         self.server = Server(user_manager=Passwords() if self.password else None)
         await self.server.init()
         self.server.set_endpoint(f"opc.tcp://127.0.0.1:{self.port}/dryer")
-        self.server.set_security_policy([ua.SecurityPolicyType.NoSecurity])
+        if self.certificate:  # (certificate, key): only an endpoint that signs and encrypts
+            await self.server.load_certificate(str(self.certificate[0]))
+            await self.server.load_private_key(str(self.certificate[1]))
+            self.server.set_security_policy([ua.SecurityPolicyType.Basic256Sha256_SignAndEncrypt])
+        else:
+            self.server.set_security_policy([ua.SecurityPolicyType.NoSecurity])
         if self.password:
             self.server.set_security_IDs(["Username"])
         ns = await self.server.register_namespace("urn:jmlgdsl:test:dryer")
@@ -89,8 +94,8 @@ class Plant:
 def plants():
     started = []
 
-    def start(port=None, password=False):
-        started.append(Plant(port or free_port(), password))
+    def start(port=None, password=False, certificate=None):
+        started.append(Plant(port or free_port(), password, certificate))
         return started[-1]
     yield start
     for plant in started:
@@ -136,6 +141,39 @@ def test_recording_written_to_nodes_is_diagnosed_as_run_diagnoses_it(plants, tag
     kinds = dict(sqlite3.connect(store).execute("SELECT kind, count(*) FROM event WHERE kind != 'disconnect' "
                                                 "GROUP BY kind"))
     assert kinds == {"start": 1, "connect": 1}
+
+
+def certificate(folder, name, use):
+    """A self-signed certificate (DER) and its private key (PEM) for 127.0.0.1."""
+    from asyncua.crypto.cert_gen import setup_self_signed_certificate
+    from cryptography.x509.oid import ExtendedKeyUsageOID
+
+    cert, key = folder / f"{name}.der", folder / f"{name}.pem"
+    asyncio.run(setup_self_signed_certificate(key, cert, f"urn:jmlgdsl:test:{name}", "127.0.0.1",
+                                              [getattr(ExtendedKeyUsageOID, use)], {"commonName": name}))
+    return cert, key
+
+
+def test_an_encrypting_endpoint_is_used_with_the_client_certificate_and_refused_without(plants, tags, tmp_path):
+    plant = plants(certificate=certificate(tmp_path, "server", "SERVER_AUTH"))
+    cert, key = certificate(tmp_path, "monitor", "CLIENT_AUTH")
+    store = str(tmp_path / "dryer.db")
+    done = subprocess.run([*jmlgdsl_command(), "monitor", SPEC, "--source", f"opc.tcp://127.0.0.1:{plant.port}/dryer",
+                           "--tags", tags, "--store", store], capture_output=True, text=True, timeout=WAIT)
+    assert done.returncode == 2, done.stderr
+    assert (f"error: opc.tcp://127.0.0.1:{plant.port}/dryer: the server has no endpoint with security None; it "
+            "offers Basic256Sha256,SignAndEncrypt (see --security, --certificate and --private-key)" in done.stderr)
+    process = monitor(plant.port, store, tags, "--security", "Basic256Sha256,SignAndEncrypt",
+                      "--certificate", str(cert), "--private-key", str(key))
+    try:
+        until(lambda: events(store, "connect")() == 1, "the monitor to connect", process)
+        plant.write(rows())
+        until(lambda: query(store, "SELECT count(*) FROM result") == 1000, "every row stored", process)
+        err = stop(process)
+    finally:
+        process.kill()
+    assert "nodes, security Basic256Sha256" in err
+    assert exported(tmp_path, store) == expected_table(tmp_path)
 
 
 def test_killed_monitor_diagnoses_no_row_twice(plants, tags, tmp_path):

@@ -125,7 +125,19 @@ class OpcuaSource:
         except ua.UaError as exc:
             if isinstance(exc, ua.UaStatusCodeError):
                 raise
-            raise Stop(f"{self.name}: {exc} (see --security)") from None  # no endpoint of this policy and mode
+            raise Stop(await self._no_endpoint(client)) from None  # no endpoint of this policy and mode
+
+    async def _no_endpoint(self, client) -> str:
+        """Why a server's endpoints do not fit --security, with the ones it offers."""
+        asked = ",".join(self.security[:2]) if self.security else "None"
+        try:
+            offered = sorted({f"{ep.SecurityPolicyUri.rpartition('#')[2]},{ep.SecurityMode.name}"
+                              for ep in await client.connect_and_get_server_endpoints()})
+        except (OSError, asyncio.TimeoutError, ua.UaError):
+            offered = []
+        return (f"{self.name}: the server has no endpoint with security {asked}"
+                + (f"; it offers {', '.join(offered)}" if offered else "")
+                + " (see --security, --certificate and --private-key)")
 
     async def _subscribe(self, client, put):
         changes = _Changes(self.nodes, put)
