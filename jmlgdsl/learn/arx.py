@@ -14,12 +14,13 @@ import itertools
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.linalg import qr, solve_triangular
+from scipy.linalg import svd
 
 from ..names import plural
 from ..errors import DataError
-from .em import segments
+from .em import columns, segments
 from .basis import LaggedMode, Lags, lag_inputs
+from .resolution import ROUNDING, at_least, noise_floor, resolution
 
 
 @dataclass(frozen=True)
@@ -71,11 +72,16 @@ def regressors(y, u, lags: Lags, start: int) -> tuple[np.ndarray, np.ndarray]:
     return X[complete], Y[complete]
 
 
-def fit_arx(y, u, na, nb, nk=0, start=None) -> ArxFit:
+def fit_arx(y, u, na, nb, nk=0, start=None, steps=None) -> ArxFit:
     """Least-squares ARX fit of outputs y (T, ny) or (T,) on inputs u (T, nu), or of several
     experiments of one model (lists of such arrays), whose equations are pooled; `start` is each
     experiment's first equation's time index (default: the largest lag, so that fits of different
-    orders can share it). Equations touching a missing value (NaN) are left out."""
+    orders can share it). Equations touching a missing value (NaN) are left out.
+
+    `steps`: the resolution of each output and input (ny + nu,), by default read from these data;
+    regressor directions that move no more than rounding would are left out, and the residual covariance
+    is kept at least the rounding variance (so its log-determinant stays finite for a constant output).
+    """
     parts = segments(y, u)
     nu = parts[0][1].shape[1]
     lags = Lags(na, nb if nu else 0, nk if nu else 0)
@@ -84,24 +90,38 @@ def fit_arx(y, u, na, nb, nk=0, start=None) -> ArxFit:
     N, p = X.shape
     if N <= p:
         raise DataError(f"ARX({na},{nb},{nk}) has {p} parameters per output but only {plural(N, 'complete equation')}")
-    Qm, Rm = qr(X, mode="economic")
-    theta = solve_triangular(Rm, Qm.T @ Y)
-    E = Y - X @ theta
-    Rinv = solve_triangular(Rm, np.eye(p))
     ny = Y.shape[1]
-    _, logdet = np.linalg.slogdet(E.T @ E / N)
+    if steps is None:
+        steps = resolution([np.hstack(part) for part in parts])
+    scale = np.r_[np.tile(steps[:ny], na), np.tile(steps[ny:], lags.nb)]
+    centre, level = X[:, :-1].mean(axis=0), Y.mean(axis=0)
+    U, s, Vt = svd((X[:, :-1] - centre) / scale / np.sqrt(N), full_matrices=False)
+    keep = s ** 2 > ROUNDING  # in steps: directions that move more than rounding to them would
+    V = Vt[keep].T / scale[:, None]  # back to the regressors' own units
+    slopes = V @ ((U[:, keep].T @ (Y - level)) / s[keep, None]) / np.sqrt(N)
+    theta = np.vstack([slopes, level - centre @ slopes])
+    # (X'X)^+ for [slopes; offset]: the centred slopes' own, and the offset through the means.
+    to_theta = np.vstack([np.eye(p - 1), -centre])
+    gram_inv = to_theta @ (V / s[keep] ** 2) @ V.T @ to_theta.T / N
+    gram_inv[-1, -1] += 1.0 / N
+    E = Y - X @ theta
+    _, logdet = np.linalg.slogdet(at_least(E.T @ E / N, noise_floor(steps[:ny])))
     k = p * ny
-    return ArxFit(lags=lags, theta=theta, noise=(E.T @ E) / (N - p), gram_inv=Rinv @ Rinv.T, n=N,
+    return ArxFit(lags=lags, theta=theta, noise=(E.T @ E) / (N - p), gram_inv=gram_inv, n=N,
                   aic=N * logdet + 2 * k, bic=N * logdet + k * np.log(N))
 
 
-def select_order(data, max_na=4, max_nb=4, max_nk=0, criterion="bic") -> tuple[int, int, int]:
+def select_order(data, max_na=4, max_nb=4, max_nk=0, criterion="bic", steps=None) -> tuple[int, int, int]:
     """The order (na >= 1, nb >= 1, nk) minimising AIC or BIC summed over experiments [(y, u), ...].
 
-    Every order is fitted on the same equations of each experiment, so the criteria compare.
+    Every order is fitted on the same equations of each experiment, so the criteria compare; `steps`
+    is the outputs' and inputs' resolution, by default read from all the experiments.
     """
     if criterion not in ("aic", "bic"):
         raise ValueError(f"criterion must be 'aic' or 'bic', not {criterion!r}")
     start = max(max_na, max_nk + max_nb - 1)
+    if steps is None:
+        steps = resolution([np.hstack(columns(y, u)) for y, u in data])
     grid = itertools.product(range(1, max_na + 1), range(1, max_nb + 1), range(max_nk + 1))
-    return min(grid, key=lambda order: sum(getattr(fit_arx(y, u, *order, start=start), criterion) for y, u in data))
+    return min(grid, key=lambda order: sum(getattr(fit_arx(y, u, *order, start=start, steps=steps), criterion)
+                                           for y, u in data))

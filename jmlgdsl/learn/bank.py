@@ -5,6 +5,7 @@ assembled Model, whose modes all speak of the same states (see `basis`)."""
 from __future__ import annotations
 
 import time
+from functools import partial
 import warnings
 from dataclasses import dataclass
 
@@ -16,6 +17,7 @@ from ..errors import DataError
 from ..lang.probabilities import otherwise_uniform
 from ..model import Model
 from . import arx, basis, steptest
+from .resolution import noise_floor, resolution, unresolved
 from .em import EMResult
 from .basis import LaggedMode
 from .statespace import StateSpace
@@ -44,6 +46,7 @@ class LearnedMode:
     mode: LaggedMode
     validation: Validation
     fopdt: steptest.FopdtFit | None = None
+    notes: tuple[str, ...] = ()
 
     @property
     def experiment(self) -> Experiment:
@@ -60,27 +63,63 @@ class LearnedMode:
         """The mode at its own order, started where its experiment began (what validation filtered)."""
         return self.mode.statespace(self.experiment.u[0])
 
-    def summary(self) -> str:
-        """One line: structure, EM, poles, gain, noise, fit and the residual tests."""
-        v = self.validation
-        poles = ", ".join(f"{p:.4g}" for p in self.mode.poles())
-        gain = f"gain {', '.join(f'{g:.4g}' for g in self.model.gain().ravel())}; " if self.mode.nu else ""
-        verdict = "white residuals" if v.passed else "residual tests FAIL"
-        return (f"{self.name}: {self.structure}, EM {plural(self.em.iterations, 'iteration')}"
-                f"{'' if self.em.converged else ' (not converged)'}, log-lik {self.em.loglik[-1]:.6g}; "
-                f"poles {poles}; {gain}measurement sd {np.sqrt(np.diag(self.mode.R)).max():.3g}; "
-                f"fit {', '.join(f'{x:.1f}' for x in v.fit)} %; {verdict}")
+    def summary(self, outputs=None) -> str:
+        """A line of structure, EM, poles, gain, noise, fit and the residual tests, then a line for
+        each thing learning did about this mode's data (a noise floor, poles scaled inside the unit
+        circle). `outputs` names the outputs (default y1, y2, ...)."""
+        v, ny = self.validation, self.mode.ny
+        outputs = outputs or [f"y{i + 1}" for i in range(ny)]
+        gain = f"gain {_listed(self.model.gain().ravel())}; " if self.mode.nu else ""
+        if not self.mode.nu:
+            fit = "no simulation fit (without inputs a free run only settles at the mean)"
+        elif ny <= LISTED:
+            fit = f"fit {', '.join(f'{x:.1f}' for x in v.fit)} %"
+        else:
+            fit = f"fit {np.nanmin(v.fit):.1f} to {np.nanmax(v.fit):.1f} % (median {np.nanmedian(v.fit):.1f} %)"
+        failing = [outputs[i] for i in v.failing]
+        if not failing:
+            verdict = "white residuals"
+        elif ny == 1:
+            verdict = "residual tests FAIL"
+        else:
+            verdict = (f"residual tests fail for {_listed(failing, str)} ({len(failing)} of {ny} outputs; "
+                       f"a right model fails about {v.by_chance:.2g} by chance)")
+        line = (f"{self.name}: {self.structure}, EM {plural(self.em.iterations, 'iteration')}{self._stop()}, "
+                f"log-lik {self.em.loglik[-1]:.6g}; "
+                f"poles {_listed(self.mode.poles())}; {gain}measurement sd {np.sqrt(np.diag(self.mode.R)).max():.3g}; "
+                f"{fit}; {verdict}")
+        return "\n".join([line] + [f"  {note}" for note in self.notes])
+
+    def _stop(self) -> str:
+        """Why EM stopped, when not by its tolerance: the log-likelihood fell, or the iteration cap
+        came first; then its last gain against the tolerance, and what the gains, shrinking as
+        they do, project is left in all and per free parameter (a fit is as good as finished when
+        that is a small fraction of a nat per parameter)."""
+        em = self.em
+        if em.converged:
+            return ""
+        if em.fell:
+            return " (stopped: the log-likelihood fell by more than rounding; the last good parameters kept)"
+        if em.iterations == 0:
+            return " (no iterations)"
+        left = (f", about {em.remaining:.3g} more to come, {em.remaining / self.parameters:.2g} per free parameter"
+                if np.isfinite(em.remaining) else ", gains not yet shrinking")
+        return f" (not converged: last gain {em.gain:.3g}, tolerance {em.tolerance:.3g}{left})"
+
+    @property
+    def parameters(self) -> int:
+        """The free parameters of the fitted mode: its free coefficients, and Q and R."""
+        m = self.mode
+        return m.ny * int(m.lags.free(m.ny, m.nu).sum()) + m.ny * (m.ny + 1)
 
     def criterion(self, kind="bic") -> float:
         """AIC or BIC of the fitted mode: its free coefficients, and Q and R."""
-        m = self.mode
-        p = m.ny * int(m.lags.free(m.ny, m.nu).sum()) + m.ny * (m.ny + 1)
         N = sum(int((~np.isnan(e.y)).all(axis=1).sum()) for e in self.experiments)
-        return -2 * self.em.loglik[-1] + p * (np.log(N) if kind == "bic" else 2.0)
+        return -2 * self.em.loglik[-1] + self.parameters * (np.log(N) if kind == "bic" else 2.0)
 
 
 def learn_modes(experiments: dict, order="auto", fopdt=False, dt=1.0, max_order=4, max_delay=0,
-                criterion="bic", max_iter=100, tol=1e-5, progress=None) -> list[LearnedMode]:
+                criterion="bic", max_iter=100, tol=1e-5, progress=None, outputs=None) -> list[LearnedMode]:
     """Fit every mode: `experiments` maps a mode's name to its Experiment, or to a list of them (runs
     of the same mode, pooled: their equations in least squares, their moments in EM). Structure:
     ARX order (na, nb, nk), "auto", or FOPDT step tests (one per mode).
@@ -90,7 +129,11 @@ def learn_modes(experiments: dict, order="auto", fopdt=False, dt=1.0, max_order=
     noise; EM then fits orders 1..that bound to each mode and keeps, mode by mode, the one with
     the least criterion (the shared basis lets modes of different orders sit in one bank).
 
-    `progress(text)`, when given, hears of each mode as it is learned (a bank can take minutes).
+    Each output's resolution is read from every mode's data (`resolution`); before any fitting,
+    `progress(text)`, when given, hears of every output of every mode that moves no more than
+    rounding to it would (a stuck sensor, collinear sensors: their measurement noise is floored at
+    that rounding), and then of each mode as it is learned (a bank can take minutes). `outputs`
+    names the outputs in those lines (default y1, y2, ...).
     """
     by_mode = {k: tuple(v) if isinstance(v, (list, tuple)) else (v,) for k, v in experiments.items()}
     for name, exps in by_mode.items():
@@ -101,26 +144,35 @@ def learn_modes(experiments: dict, order="auto", fopdt=False, dt=1.0, max_order=
             if np.nanmin(column) == np.nanmax(column):
                 raise DataError(f"{sources}: input {j + 1} never changes, so its effect cannot be told "
                                 "from the offset; excite it, e.g. with a PRBS")
+    everything = [e for exps in by_mode.values() for e in exps]
+    steps = resolution(np.vstack([np.hstack([e.y, e.u]) for e in everything]))
+    ny = everything[0].y.shape[1]
+    outputs = list(outputs or [f"y{i + 1}" for i in range(ny)])
+    notes = {k: _unresolved(exps, steps[:ny], outputs) for k, exps in by_mode.items()}
+    for k, lines in notes.items():
+        for line in lines if progress is not None else ():
+            progress(f"mode {k}: {line}")
     if fopdt:
         for exps in by_mode.values():
             if len(exps) != 1 or exps[0].u.shape[1] != 1 or exps[0].y.shape[1] != 1:
                 raise DataError(f"{exps[0].source}: a mode's step test is one experiment with one input and one output")
-        steps = {k: _located(e, steptest.fit_fopdt, e.y[:, 0], e.u[:, 0], dt) for k, (e,) in by_mode.items()}
+        fits = {k: _located(e, steptest.fit_fopdt, e.y[:, 0], e.u[:, 0], dt) for k, (e,) in by_mode.items()}
 
         def learn_mode(k, exps):
-            return _refine(k, exps, steps[k].lagged(), f"FOPDT gain {steps[k].gain:.4g}, tau {steps[k].tau:.4g} s, "
-                                                       f"dead time {steps[k].delay * steps[k].dt:g} s", max_iter, tol,
-                           steps[k])
+            fit = fits[k]
+            return _refine(k, exps, fit.lagged(), f"FOPDT gain {fit.gain:.4g}, tau {fit.tau:.4g} s, "
+                                                  f"dead time {fit.delay * fit.dt:g} s", max_iter, tol, steps,
+                           notes[k], fit)
     elif order != "auto":
         def learn_mode(k, exps):
-            return _refine_arx(k, exps, order, max_iter, tol)
+            return _refine_arx(k, exps, order, max_iter, tol, steps, notes[k])
     else:
-        na, nb, nk = arx.select_order([(e.y, e.u) for exps in by_mode.values() for e in exps], max_order,
-                                      max_order, max_delay, criterion)
+        na, nb, nk = arx.select_order([(e.y, e.u) for e in everything], max_order, max_order, max_delay, criterion,
+                                      steps)
         orders = range(1, max(na, nk + nb) + 1)
 
         def learn_mode(k, exps):
-            return min((_refine_arx(k, exps, (n, n, 0), max_iter, tol) for n in orders),
+            return min((_refine_arx(k, exps, (n, n, 0), max_iter, tol, steps, notes[k]) for n in orders),
                        key=lambda lm: lm.criterion(criterion))
     learned = []
     start = time.perf_counter()
@@ -131,23 +183,56 @@ def learn_modes(experiments: dict, order="auto", fopdt=False, dt=1.0, max_order=
             progress(f"learned mode {i} of {len(by_mode)}, {k}: {lm.structure}, "
                      f"EM {plural(lm.em.iterations, 'iteration')} "
                      f"({time.perf_counter() - start:.1f} s so far)")
+            for line in lm.notes[len(notes[k]):]:
+                progress(f"mode {k}: {line}")
     return learned
 
 
-def _refine_arx(name, exps, order, max_iter, tol) -> LearnedMode:
+def _refine_arx(name, exps, order, max_iter, tol, steps, notes) -> LearnedMode:
     """One mode refined by EM from an ARX start of the given order."""
-    start = _located(exps[0], arx.fit_arx, [e.y for e in exps], [e.u for e in exps], *order)
+    start = _located(exps[0], partial(arx.fit_arx, steps=steps), [e.y for e in exps], [e.u for e in exps], *order)
     na, nb, nk = start.order
     structure = f"ARX({na},{nb},{nk})" if exps[0].u.shape[1] else f"AR({na})"
-    return _refine(name, exps, start.lagged(), structure, max_iter, tol)
+    return _refine(name, exps, start.lagged(), structure, max_iter, tol, steps, notes)
 
 
-def _refine(name, exps, start: LaggedMode, structure, max_iter, tol, fopdt=None) -> LearnedMode:
-    """EM inside the lagged basis from `start`, then validation on the mode's longest experiment."""
-    mode, result = basis.fit_em(start, [e.y for e in exps], [e.u for e in exps], max_iter=max_iter, tol=tol)
+def _refine(name, exps, start: LaggedMode, structure, max_iter, tol, steps, notes, fopdt=None) -> LearnedMode:
+    """EM inside the lagged basis from `start` (the outputs' noise floored at the rounding to their
+    resolution, `steps`), its poles brought inside the unit circle when EM left any outside, then
+    validation on the mode's longest experiment. `notes`: what the data check found, to which the
+    scaling of the poles is added."""
+    ny = start.ny
+    mode, result = basis.fit_em(start, [e.y for e in exps], [e.u for e in exps], max_iter=max_iter, tol=tol,
+                                steps=steps[:ny])
+    radius = float(np.abs(mode.poles()).max())
+    if radius >= 1:
+        level = np.nanmean(np.vstack([e.y for e in exps]), axis=0)
+        mode = basis.stabilised(mode, level)
+        notes = notes + (f"poles scaled from modulus {radius:.6g} to {basis.MAX_RADIUS:g}: the data drift as if "
+                         "integrating (not stationary over the recording), which no stable mode reproduces; "
+                         "one-step predictions at the data's mean level are unchanged",)
     longest = max(exps, key=lambda e: len(e.y))
     return LearnedMode(name, exps, structure, start, result, mode,
-                       validate(mode.statespace(longest.u[0]), longest.y, longest.u), fopdt)
+                       validate(mode.statespace(longest.u[0]), longest.y, longest.u), fopdt, notes)
+
+
+def _unresolved(exps, steps, outputs) -> tuple[str, ...]:
+    """What a mode's data cannot resolve, a line per group of outputs (`resolution.unresolved`):
+    a constant output, one that moves less than rounding, or outputs that move together exactly;
+    each says the measurement noise floor that models it (the sd of rounding to the resolution)."""
+    lines = []
+    for group in unresolved([e.y for e in exps], steps):
+        floors = ", ".join(f"{outputs[j]} {np.sqrt(noise_floor(steps[j])):.3g}" for j in group)
+        if len(group) > 1:
+            what = f"{', '.join(outputs[j] for j in group)} move together exactly (collinear to their resolution)"
+        else:
+            (j,) = group
+            values = np.unique(np.concatenate([e.y[:, j] for e in exps]))
+            values = values[np.isfinite(values)]
+            what = (f"{outputs[j]} is constant at {values[0]:g} (a stuck sensor or valve)" if len(values) == 1 else
+                    f"{outputs[j]} moves no more than rounding to its resolution {steps[j]:.3g}")
+        lines.append(f"{what}: measurement noise floored at rounding, sd {floors}")
+    return tuple(lines)
 
 
 def _located(e: Experiment, estimate, *args):
@@ -156,6 +241,16 @@ def _located(e: Experiment, estimate, *args):
         return estimate(*args)
     except DataError as exc:
         raise DataError(f"{e.source}: {exc}") from None
+
+
+#: How many numbers (poles, gains, fits) a summary lists before it shortens the list.
+LISTED = 4
+
+
+def _listed(values, style=lambda x: f"{x:.4g}") -> str:
+    """Up to LISTED values in full, more as the first LISTED and how many there are."""
+    shown = ", ".join(style(x) for x in values[:LISTED])
+    return shown if len(values) <= LISTED else f"{shown}, ... ({len(values)} in all)"
 
 
 def default_transitions(K: int, stay: float) -> np.ndarray:

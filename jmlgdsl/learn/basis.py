@@ -16,13 +16,15 @@ EM fits the output lags alone: the inputs are known, so their lags enter as extr
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from functools import partial
 
 import numpy as np
 from scipy.linalg import block_diag
 
-from .em import EMResult, em, regress, segments, spd
+from .em import EMResult, em, regress, segments
+from .resolution import at_least, noise_floor, resolution
 from .statespace import StateSpace
 
 
@@ -139,22 +141,41 @@ class LaggedMode:
                           R=self.R, mu0=mu0, Sigma0=Sigma0)
 
 
-def m_step(ss: StateSpace, y, v, e, free) -> StateSpace:
+#: Where a learned mode whose poles EM left on or outside the unit circle has its largest pole.
+MAX_RADIUS = 0.999
+
+
+def stabilised(mode: LaggedMode, level) -> LaggedMode:
+    """The mode with every pole scaled by MAX_RADIUS / (its largest modulus): Phi_i -> rho^i Phi_i
+    scales the poles of the lag polynomial by rho. The offset moves so that the one-step prediction
+    from the outputs' mean `level` at every lag is unchanged, so the mode keeps its level and now
+    has a steady state near it."""
+    rho = MAX_RADIUS / np.abs(mode.poles()).max()
+    ny = mode.ny
+    Phi = mode.Phi * np.repeat(rho ** np.arange(1, mode.n + 1), ny)
+    c = mode.c + (mode.Phi - Phi) @ np.tile(np.asarray(level, float), mode.n)
+    return LaggedMode(mode.lags, Phi, mode.Psi, c, mode.Q, mode.R, mode.mu0, mode.Sigma0)
+
+
+def m_step(ss: StateSpace, y, v, e, free, floor) -> StateSpace:
     """EM's M-step inside the lagged structure (y, v: the segments' outputs and lagged inputs
     stacked; e: their `Moments`): the first ny rows' free coefficients on [s_{t-1}.., u_t.., 1]
     with Q by expected least squares, R from the expected output residuals (on the fully measured
-    steps), the initial lags from the smoothed s_0..s_{1-n}."""
+    steps), both kept at least diag(floor), the rounding variance, and the initial lags from the
+    smoothed s_0..s_{1-n}. Raising the eigenvalues of the floor-whitened covariance to 1 is the
+    exact maximiser under that bound, so EM still cannot lower the likelihood."""
     ny, nx = ss.C.shape
     k = int(free[:nx].sum())  # the free output lags come first
     Z = np.hstack([e.prev, v, np.ones((len(v), 1))])[:, free]
     W, Q = regress(e.mean[:, :ny], Z, e.cov.sum()[:ny, :ny], e.prev_cov.sum()[:k, :k], e.cross.sum()[:ny, :k])
+    Q = at_least(Q, floor)
     coef = np.zeros((ny, len(free)))
     coef[:, free] = W
     A, F, f = ss.A.copy(), ss.F.copy(), ss.f.copy()
     A[:ny], F[:ny], f[:ny] = coef[:, :nx], coef[:, nx:-1], coef[:, -1]
     o = ~np.isnan(y).any(axis=1)
     r = y[o] - e.mean[o][:, :ny]
-    R = spd((r.T @ r + e.cov.sum(where=o)[:ny, :ny]) / max(int(o.sum()), 1))
+    R = at_least((r.T @ r + e.cov.sum(where=o)[:ny, :ny]) / max(int(o.sum()), 1), floor)
     mu0, Sigma0 = e.initial()
     return ss.replace(A=A, F=F, f=f, Q=block_diag(Q, np.zeros((nx - ny,) * 2)), R=R, mu0=mu0, Sigma0=Sigma0)
 
@@ -178,30 +199,38 @@ def transformed(mode: LaggedMode, dy, my, du, mu) -> LaggedMode:
     return LaggedMode(mode.lags, Phi, Psi, c, scale * mode.Q, scale * mode.R, mu0, Sigma0)
 
 
-def _spread(x) -> tuple[np.ndarray, np.ndarray]:
-    """Mean and standard deviation of each column over its measured values (sd 1 for a constant one)."""
-    mean, sd = np.nanmean(x, axis=0), np.nanstd(x, axis=0)
-    return mean, np.where(sd > 0, sd, 1.0)
-
-
-def fit_em(start: LaggedMode, y, u, max_iter=100, tol=1e-5) -> tuple[LaggedMode, EMResult]:
+def fit_em(start: LaggedMode, y, u, max_iter=100, tol=1e-5, steps=None) -> tuple[LaggedMode, EMResult]:
     """EM from `start` inside its structure, on one experiment (arrays) or several of the same mode
     (lists), standardised so that sensors in very different units are fitted alike (the SPD floor of
     the covariances is relative to their largest eigenvalue); the result is mapped back exactly,
     and the log-likelihood with it. Without initial lags, they start at the first measured output
-    with the noise's spread at every lag."""
+    with the noise's spread at every lag.
+
+    `steps`: each output's resolution (by default read from these data). Both noises are kept at
+    least its rounding variance (`resolution.noise_floor`): the data cannot tell a smaller process
+    noise from none, nor a smaller measurement noise from rounding. An output is scaled by its
+    standard deviation or, when it moves less (a constant output), by its resolution.
+    """
     parts = segments(y, u)
-    (my, sy), (mu, su) = (_spread(np.vstack([p[i] for p in parts])) for i in (0, 1))
+    ys, us = np.vstack([p[0] for p in parts]), np.vstack([p[1] for p in parts])
+    steps = resolution(ys) if steps is None else np.asarray(steps, float)
+    my, sy = np.nanmean(ys, axis=0), np.maximum(np.nanstd(ys, axis=0), steps)
+    mu, su = us.mean(axis=0), us.std(axis=0)
+    su = np.where(su > 0, su, 1.0)
+    floor = noise_floor(steps / sy)
+    scaled = transformed(start, 1 / sy, -my / sy, 1 / su, -mu / su)
+    Q, R = at_least(scaled.Q, floor), at_least(scaled.R, floor)
     if start.mu0 is None:
         first = np.array([column[np.isfinite(column)][0] for column in parts[0][0].T])
-        start = LaggedMode(start.lags, start.Phi, start.Psi, start.c, start.Q, start.R, np.tile(first, start.n),
-                           np.kron(np.eye(start.n), start.Q + start.R))
-    scaled = transformed(start, 1 / sy, -my / sy, 1 / su, -mu / su)
+        mu0, Sigma0 = np.tile((first - my) / sy, start.n), np.kron(np.eye(start.n), Q + R)
+    else:
+        mu0, Sigma0 = scaled.mu0, scaled.Sigma0
+    scaled = LaggedMode(start.lags, scaled.Phi, scaled.Psi, scaled.c, Q, R, mu0, Sigma0)
     free = start.lags.free(start.ny, len(mu))
     result = em(scaled.reduced(), [(yk - my) / sy for yk, _ in parts],
                 [lag_inputs((uk - mu) / su, start.n) for _, uk in parts], max_iter, tol,
-                update=partial(m_step, free=free))
+                update=partial(m_step, free=free, floor=floor))
     fitted = transformed(scaled.from_reduced(result.model), sy, my, su, mu)
     measured = sum((~np.isnan(yk)).sum(axis=0) for yk, _ in parts)
     jacobian = float(np.log(sy) @ measured)  # log |d y_scaled / d y| over the data
-    return fitted, EMResult(fitted.reduced(), result.loglik - jacobian, result.converged)
+    return fitted, dataclasses.replace(result, model=fitted.reduced(), loglik=result.loglik - jacobian)

@@ -106,16 +106,36 @@ class Moments:
 
 @dataclass(frozen=True)
 class EMResult:
-    """The fitted model, the log-likelihood of every parameter set visited, and how it stopped."""
+    """The fitted model, the log-likelihood of every parameter set visited, and how it stopped:
+    converged (the last gain below `tolerance`, in log-likelihood units), at the iteration cap, or
+    because the log-likelihood fell (`fell`)."""
 
     model: StateSpace
     loglik: np.ndarray
     converged: bool
+    tolerance: float = np.nan
+    fell: bool = False
 
     @property
     def iterations(self) -> int:
         """EM iterations whose parameters were kept."""
         return len(self.loglik) - 1
+
+    @property
+    def gain(self) -> float:
+        """The last iteration's gain in log-likelihood (NaN before any)."""
+        return float(self.loglik[-1] - self.loglik[-2]) if len(self.loglik) > 1 else np.nan
+
+    @property
+    def remaining(self) -> float:
+        """What EM would still gain were it run to the end, projected from its last three
+        log-likelihoods (Aitken): near a maximum the gains shrink by a steady ratio r, so what
+        remains is gain r / (1 - r). Infinite when the gains are not shrinking."""
+        if len(self.loglik) < 3:
+            return np.inf
+        before, last = np.diff(self.loglik[-3:])
+        ratio = last / before if before > 0 else np.inf
+        return float(last * ratio / (1 - ratio)) if 0 <= ratio < 1 else np.inf
 
 
 @dataclass(frozen=True)
@@ -293,6 +313,10 @@ def spd(S) -> np.ndarray:
 def em(ss: StateSpace, y, u=None, max_iter=100, tol=1e-5, offset=True, feedthrough=True, update=None) -> EMResult:
     """Run EM from `ss` until the log-likelihood gains less than tol relative, or max_iter iterations.
 
+    Relative to the log-likelihood's scale: the larger of |log-lik| and the number of measured
+    values (it is a sum of one term per value; a log-likelihood that passes near zero would otherwise
+    never let EM stop).
+
     y, u: one experiment's arrays, or lists of several experiments (segments) of the same model,
     each smoothed on its own; their moments are pooled in the M-step. `update(ss, y, u, moments)` replaces the free M-step (`m_step` with offset and feedthrough) by
     one that keeps a structure, such as the lagged basis's.
@@ -302,13 +326,14 @@ def em(ss: StateSpace, y, u=None, max_iter=100, tol=1e-5, offset=True, feedthrou
     """
     parts = segments(y, u)
     y, u = np.vstack([p[0] for p in parts]), np.vstack([p[1] for p in parts])
+    values = int((~np.isnan(y)).sum())
 
     def expect(model):
         return Moments.of([smooth(model, yk, uk) for yk, uk in parts])
 
     e = expect(ss)
     history = [e.loglik]
-    converged = False
+    converged = fell = False
     for _ in range(max_iter):
         new = m_step(ss, y, u, e, offset, feedthrough) if update is None else update(ss, y, u, e)
         e_new = expect(new)
@@ -316,10 +341,11 @@ def em(ss: StateSpace, y, u=None, max_iter=100, tol=1e-5, offset=True, feedthrou
         if gain < -1e-9 * max(1.0, abs(history[-1])):
             warnings.warn(f"EM log-likelihood fell from {history[-1]:.10g} to {e_new.loglik:.10g}; "
                           "keeping the previous parameters", RuntimeWarning, stacklevel=2)
+            fell = True
             break
         ss, e = new, e_new
         history.append(e.loglik)
-        if gain < tol * abs(history[-2]):
+        if gain < tol * max(abs(history[-2]), values):
             converged = True
             break
-    return EMResult(ss, np.array(history), converged)
+    return EMResult(ss, np.array(history), converged, tol * max(abs(history[-1]), values), fell)

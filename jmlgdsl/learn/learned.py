@@ -37,7 +37,7 @@ class LearnedBank:
     def report(self) -> str:
         """One line per mode: structure, EM, poles, gain, noise, fit and the residual tests (the
         spec's comments say the same)."""
-        return "\n".join(lm.summary() for lm in self.learned)
+        return "\n".join(lm.summary(self.model.outputs) for lm in self.learned)
 
     def write(self, path) -> None:
         """Write the spec to `path` ('-': standard output), whole or not at all."""
@@ -98,7 +98,7 @@ def learn(experiments: dict, template: Model | None = None, *, outputs=(), input
     by_mode = {mode: [e for source in sources[mode] for e in _experiments(source, columns, mode, k)]
                for k, mode in enumerate(modes)}
     learned = learn_modes(by_mode, arx_order, fopdt, frame["dt"], max_order, max_delay, criterion, max_iter, tol,
-                          progress)
+                          progress, frame["outputs"])
     defaults = frame["input_defaults"]
     model = assemble(learned, operating_input=defaults if np.isfinite(defaults).all() else None, **frame)
     origins = dict.fromkeys(s.source if isinstance(s, Experiment) else str(s) for given in sources.values()
@@ -106,7 +106,8 @@ def learn(experiments: dict, template: Model | None = None, *, outputs=(), input
     how = ("FOPDT fits of step tests" if fopdt else
            f"states chosen by {criterion.upper()} of the EM fits, started from ARX" if arx_order == "auto"
            else f"ARX order {_written(order)}")
-    return LearnedBank(tuple(learned), model, write_spec(model, _header(origins, how, max_iter, tol, learned)))
+    return LearnedBank(tuple(learned), model,
+                       write_spec(model, _header(origins, how, max_iter, tol, learned, model.outputs)))
 
 
 def experiments_of(data, mode: str, index: int) -> list[Experiment]:
@@ -177,7 +178,7 @@ def _frame(template: Model | None, modes: tuple, outputs: tuple, inputs: tuple, 
                 p0=healthy_prior(K, initial)), modes
 
 
-def _header(origins, how: str, max_iter: int, tol: float, learned) -> str:
+def _header(origins, how: str, max_iter: int, tol: float, learned, outputs) -> str:
     """The comment block at the top of the written spec: where it came from and how well it fits."""
     lines = [f"Learned by jmlgdsl learn from {', '.join(origins)}",
              f"Structure: {how}; EM up to {plural(max_iter, 'iteration')}, relative tolerance {tol:g}.",
@@ -189,5 +190,5 @@ def _header(origins, how: str, max_iter: int, tol: float, learned) -> str:
              f"Validation: residual autocorrelation (lags 1-{validate.MAX_LAG}) and input-residual "
              f"cross-correlation (lags 0-{validate.MAX_LAG}) pass when at most {validate.ALLOWED_OUTSIDE} "
              "lag of each lies outside the 99 % band.",
-             ""] + [lm.summary() for lm in learned]
+             ""] + [lm.summary(outputs) for lm in learned]
     return "\n".join(lines)
