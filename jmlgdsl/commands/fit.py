@@ -16,8 +16,10 @@ def register(subparsers):
                     "is maximised over the compiled bank (nonlinear plants are re-linearised at each try). "
                     "Data whose every row names its mode in a 'mode' column have an exact likelihood (a "
                     "Kalman filter through the labelled modes); other files use a filter's (--filter). "
-                    "Prints each estimate with its standard error from the curvature (Laplace), names "
-                    "unknowns the data cannot tell apart, and writes the spec with the fitted values.")
+                    "Unlabelled data first go through rounds of labelling by their most probable modes. Prints each "
+                    "estimate with its standard error from the curvature (Laplace), names unknowns the data "
+                    "cannot tell apart, warns when the fit did not converge or its curvature cannot be trusted, "
+                    "and writes the spec with the fitted values.")
     p.add_argument("spec", help="plant spec (.jmlg) with unknowns")
     p.add_argument("data", nargs="+", metavar="DATA", help="CSV recordings of the plant (several: one likelihood)")
     p.add_argument("-o", "--output", default="-", metavar="FITTED.jmlg",
@@ -34,6 +36,9 @@ def register(subparsers):
                         "peak: a guard against local optima, at N times the cost (default 1)")
     p.add_argument("--seed", type=int, help="random seed for --samples and --starts (the same seed gives the same "
                                             "result)")
+    p.add_argument("--strict", action="store_true",
+                   help="exit with status 1 when the fit cannot be trusted (it did not converge, or its curvature "
+                        "is noise: the warnings of the report); the fitted spec is written all the same")
     p.add_argument("-q", "--quiet", action="store_true", help="do not show the optimiser's progress")
     p.set_defaults(func=main)
 
@@ -50,4 +55,4 @@ def main(args) -> int:
     result.write(args.output)
     if args.output != "-":
         print(f"wrote {args.output}", file=sys.stderr)
-    return 0
+    return 1 if args.strict and result.warnings else 0

@@ -38,7 +38,8 @@ def fit(spec, data, *, algorithm: str = "imm", samples: int = 0, starts: int = 1
     likelihood; other recordings use the filter's (`algorithm`, IMM by default). `samples` > 0 adds
     posterior draws by random-walk Metropolis; `starts` > 1 also starts the search from starts - 1 draws
     of the priors and keeps the highest peak (both seeded by `seed`). The returned Fit has the estimates,
-    standard errors, the fitted Model, and `text`, the spec rewritten with the fitted values."""
+    standard errors, the fitted Model, `warnings` where the fit cannot be trusted (it did not converge,
+    or its curvature is noise), and `text`, the spec rewritten with the fitted values and those warnings."""
     if samples < 0 or starts < 1:
         raise FitError(f"samples must be 0 or more and starts 1 or more, got {samples} and {starts}")
     if algorithm not in ALGORITHMS:
@@ -52,7 +53,8 @@ def fit(spec, data, *, algorithm: str = "imm", samples: int = 0, starts: int = 1
         raise FitError("no data to fit to")
     result = maximise(family, recordings, algorithm, samples, seed, progress, starts)
     sources = ", ".join(Path(d.source).name for d in recordings)
-    result.text = fitted_text(spec, family.unknowns, result.estimate, result.se,
-                              f"Fitted by 'jmlgdsl fit' to {sources}: log-likelihood {result.loglik_start:.6g} "
-                              f"at the priors' medians, {result.loglik:.6g} fitted.")
+    header = "\n".join([f"Fitted by 'jmlgdsl fit' to {sources}: log-likelihood {result.loglik_start:.6g} "
+                        f"at the priors' medians, {result.loglik:.6g} fitted."]
+                       + [f"warning: {w}" for w in result.warnings])
+    result.text = fitted_text(spec, family.unknowns, result.estimate, result.se, header)
     return result

@@ -2,9 +2,12 @@
 draws from the posterior by random-walk Metropolis.
 
 Every unknown moves in its unconstrained coordinate z (jmlgdsl.priors): the log posterior
-log p(data | theta) + log p(theta) is maximised by BFGS over z, so no bound is ever crossed. At the
-maximum the gradient vanishes, so the curvature in z maps to theta through the diagonal derivative
-d theta / d z alone (the delta method) and correlations are the same in both coordinates.
+log p(data | theta) + log p(theta) is maximised by BFGS over z, so no bound is ever crossed. Data
+without labels first go through rounds of labelling by their most probable modes (jmlgdsl.fitting.labels),
+which bring the search into the basin the data decide. At the maximum the gradient vanishes, so the
+curvature in z maps to theta through the diagonal derivative d theta / d z alone (the delta method) and
+correlations are the same in both coordinates. Checks on the peak and its curvature
+(jmlgdsl.fitting.convergence) say when the search did not get there.
 """
 
 from __future__ import annotations
@@ -15,18 +18,17 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.optimize import minimize
 
 from ..compile.assemble import twins
-from ..errors import JmlgError
 from ..model import Model
 from ..output import writing
 from ..seeds import generator
+from . import convergence
 from .family import Family, FitError
-from .likelihood import labelled, loglik
+from .labels import label_rounds
+from .likelihood import labelled
+from .posterior import MAX_ITERATIONS, Cached, Posterior, bfgs
 
-GRADIENT_STEP = 1e-6  # forward-difference step in z (relative change of a positive unknown)
-GTOL = 1e-3  # BFGS stops when no z-gradient entry exceeds this (far below one posterior sd's worth)
 HESSIAN_STEP = 0.3  # central-difference step for the curvature, in posterior standard deviations of z
 FIRST_STEP = 1e-3  # the step in z of the first, diagonal pass that finds those standard deviations
 CORRELATED = 0.95  # |correlation| beyond which two unknowns are reported as hard to tell apart
@@ -47,6 +49,7 @@ class Fit:
     loglik: float  # log p(data) at the estimate
     model: Model
     notes: list[str] = field(default_factory=list)  # unidentifiable unknowns, estimates at an edge
+    warnings: list[str] = field(default_factory=list)  # why the estimate or its curvature cannot be trusted
     evaluations: int = 0
     seconds: float = 0.0
     samples: np.ndarray | None = None  # (N, d) posterior draws with --samples
@@ -57,6 +60,11 @@ class Fit:
         """Write the fitted spec, whole or not at all ('-': standard output)."""
         with writing(path) as stream:
             stream.write(self.text)
+
+    @property
+    def converged(self) -> bool:
+        """Whether the fit passed every check on its peak and curvature (no warnings)."""
+        return not self.warnings
 
     def values(self) -> dict[str, float]:
         """{unknown: estimate}."""
@@ -79,41 +87,10 @@ class Fit:
         if self.samples is not None:
             lines.append(f"{len(self.samples)} posterior draws by random-walk Metropolis, "
                          f"acceptance {self.acceptance:.0%}")
+        lines += [f"warning: {w}" for w in self.warnings]
         lines += [f"note: {n}" for n in self.notes]
         lines.append(f"{self.evaluations} likelihood evaluations in {self.seconds:.1f} s")
         return "\n".join(lines)
-
-
-class Posterior:
-    """-log p(theta | data) up to a constant, as a function of z; counts its evaluations."""
-
-    def __init__(self, family: Family, datasets, algorithm: str):
-        self.family, self.datasets, self.algorithm = family, datasets, algorithm
-        self.evaluations = 0
-
-    def theta(self, z) -> np.ndarray:
-        return np.array([p.from_z(v) for p, v in zip(self.family.priors, z)])
-
-    def loglik(self, theta) -> float:
-        """log p(data | theta); -inf where theta makes no model (a mode without a steady state, ...)."""
-        self.evaluations += 1
-        try:
-            model = self.family.model(theta)
-            with np.errstate(all="ignore"):
-                return sum(loglik(model, d, self.algorithm) for d in self.datasets)
-        except (JmlgError, np.linalg.LinAlgError, ValueError):
-            return -math.inf
-
-    def __call__(self, z) -> float:
-        theta = self.theta(z)
-        value = self.loglik(theta) + sum(p.logpdf(t) for p, t in zip(self.family.priors, theta))
-        return -value if math.isfinite(value) else math.inf
-
-    def gradient(self, z, f0=None) -> np.ndarray:
-        """Forward differences in z."""
-        f0 = self(z) if f0 is None else f0
-        steps = np.eye(len(z)) * GRADIENT_STEP
-        return np.array([(self(z + s) - f0) / GRADIENT_STEP for s in steps])
 
 
 def maximise(family: Family, datasets, algorithm: str = "imm", samples: int = 0, seed=None, progress=None,
@@ -121,7 +98,8 @@ def maximise(family: Family, datasets, algorithm: str = "imm", samples: int = 0,
     """The maximum a posteriori values of the family's unknowns given the datasets (jmlgdsl.data.Data),
     with Laplace standard errors; `samples` > 0 adds that many Metropolis draws. The search starts at
     the priors' medians and, with `starts` > 1, also at starts - 1 draws from the priors, keeping the
-    highest peak found. `progress(text)` hears of each optimiser iteration."""
+    highest peak found; where some data are unlabelled, each start first goes through rounds of
+    labelling (jmlgdsl.fitting.labels). `progress(text)` hears of each round and optimiser iteration."""
     start = time.perf_counter()
     rng = generator(seed)
     post = Posterior(family, datasets, algorithm)
@@ -133,12 +111,13 @@ def maximise(family: Family, datasets, algorithm: str = "imm", samples: int = 0,
     alike = _look_alike(family.model(post.theta(z0))) if not all(map(labelled, datasets)) else []
     for note in alike:
         say(f"note: {note}")
-    objective = _Cached(post)
+    objective = Cached(post)
     results = _search(post, objective, z0, starts, rng, say)
-    result = min(results, key=lambda r: r.fun)
+    z_start, result = min(results, key=lambda r: r[1].fun)
     z = result.x
     say("curvature at the estimate (Laplace)")
-    H = hessian(post, z, objective(z))
+    f0 = objective(z)
+    H, gradient = hessian(objective, z, f0)
     theta = post.theta(z)
     cov_z, notes = _covariance(H, family.names)
     J = np.array([p.dtheta_dz(v) for p, v in zip(family.priors, z)])
@@ -146,73 +125,77 @@ def maximise(family: Family, datasets, algorithm: str = "imm", samples: int = 0,
     se = np.sqrt(np.where(np.diag(cov) >= 0, np.diag(cov), np.nan))
     with np.errstate(invalid="ignore", divide="ignore"):
         corr = cov_z / np.sqrt(np.outer(np.diag(cov_z), np.diag(cov_z)))
-    notes = alike + notes + _correlated(corr, family.names) + _uninformed(H, z, family) + [
+    own = _prior_curvature(z, family)
+    informed = np.diag(H) > PRIOR_SHARE * own
+    notes = alike + notes + _correlated(corr, family.names) + _uninformed(informed, own, family.names) + [
         f"{n} sits at an edge of its prior ({p}): its standard error is not meaningful"
         for n, p, v in zip(family.names, family.priors, z) if abs(v) > AT_EDGE and p.family != "Normal"]
-    if not result.success and "precision" not in result.message:
-        notes.append(f"the optimiser stopped early: {result.message}")
     if starts > 1:
-        peaks = ", ".join(f"{-r.fun:.8g}" for r in results)
+        peaks = ", ".join(f"{-r.fun:.8g}" for _, r in results)
         notes.append(f"the best of {starts} starts (their log posteriors: {peaks})")
+    loglik = -f0 - sum(p.logpdf(t) for p, t in zip(family.priors, theta))
+    model = family.model(theta)
+    say("checks on the peak and its curvature")
+    warnings = ([f"the optimiser stopped early: {result.message}"] if result.nit >= MAX_ITERATIONS else []) \
+        + convergence.not_at_peak(cov_z, gradient, family.names) \
+        + convergence.curvature_mismatch(objective, z, f0, H, family.names) + convergence.ill_conditioned(H) \
+        + convergence.unmoved(z, z_start, informed, family) \
+        + convergence.misfit(model, datasets, algorithm, loglik)
     draws, acceptance = (None, math.nan)
     if samples:
         draws, acceptance = metropolis(post, z, cov_z, samples, rng, say)
-    loglik = -objective(z) - sum(p.logpdf(t) for p, t in zip(family.priors, theta))
-    return Fit(list(family.names), list(family.priors), theta, se, corr, loglik_start, loglik,
-               family.model(theta), notes, post.evaluations, time.perf_counter() - start, draws, acceptance)
+    return Fit(list(family.names), list(family.priors), theta, se, corr, loglik_start, loglik, model, notes,
+               warnings, post.evaluations, time.perf_counter() - start, draws, acceptance)
 
 
-class _Cached:
-    """The posterior's objective, remembered for the points BFGS asks about more than once."""
-
-    def __init__(self, post: Posterior):
-        self.post, self.values = post, {}
-
-    def __call__(self, z) -> float:
-        key = z.tobytes()
-        if key not in self.values:
-            self.values[key] = self.post(z)
-        return self.values[key]
-
-
-def _search(post: Posterior, objective, z0: np.ndarray, starts: int, rng: np.random.Generator, say) -> list:
-    """BFGS from z0 and from starts - 1 draws of the priors: one scipy result per start."""
+def _search(post: Posterior, objective: Cached, z0: np.ndarray, starts: int, rng: np.random.Generator,
+            say) -> list:
+    """BFGS from z0 and from starts - 1 draws of the priors, each after rounds of labelling where some
+    data are unlabelled: (the start, scipy's result) per start."""
     iterations = itertools.count(1)
 
     def report_iteration(z):
         say(f"iteration {next(iterations)}: log posterior {-objective(z):.8g}")
 
+    unlabelled = not all(map(labelled, post.datasets))
     results = []
     for i in range(starts):
         z_start = z0 if i == 0 else np.array([p.to_z(p.draw(rng)) for p in post.family.priors])
         if starts > 1:
             say(f"start {i + 1} of {starts}" + (" (the priors' medians)" if i == 0 else " (drawn from the priors)"))
-        results.append(minimize(objective, z_start, jac=lambda z: post.gradient(z, objective(z)), method="BFGS",
-                                callback=report_iteration, options={"gtol": GTOL, "maxiter": 200}))
+        z = z_start
+        if unlabelled:
+            z = min((label_rounds(post, z_start, say), z_start), key=objective)  # never below the start
+        results.append((z_start, bfgs(objective, z, report_iteration)))
     return results
 
 
-def hessian(f, z: np.ndarray, f0: float) -> np.ndarray:
-    """The curvature of f at z by central differences, with per-coordinate steps of HESSIAN_STEP
-    standard deviations, found by a first diagonal pass (so the steps suit tight and loose unknowns)."""
+def hessian(f, z: np.ndarray, f0: float) -> tuple[np.ndarray, np.ndarray]:
+    """The curvature and the gradient of f at z by central differences, with per-coordinate steps of
+    HESSIAN_STEP standard deviations, found by a first diagonal pass (so the steps suit tight and loose
+    unknowns). The gradient, from the same evaluations, says whether z is a peak at that scale."""
     d = len(z)
-    first = _diagonal(f, z, f0, np.full(d, FIRST_STEP))
+    first = _diagonal(f, z, f0, np.full(d, FIRST_STEP))[0]
     with np.errstate(divide="ignore", invalid="ignore"):
         sd = 1.0 / np.sqrt(first)
     step = np.where(first > 0, np.minimum(HESSIAN_STEP * sd, 1.0), FIRST_STEP)
-    H = np.diag(_diagonal(f, z, f0, step))
+    diagonal, gradient = _diagonal(f, z, f0, step)
+    H = np.diag(diagonal)
     E = np.diag(step)
     for i in range(d):
         for j in range(i + 1, d):
             ei, ej = E[i], E[j]
             H[i, j] = H[j, i] = (f(z + ei + ej) - f(z + ei - ej) - f(z - ei + ej) + f(z - ei - ej)) \
                 / (4 * step[i] * step[j])
-    return H
+    return H, gradient
 
 
-def _diagonal(f, z: np.ndarray, f0: float, step: np.ndarray) -> np.ndarray:
-    """d2 f / d z_i^2 by central differences with the given steps."""
-    return np.array([(f(z + e) - 2 * f0 + f(z - e)) / h ** 2 for e, h in zip(np.diag(step), step)])
+def _diagonal(f, z: np.ndarray, f0: float, step: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(d2 f / d z_i^2, d f / d z_i) by central differences with the given steps."""
+    up = np.array([f(z + e) for e in np.diag(step)])
+    down = np.array([f(z - e) for e in np.diag(step)])
+    with np.errstate(invalid="ignore"):
+        return (up - 2 * f0 + down) / step ** 2, (up - down) / (2 * step)
 
 
 def _covariance(H: np.ndarray, names: list[str]) -> tuple[np.ndarray, list[str]]:
@@ -253,16 +236,18 @@ def _look_alike(model: Model) -> list[str]:
             "unknowns priors with different medians, or label some of the data" for a, b in twins(arrays)]
 
 
-def _uninformed(H: np.ndarray, z: np.ndarray, family: Family) -> list[str]:
-    """Notes on unknowns whose curvature is mostly their prior's: the data hardly speak of them (a mode
-    that never occurs in the data, say), so their estimate and standard error are the prior's."""
-    notes = []
-    for name, prior, v, h in zip(family.names, family.priors, z, np.diag(H)):
-        own = _diagonal(lambda x: -prior.logpdf(prior.from_z(x[0])), np.array([v]), -prior.logpdf(prior.from_z(v)),
-                        np.array([FIRST_STEP]))[0]
-        if own > 0 and h < PRIOR_SHARE * own:
-            notes.append(f"the data say little about {name}: its estimate and standard error are mostly its prior's")
-    return notes
+def _prior_curvature(z: np.ndarray, family: Family) -> np.ndarray:
+    """(d,) each prior's own curvature of -log p(theta) in z at z (0 for a Uniform, flat in theta)."""
+    return np.array([_diagonal(lambda x: -p.logpdf(p.from_z(x[0])), np.array([v]), -p.logpdf(p.from_z(v)),
+                               np.array([FIRST_STEP]))[0][0] for p, v in zip(family.priors, z)])
+
+
+def _uninformed(informed: np.ndarray, own: np.ndarray, names: list[str]) -> list[str]:
+    """Notes on unknowns whose curvature is mostly their prior's `own` (not `informed`): the data hardly
+    speak of them (a mode that never occurs in the data, say), so their estimate and standard error are
+    the prior's. A Uniform, flat in theta, has no curvature of its own to compare with."""
+    return [f"the data say little about {name}: its estimate and standard error are mostly its prior's"
+            for name, c, i in zip(names, own, informed) if c > 0 and not i]
 
 
 def _correlated(corr: np.ndarray, names: list[str]) -> list[str]:

@@ -1,0 +1,61 @@
+"""A start for a fit to unlabelled data in the basin the data decide: expectation-maximisation over the
+unknown modes, made hard (each row takes its most probable mode).
+
+Far from the truth a filter's likelihood is no guide for a local search. Every mode misses the
+readings by many standard deviations, so at each step the filter's posterior sits all on one mode,
+and which one flips with the last digits of the unknowns: values a millionth apart differ by hundreds
+in log-likelihood, a finite-difference gradient is noise, and BFGS stops where it started
+(docs/fit.md, "Unlabelled data far from the truth"). The labelled likelihood has no such jumps: with
+the modes known the outputs are jointly Gaussian and smooth in the unknowns. So each round labels every
+unlabelled row with its most probable mode given the whole record under the current values (the IMM
+smoother: the E-step), then fits the unknowns to the data so labelled (the M-step, exact and cheap),
+until the labels repeat.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from ..data import Data
+from ..errors import JmlgError
+from ..infer import smooth
+from ..model import Model
+from .likelihood import labelled
+from .posterior import Cached, Posterior, bfgs
+
+MAX_ROUNDS = 20  # labels that still change after this many rounds are left as they are
+
+
+def most_probable_modes(model: Model, data: Data) -> np.ndarray:
+    """(T,) each row's own label where it has one, else its most probable mode given all the data
+    (the IMM smoother, whatever filter the fit uses: it is deterministic and costs one pass)."""
+    guess = smooth(model, data.y, data.u, algorithm="imm", lag=None).mode_posterior.argmax(axis=1)
+    return guess if data.modes is None else np.where(data.modes >= 0, data.modes, guess)
+
+
+def label_rounds(post: Posterior, z: np.ndarray, say) -> np.ndarray:
+    """z after rounds of labelling the unlabelled rows of post's data by their most probable modes and
+    fitting to the data so labelled, until the labels repeat (or MAX_ROUNDS). Each round's smoother
+    pass and likelihood evaluations are counted in post.evaluations."""
+    labels = None
+    for round_ in range(1, MAX_ROUNDS + 1):
+        try:
+            model = post.family.model(post.theta(z))
+            with np.errstate(all="ignore"):
+                new = [d.modes if labelled(d) else most_probable_modes(model, d) for d in post.datasets]
+        except (JmlgError, np.linalg.LinAlgError, ValueError):
+            break  # the values make no model, or the smoother overflows: keep the last fit
+        post.evaluations += sum(not labelled(d) for d in post.datasets)
+        changed = None if labels is None else sum(int((a != b).sum()) for a, b in zip(new, labels))
+        if changed == 0:
+            break
+        labels = new
+        step = Posterior(post.family, [replace(d, modes=m) for d, m in zip(post.datasets, labels)], post.algorithm)
+        objective = Cached(step)
+        z = bfgs(objective, z).x
+        post.evaluations += step.evaluations
+        say(f"labelling round {round_}: " + ("" if changed is None else f"{changed} rows relabelled, ")
+            + f"log posterior with those labels {-objective(z):.8g}")
+    return z
