@@ -16,7 +16,11 @@ def register(subparsers):
                     "levels. Every mode is written over one shared state basis, the recent noise-free outputs and "
                     "inputs, so the bank stays right when the plant switches. Every mode is validated (residual "
                     "whiteness and input-residual correlation up to lag 25 with 99 % bands, free-run fit) and the "
-                    "bank is written as a readable, commented spec that 'jmlgdsl run' accepts. Without --template "
+                    "bank is written as a readable, commented spec that 'jmlgdsl run' accepts. A sensor that is "
+                    "constant in a mode's data (stuck) or sensors that move together exactly (collinear) are "
+                    "modelled with noise at the rounding of their resolution and reported, per mode and sensor, "
+                    "before any fitting; a mode EM leaves unstable has its poles scaled inside the unit circle, "
+                    "and says so. Without --template "
                     "the first --mode is the healthy one: the prior is 'initial FIRST 0.99, otherwise uniform' "
                     "(--initial) and the transitions 'stay 0.99, otherwise uniform' (--stay).")
     p.add_argument("--mode", action="append", required=True, metavar="NAME=CSV",

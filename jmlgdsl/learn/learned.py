@@ -22,6 +22,7 @@ from ..names import plural
 from ..output import writing
 from . import validate
 from .bank import Experiment, LearnedMode, assemble, default_transitions, healthy_prior, learn_modes
+from .resolution import RELATIVE
 from .writer import write_spec
 
 
@@ -187,6 +188,9 @@ def _header(origins, how: str, max_iter: int, tol: float, learned, outputs) -> s
              "first rows. B, D are Cholesky factors of the learned process and measurement noise",
              "covariances. Each mode starts at its steady state under the operating input (a mode that is",
              "not stable, where its experiment began).",
+             "Both noise covariances are kept at least the rounding variance r^2/12 of each sensor's resolution",
+             f"r (the smallest step between its recorded values, at least {RELATIVE:g} of its spread); a mode's",
+             "lines below name the sensors where that floor models what its data cannot resolve.",
              f"Validation: residual autocorrelation (lags 1-{validate.MAX_LAG}) and input-residual "
              f"cross-correlation (lags 0-{validate.MAX_LAG}) pass when at most {validate.ALLOWED_OUTSIDE} "
              "lag of each lies outside the 99 % band.",
