@@ -3,9 +3,14 @@
     y_t = Phi_1 y_{t-1} + ... + Phi_na y_{t-na} + Psi_nk u_{t-nk} + ... + Psi_{nk+nb-1} u_{t-nk-nb+1} + c + e_t
 
 with e_t ~ N(0, Sigma) across outputs. Lag 0 on the input (nk = 0) lets u_t act on y_t in the same
-step, as in the model's x_t = A x_{t-1} + F u_t. All outputs share the regressors, so one QR factor
-(`scipy.linalg.qr`, then triangular solves; never the normal equations) fits them all; the parameter
-covariance is Sigma kron (X'X)^-1 from the same factor. Orders are chosen by AIC or BIC over a grid.
+step, as in the model's x_t = A x_{t-1} + F u_t. All outputs share the regressors, so one
+factorisation fits them all (never the normal equations): a singular value decomposition of the
+centred regressors, each measured in steps of its variable's resolution (`resolution`). Directions
+in which the regressors move no more than rounding alone would move them (variance below
+step^2 / 12: a stuck sensor's lags, collinear sensors) are left out: the data cannot tell them
+apart, and their coefficients stay at the minimum norm instead of growing without bound. The
+parameter covariance is Sigma kron (X'X)^+ from the same factor ((X'X)^-1 when nothing is left
+out). Orders are chosen by AIC or BIC over a grid.
 """
 
 from __future__ import annotations
@@ -27,7 +32,8 @@ from .resolution import ROUNDING, at_least, noise_floor, resolution
 class ArxFit:
     """Coefficients theta (p, ny), one column per output, rows in regressor order (output lags
     1..na, each an ny-vector; input lags nk..nk+nb-1, each an nu-vector; the offset); the residual
-    covariance (unbiased), (X'X)^-1, the number of equations and the information criteria."""
+    covariance (unbiased), (X'X)^+ (the inverse when the regressors are of full rank), the number of
+    equations and the information criteria."""
 
     lags: Lags
     theta: np.ndarray
@@ -44,7 +50,7 @@ class ArxFit:
 
     @property
     def cov(self) -> np.ndarray:
-        """Covariance of theta stacked output by output (theta.T.ravel()): Sigma kron (X'X)^-1."""
+        """Covariance of theta stacked output by output (theta.T.ravel()): Sigma kron (X'X)^+."""
         return np.kron(self.noise, self.gram_inv)
 
     def lagged(self) -> LaggedMode:
@@ -78,9 +84,9 @@ def fit_arx(y, u, na, nb, nk=0, start=None, steps=None) -> ArxFit:
     experiment's first equation's time index (default: the largest lag, so that fits of different
     orders can share it). Equations touching a missing value (NaN) are left out.
 
-    `steps`: the resolution of each output and input (ny + nu,), by default read from these data;
-    regressor directions that move no more than rounding would are left out, and the residual covariance
-    is kept at least the rounding variance (so its log-determinant stays finite for a constant output).
+    `steps`: the resolution of each output and input (ny + nu,), by default read from these data.
+    Regressor directions that move no more than rounding are left out, and the residual covariance
+    is kept at least the rounding variance (its log-determinant stays finite for a constant output).
     """
     parts = segments(y, u)
     nu = parts[0][1].shape[1]
