@@ -142,10 +142,11 @@ def offsets(model, u):
 
 
 def mixture_moments(w, means, weighted_cov):
-    """Mean and covariance of a Gaussian mixture with weights w, component means and sum_j w_j Sig_j."""
-    mean = w @ means
-    d = means - mean
-    return mean, kalman.symmetrize(weighted_cov + (d.T * w) @ d)
+    """Mean and covariance of a Gaussian mixture with weights w (..., J), component means (..., J, n)
+    and sum_j w_j Sig_j (..., n, n)."""
+    mean = (w[..., None, :] @ means)[..., 0, :]
+    d = means - mean[..., None, :]
+    return mean, kalman.symmetrize(weighted_cov + (np.swapaxes(d, -1, -2) * w[..., None, :]) @ d)
 
 
 def sample_rows(probs, rng):

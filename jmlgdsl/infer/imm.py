@@ -7,6 +7,10 @@ The covariance half of those Kalman steps never sees the data. Once the mode pos
 its mode and the filters have settled, a mode's mixed covariance repeats from step to step (to
 kalman.SETTLED), so its factor, gain and filtered covariance are kept and a step costs the mixing
 and the means: on a wide bank most steps then skip the O(K nx^3) work.
+
+The arithmetic of a step (`mix`, `predict`, `whitened`, `refresh`, `moments`) broadcasts over
+leading axes: `IMM` calls it for one plant, and `jmlgdsl.infer.units` for many units of one plant
+at once, with a leading unit axis, so both run the same operations matrix by matrix.
 """
 
 from __future__ import annotations
@@ -22,6 +26,75 @@ LOG_FLOOR = np.finfo(float).min  # below every finite log-probability
 SURE = 1e-12
 
 
+def mix(log_mu, logP, means, covs):
+    """The mixing of one step, from mode log-probabilities log_mu (..., K) and per-mode moments means
+    (..., K, nx) and covs (..., K, nx, nx): (log_pred, mixed means, mixed covariances), where
+    log_pred[j] = log p(z_t = j | y_1:t-1) and mode j starts from sum_i p(z_t-1 = i | z_t = j) N_i."""
+    joint = log_mu[..., :, None] + logP
+    log_pred = np.logaddexp.reduce(joint, axis=-2)
+    # mix[i, j] = p(z_t-1 = i | z_t = j, y_1:t-1); a mode that cannot be reached (log_pred = -inf)
+    # mixes nothing: -inf less a finite floor is -inf
+    mix_t = np.swapaxes(np.exp(joint - np.maximum(log_pred, LOG_FLOOR)[..., None, :]), -1, -2)
+    mixed = mix_t @ means
+    d = means[..., None, :, :] - mixed[..., :, None, :]  # (j, i, nx)
+    K, nx = means.shape[-2:]
+    # sum_i mix[i, j] (covs[i] + d[j, i] d[j, i]'), as matrix products (a three-operand einsum
+    # loops in C without BLAS: most of a step with 50 states)
+    spread = np.swapaxes(d * mix_t[..., None], -1, -2) @ d
+    lead = covs.shape[:-3]
+    covs = (mix_t @ covs.reshape(lead + (K, nx * nx))).reshape(lead + (K, nx, nx)) + spread
+    return log_pred, mixed, covs
+
+
+def predict(model, C, mixed, u):
+    """Per-mode predicted states (..., K, nx) and outputs (..., K, ny) from mixed means (..., K, nx)
+    under inputs u (nu,), or (units, nu) with one row per unit (C as in kalman: a matrix or a slice)."""
+    b, c = offsets(model, u)
+    mu_p = (model.A @ mixed[..., None])[..., 0] + b
+    return mu_p, (mu_p[..., C] if kalman.picks(C) else (C @ mu_p[..., None])[..., 0]) + c
+
+
+def whitened(y, mask, y_pred, Linv):
+    """(residuals, their squared Mahalanobis distances) of the readings y (..., ny) measured where
+    mask (ny,) is True against every mode's prediction y_pred (..., K, ny)."""
+    r = y[..., None, :] - y_pred if mask.all() else y[..., None, mask] - y_pred[..., mask]
+    return r, kalman.quad_form((Linv @ r[..., None])[..., 0])
+
+
+def refresh(model, C, covs, mask, kept, reusable):
+    """(Linv, log det S, gain', filtered covariance) per mode for mixed covariances covs (..., K, nx,
+    nx), and what to keep for the next step: (covs the pieces belong to, the pieces, their
+    kalman.tolerance). kept is that of the last step (None: nothing kept); reusable (...) says where
+    it may serve, for the same mask, after a posterior sure of its mode. Only the covariances that
+    moved beyond their tolerance there, or everywhere else, are computed afresh: a covariance can
+    only repeat when the last posterior sat on one mode (else the spread of the means, which follows
+    the data, enters the mixing), so only then is it compared."""
+    if kept is None or not reusable.any():
+        pieces = kalman.covariance_step(covs, model.A, model.Q, C, model.R, mask)
+        return pieces, (covs, pieces, kalman.tolerance(covs))
+    base, pieces, tol = kept
+    fresh = ~(reusable[..., None] & kalman.settled(covs, base, tol))
+    if not fresh.any():
+        return pieces, kept
+    shape = covs.shape[:-2]
+    C = C if kalman.picks(C) else np.broadcast_to(C, shape + C.shape[-2:])[fresh]
+    new = kalman.covariance_step(covs[fresh], *(np.broadcast_to(M, shape + M.shape[-2:])[fresh]
+                                                for M in (model.A, model.Q)),
+                                 C, np.broadcast_to(model.R, shape + model.R.shape[-2:])[fresh], mask)
+    base, tol, pieces = base.copy(), tol.copy(), tuple(p.copy() for p in pieces)
+    base[fresh], tol[fresh] = covs[fresh], kalman.tolerance(covs[fresh])
+    for p, n in zip(pieces, new):
+        p[fresh] = n
+    return pieces, (base, pieces, tol)
+
+
+def moments(post, means, covs):
+    """The mixture's mean and covariance over the modes: posterior post (..., K), per-mode moments."""
+    lead, (K, nx) = covs.shape[:-3], covs.shape[-3:-1]
+    weighted = (post[..., None, :] @ covs.reshape(lead + (K, nx * nx))).reshape(lead + (nx, nx))
+    return mixture_moments(post, means, weighted)
+
+
 class IMM:
     """Mode probabilities and one moment-matched Gaussian per mode."""
 
@@ -32,65 +105,33 @@ class IMM:
         self.means = model.mu0.copy()
         self.covs = np.broadcast_to(model.Sigma0, (model.K,) + model.Sigma0.shape).copy()
         self._C = model.C if model.output_states is None else model.output_states  # see kalman
-        # per mode, the mixed covariance and mask of the last Kalman pieces computed, the pieces, and
-        # how far each covariance may move and still count as the same (kalman.tolerance)
+        # the mask and `refresh`'s kept pieces of the last step
         self._kept = None
         self._sure = False  # the last posterior put all but SURE of its mass on one mode
 
     def _pieces(self, covs, mask):
-        """(Linv, log det S, gain', filtered covariance) per mode for mixed covariances covs, computed
-        afresh only for the modes whose covariance or mask moved since they were last computed. A
-        covariance can only repeat when the last posterior sat on one mode (else the spread of the
-        means, which follows the data, enters the mixing), so only then is it compared."""
-        kept, model = self._kept, self.model
-        if self._sure and kept is not None and np.array_equal(kept[1], mask):
-            base, _, pieces, tol = kept
-            fresh = ~kalman.settled(covs, base, tol)
-            if not fresh.any():
-                return pieces
-            if not fresh.all():
-                C = self._C if kalman.picks(self._C) else self._C[fresh]
-                new = kalman.covariance_step(covs[fresh], model.A[fresh], model.Q[fresh], C, model.R[fresh], mask)
-                base, tol, pieces = base.copy(), tol.copy(), tuple(p.copy() for p in pieces)
-                base[fresh], tol[fresh] = covs[fresh], kalman.tolerance(covs[fresh])
-                for p, n in zip(pieces, new):
-                    p[fresh] = n
-                self._kept = base, mask.copy(), pieces, tol
-                return pieces
-        pieces = kalman.covariance_step(covs, model.A, model.Q, self._C, model.R, mask)
-        self._kept = covs, mask.copy(), pieces, kalman.tolerance(covs)
+        """`refresh` for this filter's last kept pieces."""
+        mask_kept, kept = (None, None) if self._kept is None else self._kept
+        reusable = np.bool_(self._sure and kept is not None and np.array_equal(mask_kept, mask))
+        pieces, kept = refresh(self.model, self._C, covs, mask, kept, reusable)
+        self._kept = mask.copy(), kept
         return pieces
 
     def step(self, y, mask, u, gate=OPEN) -> Estimate:
         model = self.model
-        b, c = offsets(model, u)
-        # Mixing: mix[i, j] = p(z_{t-1} = i | z_t = j, y_1:t-1); log_pred[j] = log p(z_t = j | y_1:t-1).
-        joint = self.log_mu[:, None] + model.logP
-        log_pred = np.logaddexp.reduce(joint, axis=0)
-        # a mode that cannot be reached (log_pred = -inf) mixes nothing: -inf less a finite floor is -inf
-        mix = np.exp(joint - np.maximum(log_pred, LOG_FLOOR))
-        mixed = mix.T @ self.means
-        d = self.means[None, :, :] - mixed[:, None, :]  # (j, i, nx)
-        K, nx = self.means.shape
-        # sum_i mix[i, j] (covs[i] + d[j, i] d[j, i]'), as matrix products (a three-operand einsum
-        # loops in C without BLAS: most of a step with 50 states)
-        spread = np.swapaxes(d * mix.T[:, :, None], 1, 2) @ d
-        covs = (mix.T @ self.covs.reshape(K, nx * nx)).reshape(K, nx, nx) + spread
+        log_pred, mixed, covs = mix(self.log_mu, model.logP, self.means, self.covs)
         Linv, logdet, gain_t, covs = self._pieces(covs, mask)
-        mu_p = (model.A @ mixed[:, :, None])[:, :, 0] + b
-        y_pred = (mu_p[:, self._C] if kalman.picks(self._C) else (self._C @ mu_p[:, :, None])[:, :, 0]) + c
-        r = y - y_pred if mask.all() else y[mask] - y_pred[:, mask]
-        z = (Linv @ r[:, :, None])[:, :, 0]  # whitened innovations
-        quad = kalman.quad_form(z)
+        mu_p, y_pred = predict(model, self._C, mixed, u)
+        r, quad = whitened(y, mask, y_pred, Linv)
         flagged = None
         if gate.closer_look(quad):
             screened, flagged = screen(self, y, mask, u, gate, r, kalman.standard_deviations(Linv))
             if screened is not None:
                 return screened
-        means = mu_p + (r[:, None, :] @ gain_t)[:, 0, :]
-        post, loglik = normalize(log_pred + kalman.log_density(quad, logdet, r.shape[1]))
+        means = mu_p + (r[..., None, :] @ gain_t)[..., 0, :]
+        post, loglik = normalize(log_pred + kalman.log_density(quad, logdet, r.shape[-1]))
         self.log_mu = np.log(post, out=np.full_like(post, -np.inf), where=post > 0)
         self._sure = post.max() >= 1.0 - SURE
         self.means, self.covs = means, covs
-        mean, cov = mixture_moments(post, means, (post @ covs.reshape(len(post), -1)).reshape(covs.shape[1:]))
+        mean, cov = moments(post, means, covs)
         return Estimate(post, mean, cov, np.exp(log_pred) @ y_pred, loglik, np.nan, flagged=flagged)
