@@ -1,6 +1,7 @@
 """A diagnosis saved mid-run and resumed in a fresh process continues bit for bit as the uninterrupted
-one: every algorithm, with and without a lag, with the alarm rule's persistence, a pre-filter and truth
-scoring on. Saved state from another model or another version is refused by name."""
+one: every algorithm, with and without a lag, with the alarm rule's persistence, a pre-filter, truth
+scoring and the evidence per sensor on. Saved state from another model or another version is refused
+by name."""
 
 import os
 import pickle
@@ -33,7 +34,7 @@ def rows(count):
 
 def diagnosis(model, name, lag, sinks):
     return Diagnosis(model, algorithm=name, seed=7, lag=lag, prefilter=2, sinks=sinks,
-                     rule=AlarmRule(("normal",), threshold=0.6, persistence=2))
+                     rule=AlarmRule(("normal",), threshold=0.6, persistence=2), explain=True)
 
 
 def outcome(d, kept):
@@ -42,7 +43,10 @@ def outcome(d, kept):
     return {"t": [s.t for s in steps], "posterior": np.array([s.mode_posterior for s in steps]),
             "mean": np.array([s.state_mean for s in steps]), "pred": np.array([s.y_pred for s in steps]),
             "loglik": np.array([s.loglik for s in steps]), "ess": np.array([s.ess for s in steps]),
-            "alarm": [k.alarm for k in kept.rows], "summary": (d.summary.T, d.summary.wrong, d.summary.segments,
+            "alarm": [k.alarm for k in kept.rows],
+            "evidence": np.array([[-1, -1, np.nan] if k.evidence is None else  # no particle in a healthy mode
+                                  [k.evidence.mode, k.evidence.healthy, *k.evidence.terms] for k in kept.rows]),
+            "summary": (d.summary.T, d.summary.wrong, d.summary.segments,
                                                              d.summary.confusion.tolist(), d.filter.loglik),
             "scores": d.truth.scores().summary(), "report": d.report().rsplit("\n", 1)[0]}  # less the time per step
 
@@ -112,7 +116,8 @@ def test_a_checkpoint_is_refused_by_another_model_or_version():
                                               r"fingerprint [0-9a-f]{12}\) than this one \(plant 'dryer', "):
         Diagnosis.resume(saved, other)
     older = saved.replace(f'"version": "{jmlgdsl.__version__}"'.encode(), b'"version": "0.0.1"')
-    with pytest.raises(CheckpointError, match=rf"^the checkpoint was saved by jmlgdsl 0.0.1 \(format 1\); this is "
+    with pytest.raises(CheckpointError, match=rf"^the checkpoint was saved by jmlgdsl 0.0.1 \(format "
+                                              rf"{pipeline.CHECKPOINT_FORMAT}\); this is "
                                               rf"jmlgdsl {jmlgdsl.__version__}, which cannot resume it"):
         Diagnosis.resume(older, model)
     with pytest.raises(CheckpointError, match="^not a jmlgdsl checkpoint$"):

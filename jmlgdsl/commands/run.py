@@ -45,6 +45,11 @@ def register(subparsers):
     p.add_argument("--prefilter", metavar="ma:K",
                    help="causal moving average over the last K readings before filtering, for very noisy "
                         "signals (the filter then predicts the averaged signal)")
+    p.add_argument("--explain", action="store_true",
+                   help="the evidence per sensor: after the summary, for each alarm raised, the mode it points "
+                        "at and the outputs that carry it (their share of the log-likelihood ratio of that mode "
+                        "against the healthy ones, in nats); with -o the table gains the columns evidence_mode "
+                        "and evidence_<output>")
     p.set_defaults(func=main)
 
 
@@ -55,8 +60,9 @@ def main(args) -> int:
     import jmlgdsl
 
     from ..data import iter_rows, open_source, open_target
-    from ..diagnosis import AlarmRule, Diagnosis, Kept, TableSink
+    from ..diagnosis import AlarmRule, Diagnosis, Kept, Raised, TableSink
     from ..diagnosis.prefilter import parse
+    from ..diagnosis.report import evidence_report
     from ..errors import DataError
     from ..output import FIGURE, check_file
     from ..progress import Progress
@@ -71,24 +77,27 @@ def main(args) -> int:
     check_particles(args, model)
     healthy = healthy_modes(args) or model.modes[:1]
     kept = Kept() if args.plot else None
+    raised = Raised() if args.explain else None
     # a running count on a terminal, unless the table itself is streaming to the screen
     ticker = Progress(None, None if args.output == "-" else sys.stderr, "rows")
     diagnosis = Diagnosis(model, algorithm=args.filter, particles=args.particles, seed=args.seed,
                           resampling=args.resampling, ess_threshold=args.ess_threshold,
                           lag=None if args.smooth else args.lag or 0, prefilter=window,
-                          rule=AlarmRule(tuple(healthy), args.threshold, args.persistence), sinks=[ticker])
+                          rule=AlarmRule(tuple(healthy), args.threshold, args.persistence), sinks=[ticker],
+                          explain=args.explain)
     with contextlib.ExitStack() as stack, open_source(args.data) as source:
         stack.callback(ticker.close)
         if args.output is not None:  # the table appears whole when the run ends, or not at all
             out = stack.enter_context(open_target(args.output))
-            diagnosis.sinks.append(TableSink(out, model, diagnosis.filter.lag, flush=streaming))
-        if kept is not None:
-            diagnosis.sinks.append(kept)
+            diagnosis.sinks.append(TableSink(out, model, diagnosis.filter.lag, flush=streaming, explain=args.explain))
+        diagnosis.sinks += [sink for sink in (kept, raised) if sink is not None]
         diagnosis.run(iter_rows(source, model, source.name))
         if not diagnosis.summary.T:
             raise DataError(f"{source.name}: no data rows")
     out = sys.stderr if args.output == "-" else sys.stdout
     print(diagnosis.report(), file=out)
+    if raised is not None:
+        print("\n".join(evidence_report(model, raised)), file=out)
     if args.plot:
         kept.draw(diagnosis, args.plot)
         print(f"figure: {args.plot}", file=out)

@@ -24,9 +24,10 @@ monitor is the same pipeline fed from a data bus, checkpointing beside the rows 
 """
 
 from .alarms import AlarmRule
+from .evidence import Evidence
 from .pipeline import CheckpointError, Diagnosed, Diagnosis, diagnose, fingerprint
-from .sinks import Kept, TableSink
+from .sinks import Kept, Raised, TableSink
 from .truth import Truth, detection_scores
 
-__all__ = ["AlarmRule", "Diagnosis", "Diagnosed", "diagnose", "CheckpointError", "fingerprint", "Kept", "TableSink", "Truth",
-           "detection_scores"]
+__all__ = ["AlarmRule", "Diagnosis", "Diagnosed", "diagnose", "CheckpointError", "Evidence", "fingerprint", "Kept",
+           "Raised", "TableSink", "Truth", "detection_scores"]

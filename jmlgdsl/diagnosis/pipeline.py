@@ -1,8 +1,9 @@
 """`Diagnosis`: the diagnosis of a source of data rows, as one object that can be saved and resumed.
 
 It owns everything a diagnosis accumulates: the Filter (with its fixed-lag window), the pre-filter,
-the alarm rule's persistence counter, the summary, the truth scoring and the scale check. Each
-finished row goes to the sinks (`collect(row)`): a result table, a figure's record, a store.
+the alarm rule's persistence counter, the summary, the truth scoring, the scale check and (asked
+for) the evidence per sensor of the rows held back. Each finished row goes to the sinks
+(`collect(row)`): a result table, a figure's record, a store.
 `checkpoint()` saves that whole state as bytes and `Diagnosis.resume` restores it in any process,
 which then continues bit for bit as the uninterrupted diagnosis would.
 """
@@ -19,6 +20,7 @@ from dataclasses import dataclass
 
 from .alarms import AlarmRule
 from ..data import Row
+from .evidence import Evidence
 from ..errors import JmlgError
 from ..infer import DEFAULT_ALGORITHM, Filter
 from ..infer.result import Step, Summary
@@ -30,7 +32,7 @@ from .truth import Truth
 
 MAX_SEGMENTS = 30  # mode segments the summary lists; the rest are counted
 CHECKPOINT = b"jmlgdsl-checkpoint\n"  # the first line of every checkpoint
-CHECKPOINT_FORMAT = 1
+CHECKPOINT_FORMAT = 2
 
 
 class CheckpointError(JmlgError):
@@ -39,11 +41,13 @@ class CheckpointError(JmlgError):
 
 @dataclass(frozen=True)
 class Diagnosed:
-    """One finished row: the filter's record of it, the data row it came from and its alarm (0/1)."""
+    """One finished row: the filter's record of it, the data row it came from, its alarm (0/1) and,
+    when the diagnosis explains, its evidence per sensor (computed when the row was filtered)."""
 
     step: Step
     row: Row
     alarm: int
+    evidence: Evidence | None = None
 
 
 class Diagnosis:
@@ -54,11 +58,14 @@ class Diagnosis:
     is healthy, threshold 0.5, persistence 1). Sinks see every finished row, in order. `scored`
     keeps every row's alarm and truth for the detection scores (a few bytes a row); a diagnosis
     that runs for ever on data without truth (a live plant) leaves it off, so its state stays small.
+    `explain` gives every finished row its evidence per sensor (jmlgdsl.diagnosis.evidence) for the
+    most probable non-healthy mode of the rule against its healthy modes.
     """
 
     def __init__(self, model: Model, *, algorithm: str = DEFAULT_ALGORITHM, particles: int | None = None,
                  seed=None, resampling: str = "systematic", ess_threshold: float = 1.0, lag: int | None = 0,
-                 prefilter: int | None = None, rule: AlarmRule | None = None, scored: bool = True, sinks=()):
+                 prefilter: int | None = None, rule: AlarmRule | None = None, scored: bool = True, sinks=(),
+                 explain: bool = False):
         self.model = model
         self.filter = Filter(model, algorithm, particles, seed, resampling, ess_threshold, lag)
         self.prefilter = None if prefilter is None else MovingAverage(prefilter)
@@ -68,12 +75,18 @@ class Diagnosis:
         self.truth = Truth(self.alarms.faulty, model.dt) if scored else None
         self.scale = ScaleCheck(model)
         self.sinks = list(sinks)
+        self.explain = explain
         self._held = deque()  # data rows whose records the filter still holds back (with a lag)
+        self._evidence = deque()  # with explain, the evidence of the rows held back
 
     def feed(self, row: Row) -> list[Diagnosed]:
         """Diagnose one data row; the rows this finishes (none while a lag holds them back)."""
         self._held.append(row)
         step = self.filter.step(row.y if self.prefilter is None else self.prefilter(row.y), row.u)
+        engine = self.filter.engine
+        if self.explain:
+            self._evidence.append(Evidence.of(engine.predictive, self.alarms.faulty))
+        engine.predictive = None  # the engine's last predictive is no part of the saved state
         return [] if step is None else [self._finished(step)]
 
     def finish(self) -> list[Diagnosed]:
@@ -96,7 +109,7 @@ class Diagnosis:
         if self.truth is not None:
             self.truth.add(row, alarm, step.t)
         self.scale.add(step)
-        done = Diagnosed(step, row, alarm)
+        done = Diagnosed(step, row, alarm, self._evidence.popleft() if self.explain else None)
         for sink in self.sinks:
             sink.collect(done)
         return done

@@ -1,7 +1,10 @@
 """The terminal report of a diagnosis: mode segments, the diagnosis error and the confusion matrix
-where the data carry the true mode, the alarms and how well they detect, fit and speed."""
+where the data carry the true mode, the alarms and how well they detect, fit and speed; and the
+evidence per sensor behind each alarm raised (`run --explain`)."""
 
 from __future__ import annotations
+
+import numpy as np
 
 from ..names import plural
 
@@ -58,4 +61,30 @@ def alarm_report(diagnosis) -> list[str]:
         f"rows: F1 {o.f1:.3f}, false-alarm rate {o.far:.2f} %, missed-alarm rate {o.mar:.2f} %",
         f"NAB ({plural(nab.windows, 'change point')}): standard {nab.score('standard'):.2f}, low FP "
         f"{nab.score('lowfp'):.2f}, low FN {nab.score('lowfn'):.2f}"]
+    return lines
+
+
+def evidence_report(model, raised) -> list[str]:
+    """Lines on the evidence behind each alarm of a `sinks.Raised` (of a Diagnosis that explains):
+    its row, the mode it points at against the healthy mode that predicted the row best, the total
+    log-likelihood ratio and the outputs that carry it, largest first, with their share of it."""
+    lines = ["evidence behind the alarms raised (nats; the mode each points at against the healthy mode "
+             "that predicted its row best):"]
+    for done in raised.rows:
+        at = f"t {done.step.t}" + ("" if done.row.time is None else f" (time {done.row.time:g})")
+        e = done.evidence
+        if e is None:
+            lines.append(f"  {at}: no evidence (the filter holds no hypothesis in a healthy or in a non-healthy mode)")
+            continue
+        carriers = e.carriers()
+        parts = [f"{model.outputs[i]} {v:.2f}" + (f" ({100 * v / e.total:.0f} %)" if e.total else "")
+                 for i, v in carriers]
+        others = int((~np.isnan(e.terms)).sum()) - len(carriers)
+        if others:
+            rest = e.total - sum(v for _, v in carriers)
+            parts.append(f"{plural(others, 'other output')} {rest:.2f}")
+        lines.append(f"  {at}: {model.modes[e.mode]} against {model.modes[e.healthy]}, {e.total:.2f}: "
+                     + (", ".join(parts) if parts else "no output measured"))
+    if raised.more:
+        lines.append(f"  \u2026 {plural(raised.more, 'more alarm')} (see the evidence columns of the output CSV)")
     return lines

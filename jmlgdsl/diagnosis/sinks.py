@@ -14,17 +14,36 @@ from ..output import replacing
 
 class TableSink:
     """The result table (`jmlgdsl run -o`), written to a text stream row by row; flush=True sends each
-    row on at once (a stream's reader sees it as soon as it is computed). The header waits for the
-    first row, which says whether the data have a time column."""
+    row on at once (a stream's reader sees it as soon as it is computed), explain=True adds the
+    evidence per sensor (of a Diagnosis that explains). The header waits for the first row, which
+    says whether the data have a time column."""
 
-    def __init__(self, stream, model, lag=0, flush=False):
-        self.stream, self.model, self.lag, self.flush = stream, model, lag, flush
+    def __init__(self, stream, model, lag=0, flush=False, explain=False):
+        self.stream, self.model, self.lag, self.flush, self.explain = stream, model, lag, flush, explain
         self._writer = None
 
     def collect(self, done):
         if self._writer is None:
-            self._writer = TableWriter(self.stream, self.model, done.row.time is not None, self.flush, lag=self.lag)
-        self._writer.write(done.step, done.row.time, done.alarm)
+            self._writer = TableWriter(self.stream, self.model, done.row.time is not None, self.flush, lag=self.lag,
+                                       explain=self.explain)
+        self._writer.write(done.step, done.row.time, done.alarm, done.evidence)
+
+
+class Raised:
+    """The rows that raised an alarm (their alarm is 1, the row before's 0), for the report of the
+    evidence behind them: the first `most` kept, the rest counted."""
+
+    def __init__(self, most=30):
+        self.most, self.rows, self.more = most, [], 0
+        self._alarm = 0  # the last row's alarm
+
+    def collect(self, done):
+        if done.alarm and not self._alarm:
+            if len(self.rows) < self.most:
+                self.rows.append(done)
+            else:
+                self.more += 1
+        self._alarm = done.alarm
 
 
 class Kept:

@@ -20,6 +20,7 @@ import numpy as np
 from . import kalman
 from .engine import OPEN, Estimate, mixture_moments, offsets, screen
 from .resample import normalize
+from .result import Predictive
 
 LOG_FLOOR = np.finfo(float).min  # below every finite log-probability
 # Mass off the most probable mode below which the mixed covariances may repeat to kalman.SETTLED.
@@ -128,6 +129,7 @@ class IMM:
             screened, flagged = screen(self, y, mask, u, gate, r, kalman.standard_deviations(Linv))
             if screened is not None:
                 return screened
+        self.predictive = Predictive(np.arange(len(log_pred)), log_pred, r, Linv, mask)
         means = mu_p + (r[..., None, :] @ gain_t)[..., 0, :]
         post, loglik = normalize(log_pred + kalman.log_density(quad, logdet, r.shape[-1]))
         self.log_mu = np.log(post, out=np.full_like(post, -np.inf), where=post > 0)

@@ -8,6 +8,7 @@ from ..gaussian import psd_sqrt
 from .engine import OPEN, Estimate, Genealogy, Resampler, mixture_moments, offsets, sample_rows, screen
 from .kalman import inverse_cholesky, log_density, quad_form
 from .resample import normalize
+from .result import Predictive
 
 
 class BootstrapPF:
@@ -45,14 +46,16 @@ class BootstrapPF:
         x = np.einsum("nij,nj->ni", model.A[z], self.x) + b[z] + np.einsum("nij,nj->ni", model.B[z], w)
         y_pred = np.einsum("nij,nj->ni", model.C[z], x) + c[z]
         Linv, logdet = self._measurement_noise(mask)
+        Linv = Linv[z]
         r = y[mask] - y_pred[:, mask]
-        white = np.einsum("nab,nb->na", Linv[z], r)
+        white = np.einsum("nab,nb->na", Linv, r)
         quad = quad_form(white)
         flagged = None
         if gate.closer_look(quad):
             screened, flagged = screen(self, y, mask, u, gate, *self._every_mode(y, mask, b, c))
             if screened is not None:
                 return screened
+        self.predictive = Predictive(z, log_prior, r, Linv, mask)
         q, loglik = normalize(log_prior + log_density(quad, logdet[z], r.shape[1]))
         mean, cov = mixture_moments(q, x, np.zeros((model.nx, model.nx)))
         posterior = np.bincount(z, weights=q, minlength=model.K)

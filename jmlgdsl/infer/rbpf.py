@@ -23,6 +23,7 @@ from .covariances import CovarianceGraph
 from . import kalman
 from .engine import OPEN, Estimate, FilterError, Genealogy, Resampler, mixture_moments, offsets, sample_rows, screen
 from .resample import ess, fearnhead_clifford, normalize
+from .result import Predictive
 
 
 class RaoBlackwellised:
@@ -102,6 +103,7 @@ class RaoBlackwellised:
                                        kalman.standard_deviations(Linv_every))
             if screened is not None:
                 return screened
+        self.predictive = Predictive(mode, log_prior, r, Linv, mask)
         ll = kalman.log_density(quad, logdet, r.shape[1])
         mu_f = mu_p + (r[:, None, :] @ gain_t)[:, 0]
 

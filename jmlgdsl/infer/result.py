@@ -1,9 +1,11 @@
 """What a filter reports: one `Step` record per time step on-line, a `Result` for a whole sequence,
-and a `Summary` gathered step by step (constant memory, for streams of any length)."""
+and a `Summary` gathered step by step (constant memory, for streams of any length); and what every
+engine keeps of its last step, its `Predictive`."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
@@ -13,6 +15,22 @@ from ..model import Model
 def diagnosis_error(map_modes, true_modes) -> float:
     """Percentage of steps whose diagnosed (MAP) mode index differs from the true one."""
     return 100.0 * float(np.mean(np.asarray(map_modes) != np.asarray(true_modes)))
+
+
+class Predictive(NamedTuple):
+    """A step's one-step predictive of the readings it measured, hypothesis by hypothesis, as the
+    engine weighed them; every engine keeps its last step's as `engine.predictive` (the readings it
+    used, when a gate left some out). Hypothesis j (a mode's Gaussian for imm, a (mode history,
+    mode) candidate for the Rao-Blackwellised filters, a particle for pf) is in mode mode[j], weighs
+    exp(log_weight[j]) before the readings (up to one factor shared by all), and predicts the
+    readings where `mask` is True as y - residual[j] with covariance S_j, Linv[j] the inverse
+    Cholesky factor of S_j. The evidence per sensor (jmlgdsl.diagnosis.evidence) is read from it."""
+
+    mode: np.ndarray  # (J,)
+    log_weight: np.ndarray  # (J,)
+    residual: np.ndarray  # (J, m) for the m readings measured
+    Linv: np.ndarray  # (J, m, m)
+    mask: np.ndarray  # (ny,)
 
 
 @dataclass(frozen=True, slots=True)

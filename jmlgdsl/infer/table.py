@@ -1,9 +1,10 @@
 """The result table: the one CSV layout for per-step results, written by `run -o`, read by `plot`.
 
 Columns, in order: `t`, `time` (when the data had one), `map_mode`, `p_<mode>` for every mode,
-`<state>_mean`, `<output>_pred`, `<output>_resid`, `ess`, and `alarm` (0/1) when an alarm rule
-was applied. A smoothed table starts with a `#` comment line that says what its probabilities are
-conditioned on. Rows are written as they are computed, so a stream is written on-line.
+`<state>_mean`, `<output>_pred`, `<output>_resid`, `ess`, `alarm` (0/1) when an alarm rule was
+applied, and with the evidence per sensor (`run --explain`) `evidence_mode`, the row's most probable
+non-healthy mode, and `evidence_<output>`, each output's evidence for it in nats. A smoothed table
+starts with a `#` comment line that says what its probabilities are conditioned on. Rows are written as they are computed, so a stream is written on-line.
 """
 
 from __future__ import annotations
@@ -28,29 +29,39 @@ def given(lag: int | None) -> str:
     return "the data so far" if lag == 0 else "all the data" if lag is None else f"the data up to {plural(lag, 'row')} later"
 
 
-def columns(model: Model, with_time: bool, with_alarm: bool = True) -> list[str]:
+def columns(model: Model, with_time: bool, with_alarm: bool = True, explain: bool = False) -> list[str]:
     """The header of the result table."""
     return (["t"] + (["time"] if with_time else []) + ["map_mode"] + [f"p_{m}" for m in model.modes]
             + [f"{s}_mean" for s in model.states] + [f"{o}_pred" for o in model.outputs]
-            + [f"{o}_resid" for o in model.outputs] + ["ess"] + (["alarm"] if with_alarm else []))
+            + [f"{o}_resid" for o in model.outputs] + ["ess"] + (["alarm"] if with_alarm else [])
+            + (["evidence_mode"] + [f"evidence_{o}" for o in model.outputs] if explain else []))
 
 
 class TableWriter:
-    """Writes result rows to a text stream; with flush=True each row reaches the reader at once."""
+    """Writes result rows to a text stream; with flush=True each row reaches the reader at once, and
+    with explain=True each row ends with its evidence per sensor (empty where there is none)."""
 
     def __init__(self, stream, model: Model, with_time: bool, flush: bool = False, with_alarm: bool = True,
-                 lag: int | None = 0):
-        self.model, self.with_time, self.with_alarm = model, with_time, with_alarm
+                 lag: int | None = 0, explain: bool = False):
+        self.model, self.with_time, self.with_alarm, self.explain = model, with_time, with_alarm, explain
         if lag != 0:
             stream.write(f"# {SMOOTHED}: p_<mode>, <state>_mean given {given(lag)}; <output>_pred, "
                          "<output>_resid: one-step predictions of the filter\n")
-        self._writer = CsvWriter(stream, columns(model, with_time, with_alarm), flush)
+        self._writer = CsvWriter(stream, columns(model, with_time, with_alarm, explain), flush)
 
-    def write(self, step: Step, time: float | None = None, alarm: int | None = None):
-        """One row: a filter step and, when the table has those columns, the data row's time and the alarm."""
+    def write(self, step: Step, time: float | None = None, alarm: int | None = None, evidence=None):
+        """One row: a filter step and, when the table has those columns, the data row's time, the alarm
+        and the evidence (a jmlgdsl.diagnosis.evidence.Evidence, or None)."""
         self._writer.write([step.t] + ([time] if self.with_time else []) + [self.model.modes[step.map_mode]]
                            + list(step.mode_posterior) + list(step.state_mean) + list(step.y_pred)
-                           + list(step.residual) + [step.ess] + ([alarm] if self.with_alarm else []))
+                           + list(step.residual) + [step.ess] + ([alarm] if self.with_alarm else [])
+                           + (self._evidence(evidence) if self.explain else []))
+
+    def _evidence(self, evidence) -> list:
+        """The evidence cells: the mode's name and each output's evidence (all empty without evidence)."""
+        if evidence is None:
+            return [""] + [np.nan] * self.model.ny
+        return [self.model.modes[evidence.mode]] + list(evidence.terms)
 
 
 def write_result(path, result: Result, time=None, alarm=None):
