@@ -1,0 +1,325 @@
+"""Many units of one plant in one filter: a fleet of pumps, dryers or gearboxes of the same design,
+each unit with its own data, missing readings and gross errors.
+
+A step of one small plant is mostly the cost of numpy calls on arrays of a few numbers; `Units`
+steps every unit at once, with a leading unit axis on every array, so a call does the work of the
+whole fleet. `imm` runs vectorised through the same arithmetic as `IMM` (jmlgdsl.infer.imm), matrix
+by matrix, and each unit's results are those of a `Filter` on its data alone, bit for bit (its
+mode posteriors, state moments, predictions, log-likelihoods and rejected readings). The other
+algorithms run one engine per unit, one after the other: the same results, without the speed-up.
+
+    >>> import jmlgdsl
+    >>> from jmlgdsl.infer.units import Units
+    >>> model = jmlgdsl.load("specs/dryer.jmlg")
+    >>> fleet = Units(model, 3)
+    >>> for temp in (50.5, 50.4, 44.0, 44.1, 44.0):     # unit 0's fan fails; unit 2 reads nothing
+    ...     steps = fleet.step([[temp], [50.5], [float("nan")]], [[15.0]] * 3)
+    >>> [model.modes[k] for k in steps.map_modes]
+    ['fan', 'normal', 'normal']
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import NamedTuple
+
+import numpy as np
+
+from ..errors import DataError
+from ..model import Model
+from . import kalman
+from .algorithms import DEFAULT_ALGORITHM
+from .engine import Estimate, FilterError, Gate, screen
+from .imm import SURE, mix, moments, predict, refresh, whitened
+from .online import MAX_REJECTIONS, Filter, _arrays, _overflow, _readings
+from .result import Result, Step
+
+ALL = slice(None)  # every unit, as an index that takes views, not copies
+
+
+def normalize_rows(logw):
+    """`resample.normalize` row by row: normalised weights (..., J) and the log of each row's sum
+    (...), taken with math.log as there, so a row comes out as normalize gives it."""
+    top = logw.max(axis=-1, keepdims=True)
+    w = np.exp(logw - top)
+    total = w.sum(axis=-1, keepdims=True)
+    logs = np.fromiter(map(math.log, total.ravel()), float, total.size).reshape(total.shape[:-1])
+    return w / total, top[..., 0] + logs
+
+
+class Batch(NamedTuple):
+    """One step of many units: what each reports (post ... flagged) and its new IMM state."""
+
+    post: np.ndarray  # (n, K)
+    mean: np.ndarray  # (n, nx)
+    cov: np.ndarray  # (n, nx, nx)
+    y_pred: np.ndarray  # (n, ny)
+    loglik: np.ndarray  # (n,)
+    rejected: np.ndarray  # (n, ny) bool
+    flagged: np.ndarray  # (n, ny) bool
+    log_mu: np.ndarray  # (n, K)
+    means: np.ndarray  # (n, K, nx)
+    covs: np.ndarray  # (n, K, nx, nx)
+    sure: np.ndarray  # (n,) bool
+
+    @classmethod
+    def empty(cls, like: "Batch", n: int) -> "Batch":
+        return cls(*(np.empty((n,) + a.shape[1:], a.dtype) for a in like))
+
+    def put(self, rows, other: "Batch"):
+        """Write other's units into rows of this batch."""
+        for mine, theirs in zip(self, other):
+            mine[rows] = theirs
+
+
+class BatchIMM:
+    """IMM over `count` units: mode log-probabilities (U, K), per-mode moments (U, K, nx[, nx]) and,
+    for the units whose last posterior was sure of its mode, `refresh`'s kept pieces (each unit's
+    own: its covariances follow its own data), stored in arrays padded to every output."""
+
+    def __init__(self, model: Model, count: int):
+        K, nx, ny = model.K, model.nx, model.ny
+        self.model, self.count = model, count
+        with np.errstate(divide="ignore"):
+            self.log_mu = np.tile(np.log(model.p0), (count, 1))
+        self.means = np.tile(model.mu0, (count, 1, 1))
+        self.covs = np.tile(model.Sigma0, (count, K, 1, 1))
+        self.sure = np.zeros(count, dtype=bool)
+        self._C = model.C if model.output_states is None else model.output_states
+        self._gate = model.outlier_gate
+        self._bound = Gate.of(self._gate).bound
+        # kept pieces, valid where `sure`: the mask, the covariances they belong to and their
+        # tolerance; Linv, log det S, gain' (the first m of ny rows for m readings) and filtered covs
+        self._mask = np.zeros((count, ny), dtype=bool)
+        self._base, self._tol, self._Sig = (np.zeros((count, K, nx, nx)) for _ in range(3))
+        self._Linv, self._logdet, self._gain = (np.zeros((count, K, ny, ny)), np.zeros((count, K)),
+                                                np.zeros((count, K, ny, nx)))
+
+    def step(self, y, mask, u, enforce, units=ALL) -> Batch:
+        """Condition the units `units` (all, or an index array) on readings y (n, ny), measured where
+        mask (n, ny) is True, under inputs u (n, nu); enforce (n, ny) says where each unit's gate
+        leaves out a gross error (None: no gate). Units sharing a mask share every call."""
+        model = self.model
+        log_pred, mixed, covs = mix(self.log_mu[units], model.logP, self.means[units], self.covs[units])
+        mu_p, y_pred = predict(model, self._C, mixed, u)
+        prior = log_pred, covs, mu_p, y_pred
+        if (mask == mask[0]).all():
+            batch = self._group(_index(units, ALL), y, mask[0], u, prior, enforce)
+        else:
+            patterns, which = np.unique(mask, axis=0, return_inverse=True)
+            batch = None
+            for g, pattern in enumerate(patterns):
+                rows = np.flatnonzero(which.ravel() == g)
+                part = self._group(_index(units, rows), y[rows], pattern, u[rows], tuple(p[rows] for p in prior),
+                                   None if enforce is None else enforce[rows])
+                batch = Batch.empty(part, len(y)) if batch is None else batch
+                batch.put(rows, part)
+        for name in ("log_mu", "means", "covs", "sure"):
+            if units is ALL:
+                setattr(self, name, getattr(batch, name))
+            else:
+                getattr(self, name)[units] = getattr(batch, name)
+        return batch
+
+    def _group(self, units, y, mask, u, prior, enforce) -> Batch:
+        """`step` for units that share one mask (ny,); prior holds their mixing and predictions."""
+        log_pred, covs, mu_p, y_pred = prior
+        m = int(mask.sum())
+        reusable = self.sure[units] & (self._mask[units] == mask).all(axis=-1)
+        kept = None
+        if reusable.any():
+            kept = (self._base[units], tuple(np.ascontiguousarray(p) for p in (
+                self._Linv[units][..., :m, :m], self._logdet[units], self._gain[units][..., :m, :], self._Sig[units])),
+                self._tol[units])
+        (Linv, logdet, gain_t, covs), kept = refresh(self.model, self._C, covs, mask, kept, reusable)
+        r, quad = whitened(y, mask, y_pred, Linv)
+        means = mu_p + (r[..., None, :] @ gain_t)[..., 0, :]
+        post, loglik = normalize_rows(log_pred + kalman.log_density(quad, logdet, m))
+        log_mu = np.log(post, out=np.full_like(post, -np.inf), where=post > 0)
+        sure = post.max(axis=-1) >= 1.0 - SURE
+        mean, cov = moments(post, means, covs)
+        y_mix = (np.exp(log_pred)[..., None, :] @ y_pred)[..., 0, :]
+        flags = np.zeros(y.shape, dtype=bool)
+        batch = Batch(post, mean, cov, y_mix, loglik, flags.copy(), flags, log_mu, means, covs, sure)
+        screened = np.zeros(len(y), dtype=bool)
+        if enforce is not None and self._bound < np.inf:
+            for j in np.flatnonzero(quad.min(axis=-1) > self._bound):  # a closer look, unit by unit
+                unit = _Unit(self, _index(units, [j]), tuple(p[[j]] for p in prior))
+                found, flagged = screen(unit, y[j], mask, u[j], Gate.of(self._gate, enforce[j]), r[j],
+                                        kalman.standard_deviations(Linv[j]))
+                if flagged is not None:
+                    batch.flagged[j] = flagged
+                if found is not None:
+                    screened[j] = True
+                    batch.put([j], unit.batch._replace(rejected=found.rejected[None], flagged=batch.flagged[[j]]))
+        keep = np.flatnonzero(sure & ~screened)
+        if len(keep):
+            self._keep(_index(units, keep), mask, tuple(a[keep] for a in (kept[0], *kept[1], kept[2])))
+        return batch
+
+    def _keep(self, units, mask, kept):
+        """Store refresh's kept pieces for units whose posterior is sure (padded to every output)."""
+        base, Linv, logdet, gain_t, Sig, tol = kept
+        m = Linv.shape[-1]
+        self._mask[units] = mask
+        self._base[units], self._tol[units], self._Sig[units], self._logdet[units] = base, tol, Sig, logdet
+        self._Linv[units, :, :m, :m] = Linv
+        self._gain[units, :, :m, :] = gain_t
+
+
+class _Unit:
+    """One unit of a BatchIMM seen as an engine, for `screen`: its step with the readings it keeps
+    redone from the same prior (its batch kept for the caller, the state left as it was)."""
+
+    def __init__(self, batch: BatchIMM, unit, prior):
+        self.model, self._batch, self._unit, self._prior = batch.model, batch, unit, prior
+
+    def step(self, y, mask, u, gate=None) -> Estimate:
+        self.batch = b = self._batch._group(self._unit, y[None], mask, u[None], self._prior, None)
+        return Estimate(b.post[0], b.mean[0], b.cov[0], b.y_pred[0], float(b.loglik[0]), np.nan)
+
+
+def _index(units, rows):
+    """The units at positions `rows` of `units` (ALL: every unit)."""
+    if rows is ALL:
+        return units
+    return np.asarray(rows) if units is ALL else units[rows]
+
+
+class UnitSteps(NamedTuple):
+    """One step of many units, as arrays with a leading unit axis (the fields of `Step`)."""
+
+    t: np.ndarray  # (n,)
+    mode_posterior: np.ndarray  # (n, K)
+    state_mean: np.ndarray  # (n, nx)
+    state_cov: np.ndarray  # (n, nx, nx)
+    y_pred: np.ndarray  # (n, ny)
+    residual: np.ndarray  # (n, ny)
+    loglik: np.ndarray  # (n,)
+    ess: np.ndarray  # (n,)
+    rejected: np.ndarray  # (n, ny) bool
+
+    @property
+    def map_modes(self) -> np.ndarray:
+        """(n,) each unit's most probable mode."""
+        return self.mode_posterior.argmax(axis=1)
+
+    def record(self, i) -> Step:
+        """The i-th unit's step, as a Filter would give it."""
+        rejected = self.rejected[i] if self.rejected[i].any() else None
+        return Step(int(self.t[i]), self.mode_posterior[i], self.state_mean[i], self.state_cov[i], self.y_pred[i],
+                    self.residual[i], float(self.loglik[i]), float(self.ess[i]), rejected)
+
+
+class Units:
+    """On-line filtering of `count` units of one model: `step(y, u)` with one row of readings (and
+    inputs) per unit. The options are a Filter's; every unit gets the same seed, as it would alone.
+    `units=` steps only some units (those whose data go on), leaving the others where they are."""
+
+    def __init__(self, model: Model, count: int, algorithm: str = DEFAULT_ALGORITHM, particles: int | None = None,
+                 seed=None, resampling: str = "systematic", ess_threshold: float = 1.0):
+        if isinstance(count, bool) or not isinstance(count, (int, np.integer)) or count < 1:
+            raise FilterError(f"the number of units must be a positive whole number, got {count!r}")
+        self.model, self.count, self.algorithm = model, count, algorithm
+        self._filters = [Filter(model, algorithm, particles, seed, resampling, ess_threshold)
+                         for _ in range(1 if algorithm == "imm" else count)]
+        self.particles = self._filters[0].particles
+        self._engine = BatchIMM(model, count) if algorithm == "imm" else None
+        self.t = np.zeros(count, dtype=np.int64)
+        self.loglik = np.zeros(count)
+        self.seconds = 0.0  # time spent inside step(), for every unit together
+        self._flagged = np.zeros((count, model.ny), dtype=np.int64)  # consecutive steps beyond the gate
+
+    def step(self, y, u=None, units=None) -> UnitSteps:
+        """Advance the units `units` (an index array; None: all of them) one step with readings y (n, ny)
+        and inputs u (n, nu), a row per unit (u=None or NaN entries: the spec's defaults)."""
+        start = time.perf_counter()
+        model = self.model
+        index = ALL if units is None else np.asarray(units, dtype=np.int64)
+        t = self.t[index] + 1
+        n = len(t)
+        y = _rows(y, n, model.outputs, "outputs")
+        y, mask = _readings(y)
+        u = _inputs(model, np.tile(model.input_defaults, (n, 1)) if u is None else _rows(u, n, model.inputs, "inputs"), t)
+        if self._engine is None:
+            steps = self._each(index, t, y, mask, u)
+        else:
+            steps = self._batched(index, t, y, mask, u)
+        self.t[index] = t
+        self.loglik[index] += steps.loglik
+        self.seconds += time.perf_counter() - start
+        return steps
+
+    def _batched(self, index, t, y, mask, u) -> UnitSteps:
+        counts = self._flagged[index]
+        b = self._engine.step(y, mask, u, counts < MAX_REJECTIONS, index)
+        bad = ~(np.isfinite(b.loglik) & np.isfinite(b.cov).all(axis=(-2, -1)))
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            raise _unit_error(index, i, _overflow(int(t[i]), Estimate(b.post[i], b.mean[i], b.cov[i], b.y_pred[i],
+                                                                       float(b.loglik[i]), np.nan)))
+        # `Filter._count_flagged`, unit by unit: a count only goes on while its output stays beyond the gate
+        self._flagged[index] = np.where(b.flagged, counts + 1, 0)
+        return UnitSteps(t, b.post, b.mean, b.cov, b.y_pred, y - b.y_pred, b.loglik, np.full(len(t), np.nan),
+                         b.rejected)
+
+    def _each(self, index, t, y, mask, u) -> UnitSteps:
+        """The units one after the other, each through its own Filter."""
+        records = []
+        for i, unit in enumerate(np.arange(self.count)[index]):
+            try:
+                records.append(self._filters[unit]._advance(y[i], mask[i], u[i]))
+            except FilterError as exc:
+                raise _unit_error(index, i, exc) from None
+        return UnitSteps(t, *(np.array([getattr(s, f) for s in records]) for f in UnitSteps._fields[1:-1]),
+                         np.array([np.zeros(self.model.ny, dtype=bool) if s.rejected is None else s.rejected
+                                   for s in records]).reshape(len(records), self.model.ny))
+
+
+def _unit_error(index, i, exc):
+    """exc, its message prefixed with the unit it is about."""
+    unit = i if index is ALL else int(index[i])
+    return type(exc)(f"unit {unit}: {exc}")
+
+
+def _rows(values, n, names, what):
+    """One step's values for n units as an (n, len(names)) float array; a DataError otherwise."""
+    v = np.asarray(values, dtype=float)
+    if v.shape != (n, len(names)):
+        raise DataError(f"{what} must have shape ({n}, {len(names)}) for {n} units and {', '.join(names) or 'none'}; "
+                        f"got {v.shape}")
+    return v
+
+
+def _inputs(model: Model, u, t):
+    """Inputs u (n, nu) with NaN entries taking the spec's defaults; a DataError naming the unit and
+    input that has neither (online._inputs' message, for the unit's step t)."""
+    if np.isfinite(u).all():
+        return u
+    u = np.where(np.isnan(u), model.input_defaults, u)
+    bad = ~np.isfinite(u)
+    if bad.any():
+        i = int(np.flatnonzero(bad.any(axis=1))[0])
+        names = [name for name, b in zip(model.inputs, bad[i]) if b]
+        raise DataError(f"unit {i}, t={t[i]}: no value and no default for input {', '.join(names)}")
+    return u
+
+
+def filter_units(model: Model, ys, us=None, **options) -> list[Result]:
+    """`jmlgdsl.filter` for many units at once: ys is a list of (T_i, ny) records (or a (U, T, ny)
+    array), us the matching inputs (None: defaults); one Result per unit, as filtering it alone
+    would give. Records of different lengths are fine: a unit whose record has ended stops."""
+    data = [_arrays(model, y, None if us is None else us[i]) for i, y in enumerate(ys)]
+    fleet = Units(model, len(data), **options)
+    lengths = np.array([len(y) for y, _ in data])
+    kept = [[] for _ in data]
+    for t in range(int(lengths.max(initial=0))):
+        on = np.flatnonzero(lengths > t)
+        steps = fleet.step(np.array([data[i][0][t] for i in on]).reshape(len(on), model.ny),
+                           np.array([data[i][1][t] for i in on]).reshape(len(on), model.nu),
+                           None if len(on) == len(data) else on)
+        for j, i in enumerate(on):
+            kept[i].append(steps.record(j))
+    share = fleet.seconds / max(len(data), 1)
+    return [Result.from_steps(model, fleet.algorithm, fleet.particles, steps, share) for steps in kept]

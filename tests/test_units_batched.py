@@ -1,0 +1,121 @@
+"""Many units of one plant in one filter (jmlgdsl.infer.units): every unit's results are those of
+filtering its data alone, bit for bit, through missing readings, inputs, gross errors and records
+of different lengths."""
+
+import numpy as np
+import pytest
+
+import jmlgdsl
+from jmlgdsl.errors import DataError
+from jmlgdsl.infer import FilterError, kalman
+from jmlgdsl.infer.units import Units, filter_units
+from jmlgdsl.simulate import simulate
+
+from infer_models import random_model
+
+FIELDS = ("mode_posterior", "state_mean", "state_cov", "y_pred", "residuals", "loglik_steps", "ess", "rejected")
+
+
+def fleet_data(model, units, T, seed=0):
+    """Simulated records of `units` units, each spoilt its own way: a gap in the first output, a row
+    with nothing measured and an absurd reading, a burst beyond the gate, every 7th reading of the
+    second output missing, and lengths that differ."""
+    ys, us = [], []
+    for s in range(units):
+        sim = simulate(model, T + 7 * s, seed=seed + s)
+        y = sim.y.copy()
+        kind = s % 5
+        if kind == 1:
+            y[T // 5:T // 5 + 10, 0] = np.nan
+        elif kind == 2:
+            y[T // 3] = np.nan
+            y[T // 3 + 10, -1] = 1e9
+        elif kind == 3:
+            y[T // 2:T // 2 + 4, 0] += 40.0
+        elif kind == 4 and model.ny > 1:
+            y[::7, 1] = np.nan
+        ys.append(y)
+        us.append(sim.u)
+    return ys, us
+
+
+def assert_same(batched, alone):
+    for field in FIELDS:
+        a, b = getattr(batched, field), getattr(alone, field)
+        assert np.array_equal(a, b, equal_nan=True), field
+    assert batched.loglik == alone.loglik
+
+
+@pytest.fixture(scope="module")
+def dryer():
+    return jmlgdsl.load("specs/dryer.jmlg")
+
+
+@pytest.fixture(scope="module")
+def wide():
+    """Six outputs, modes that settle: IMM keeps its Kalman pieces on most steps."""
+    return random_model(np.random.default_rng(8), K=3, nx=3, ny=6, stay=0.98)
+
+
+@pytest.mark.parametrize("spec", ["dryer", "cstr10", "wide"])
+def test_batched_imm_equals_each_unit_alone_bit_for_bit(spec, request):
+    model = request.getfixturevalue(spec) if spec != "cstr10" else jmlgdsl.load("specs/cstr10.jmlg")
+    ys, us = fleet_data(model, 6, 150)
+    for batched, y, u in zip(filter_units(model, ys, us, algorithm="imm"), ys, us):
+        assert_same(batched, jmlgdsl.filter(model, y, u, algorithm="imm"))
+
+
+def test_the_wide_fleet_goes_through_every_path_of_the_step(wide, monkeypatch):
+    """Kept Kalman pieces, units in groups by what they measured, and gross errors left out."""
+    ys, us = fleet_data(wide, 5, 150)
+    rows = []
+    step = kalman.covariance_step
+    monkeypatch.setattr(kalman, "covariance_step", lambda *a: rows.append(len(a[0])) or step(*a))
+    results = filter_units(wide, ys, us, algorithm="imm")
+    steps = sum(len(y) for y in ys)
+    assert sum(rows) < 0.5 * wide.K * steps  # most unit-steps computed no mode's pieces
+    assert results[2].rejected.any() and results[3].rejected.any()
+
+
+@pytest.mark.parametrize("algorithm, particles", [("pf", 30), ("rbpf", 10), ("la-rbpf", 5), ("fc-rbpf", 3)])
+def test_every_particle_filter_over_units_equals_each_unit_alone(dryer, algorithm, particles):
+    ys, us = fleet_data(dryer, 4, 80, seed=3)
+    for batched, y, u in zip(filter_units(dryer, ys, us, algorithm=algorithm, particles=particles, seed=7), ys, us):
+        assert_same(batched, jmlgdsl.filter(dryer, y, u, algorithm=algorithm, particles=particles, seed=7))
+
+
+def test_exact_over_units_equals_each_unit_alone(dryer):
+    ys, us = fleet_data(dryer, 3, 6)
+    ys, us = [y[:6 + i] for i, y in enumerate(ys)], [u[:6 + i] for i, u in enumerate(us)]  # 4^8 histories at most
+    for batched, y, u in zip(filter_units(dryer, ys, us, algorithm="exact"), ys, us):
+        assert_same(batched, jmlgdsl.filter(dryer, y, u, algorithm="exact"))
+
+
+def test_units_left_out_of_a_step_stay_where_they_are(dryer):
+    sim = simulate(dryer, 20, seed=1)
+    fleet = Units(dryer, 3)
+    for t in range(20):
+        fleet.step(np.repeat(sim.y[t:t + 1], 2, axis=0), np.repeat(sim.u[t:t + 1], 2, axis=0), units=[0, 2])
+    assert list(fleet.t) == [20, 0, 20]
+    first = fleet.step(sim.y[:3], sim.u[:3])
+    alone = jmlgdsl.filter(dryer, sim.y[1:2], sim.u[1:2], algorithm="imm")
+    assert np.array_equal(first.mode_posterior[1], alone.mode_posterior[0])
+    assert first.record(1).t == 1 and first.record(0).t == 21
+    assert fleet.loglik[1] == alone.loglik
+
+
+def test_a_unit_is_named_in_what_goes_wrong(dryer):
+    fleet = Units(dryer, 2)
+    with pytest.raises(DataError, match=r"shape \(2, 1\) for 2 units"):
+        fleet.step([[50.0]], [[15.0]])
+    bare = dryer.replace(input_defaults=np.array([np.nan]))
+    with pytest.raises(DataError, match=r"^unit 1, t=1: no value and no default for input current"):
+        Units(bare, 2).step([[50.0], [50.0]], [[15.0], [np.nan]])
+    unstable = dryer.replace(A=np.full((4, 1, 1), 1e200))
+    with np.errstate(all="ignore"), pytest.raises(FilterError) as alone:
+        jmlgdsl.filter(unstable, [[50.0]], [[15.0]])
+    with np.errstate(all="ignore"), pytest.raises(FilterError) as batched:
+        Units(unstable, 2).step([[50.0], [50.0]], [[15.0]] * 2)
+    assert str(batched.value) == f"unit 0: {alone.value}"
+    with pytest.raises(FilterError, match="number of units"):
+        Units(dryer, 0)
