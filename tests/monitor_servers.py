@@ -1,10 +1,16 @@
 """What the monitor's tests against live servers share: the bundled dryer recording, free ports on
-127.0.0.1, bounded waits on a running monitor, queries of its store, and the tables to compare."""
+127.0.0.1, mosquitto brokers and a publisher, bounded waits on a running monitor, queries of its
+store, and the tables to compare."""
 
+import csv
+import getpass
+import json
 import os
+import shutil
 import signal
 import socket
 import sqlite3
+import subprocess
 import time
 
 import pytest
@@ -61,3 +67,76 @@ def exported(tmp_path, store):
     out = tmp_path / "export.csv"
     assert main(["export", store, "-o", str(out)]) == 0
     return out.read_text()
+
+
+MOSQUITTO = shutil.which("mosquitto") or next(
+    (p for p in ("/usr/sbin/mosquitto",) if os.access(p, os.X_OK)), None)
+NO_MOSQUITTO = "no mosquitto broker on PATH (.ci/run installs it: apt-get install mosquitto)"
+
+
+class Brokers:
+    """Mosquittos on 127.0.0.1, each on its own port (anonymous, or with user 'plant' and password
+    'secret' when asked), stopped and started again on the same port when a test says so."""
+
+    def __init__(self, folder):
+        self.folder, self.running = folder, {}
+
+    def __call__(self, password=False, port=None, tls=None):
+        """Start one; `tls`: (certificate file, key file) of a TLS listener."""
+        port = port or free_port()
+        config = self.folder / f"mosquitto-{port}.conf"
+        # run as this user (a broker started by root would drop to 'mosquitto', who cannot read the folder)
+        lines = [f"listener {port} 127.0.0.1", f"user {getpass.getuser()}", "persistence false",
+                 "max_queued_messages 0"]
+        if tls:
+            lines += [f"certfile {tls[0]}", f"keyfile {tls[1]}"]
+        if password:
+            passwords = self.folder / "passwords"
+            passwords.write_text("")
+            subprocess.run(["mosquitto_passwd", "-b", str(passwords), "plant", "secret"], check=True, timeout=WAIT)
+            lines += ["allow_anonymous false", f"password_file {passwords}"]
+        else:
+            lines.append("allow_anonymous true")
+        config.write_text("\n".join(lines) + "\n")
+        process = subprocess.Popen([MOSQUITTO, "-c", str(config)], stdout=subprocess.DEVNULL,
+                                   stderr=subprocess.DEVNULL)
+        self.running[port] = process
+        deadline = time.monotonic() + WAIT
+        while True:
+            try:
+                socket.create_connection(("127.0.0.1", port), timeout=1).close()
+                return port
+            except OSError:
+                assert process.poll() is None and time.monotonic() < deadline, "mosquitto did not start"
+                time.sleep(0.02)
+
+    def stop(self, port):
+        process = self.running.pop(port)
+        process.terminate()
+        process.wait(WAIT)
+
+
+def samples():
+    """The recording as one JSON object per sample, every number as the file writes it."""
+    with open(DATA) as stream:
+        return [json.dumps({"t": float(r["time"]), "temp": float(r["temp"]), "current": float(r["current"])})
+                for r in csv.DictReader(stream)]
+
+
+def publish(port, messages, topic="dryer", ca_file=None):
+    """Publish (topic, payload) pairs, or payloads to `topic`, at QoS 1, each one acknowledged (over TLS
+    trusting `ca_file` when given)."""
+    import paho.mqtt.client as paho
+
+    client = paho.Client(paho.CallbackAPIVersion.VERSION2, client_id="recorder")
+    if ca_file:
+        client.tls_set(ca_certs=ca_file)
+    client.connect("127.0.0.1", port)
+    client.loop_start()
+    try:
+        sent = [client.publish(*(m if isinstance(m, tuple) else (topic, m)), qos=1) for m in messages]
+        for info in sent:
+            info.wait_for_publish(WAIT)
+    finally:
+        client.disconnect()
+        client.loop_stop()

@@ -17,25 +17,32 @@ from .follow import CsvSource
 def credentials(username: str | None, env: str | None, path: str | None) -> tuple[str, str] | None:
     """(user name, password) from --username and the password's environment variable or file; None
     without a user name. The password is read here and never shown."""
-    if env and path:
-        raise JmlgError("--password-env and --password-file: give one of them")
+    password = secret("password", env, path)
     if username is None:
-        if env or path:
+        if password is not None:
             raise JmlgError(f"{'--password-env' if env else '--password-file'}: a password needs --username")
         return None
+    return username, password or ""
+
+
+def secret(what: str, env: str | None, path: str | None) -> str | None:
+    """A secret from the environment variable --WHAT-env names or the first line of the file --WHAT-file
+    names (never from the command line, where the process list shows it); None without either."""
+    if env and path:
+        raise JmlgError(f"--{what}-env and --{what}-file: give one of them")
     if env:
         if env not in os.environ:
-            raise JmlgError(f"--password-env: the environment variable {env} is not set")
-        return username, os.environ[env]
+            raise JmlgError(f"--{what}-env: the environment variable {env} is not set")
+        return os.environ[env]
     if path:
         try:
             with open(path, encoding="utf-8") as stream:
-                return username, stream.readline().rstrip("\r\n")
+                return stream.readline().rstrip("\r\n")
         except OSError as exc:
-            raise JmlgError(f"--password-file: cannot read {path}: {exc.strerror}") from None
+            raise JmlgError(f"--{what}-file: cannot read {path}: {exc.strerror}") from None
         except UnicodeDecodeError:
-            raise JmlgError(f"--password-file: {path} is not UTF-8 text") from None
-    return username, ""
+            raise JmlgError(f"--{what}-file: {path} is not UTF-8 text") from None
+    return None
 
 
 def open_bus(url: str, model, tags, *, follow: bool = True, client_id: str | None = None, credentials=None,
