@@ -14,8 +14,11 @@ import queue
 import threading
 import time as clock
 
+import numpy as np
+
 from ..diagnosis.alarms import AlarmRule
 from ..diagnosis import Diagnosis, fingerprint
+from ..diagnosis.prediction import predictive_sd
 from ..infer import DEFAULT_ALGORITHM
 from ..errors import JmlgError
 from .assemble import Assembler, Event
@@ -72,17 +75,19 @@ class Monitor:
             options = self.options
             rule = AlarmRule(tuple(options["healthy"]), options["threshold"], options["persistence"])
             keys = ("algorithm", "particles", "seed", "resampling", "ess_threshold", "lag", "prefilter")
-            self.diagnosis = Diagnosis(model, rule=rule, scored=False, sinks=[self],
+            self.diagnosis = Diagnosis(model, rule=rule, scored=False, explain=True, sinks=[self],
                                        **{k: options[k] for k in keys})
             self.assembler = None if source.rows else Assembler(model, tags, options["grace"], options["stale"],
                                                                 options["max_gap"])
+            self.previous = None  # the last finished row's estimate, for the next row's predictive band
             self.rows, self.position = 0, None
         else:
             self.diagnosis = Diagnosis.resume(saved.checkpoint, model, sinks=[self])
-            self.assembler = None if saved.monitor is None else pickle.loads(saved.monitor)
+            self.assembler, self.previous = _own_state(saved.monitor)
             self.rows, self.position = saved.rows, saved.position
         self.resumed = saved is not None
         self.samples, self.results, self.events, self.tokens = [], [], [], []
+        self.nan_sd = np.full(model.ny, np.nan)
         self.dirty = False
         self.committed = clock.monotonic()
         self.counts = {}
@@ -171,8 +176,13 @@ class Monitor:
         self.diagnosis.feed(row)
 
     def collect(self, done):
-        """The diagnosis's sink: a finished row, stored with the next commit."""
-        self.results.append(done)
+        """The diagnosis's sink: a finished row, stored with the next commit with the spread of its
+        one-step prediction (from the row before it)."""
+        last = self.previous
+        sd = (self.nan_sd if last is None else
+              predictive_sd(self.model, last.mode_posterior, last.state_mean, last.state_cov, done.row.u))
+        self.results.append((done, sd))
+        self.previous = done.step
 
     def _event(self, event: Event):
         self.events.append(event)
@@ -185,12 +195,21 @@ class Monitor:
         if not self.dirty:
             return
         self.store.save(self.run_info.id, self.samples, self.results, self.events, self.rows,
-                        self.diagnosis.checkpoint(), None if self.assembler is None else pickle.dumps(self.assembler),
-                        self.position)
+                        self.diagnosis.checkpoint(), pickle.dumps({"assembler": self.assembler,
+                                                                   "previous": self.previous}), self.position)
         self.samples, self.results, self.events, self.dirty = [], [], [], False
         self.committed = clock.monotonic()
         tokens, self.tokens = self.tokens, []
         self.source.acknowledge(tokens)
+
+
+def _own_state(saved: bytes | None):
+    """(assembler, previous estimate) from the monitor's saved state; a store of schema 1 saved the
+    assembler alone (None for rows from a file)."""
+    state = None if saved is None else pickle.loads(saved)
+    if isinstance(state, dict):
+        return state["assembler"], state["previous"]
+    return state, None
 
 
 def _plain(value):

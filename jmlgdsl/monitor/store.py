@@ -6,14 +6,24 @@ reading not measured):
 
     run     id, started (UTC ISO time), version, plant, spec (the spec file's text), spec_sha256,
             model_sha256 (the compiled model's fingerprint), options (JSON: filter, alarm rule, lag,
-            source, ...), modes, states, outputs, inputs (JSON name lists)
+            source, ...), modes, states, outputs, inputs (JSON name lists), descriptions (JSON: mode
+            name -> the spec's description), units (JSON: name -> unit)
     sample  run, t, time, y, u, mode, anomaly, changepoint: every row diagnosed, as assembled
     result  run, t, map_mode, posterior, state_mean, y_pred, residual, ess, loglik, alarm: every
-            finished row (ess NULL for a filter without particles) (with --lag the posterior and state are smoothed over `lag` later rows)
-    alarm   id, run, raised_t, raised_time, cleared_t, cleared_time (NULL while raised)
+            finished row (ess NULL for a filter without particles) (with --lag the posterior and state
+            are smoothed over `lag` later rows); y_sd, the one-step predictive standard deviation per
+            output; evidence_mode and evidence, the row's most probable unhealthy mode and each
+            output's share of its log-likelihood ratio against the healthy modes (NULL when not kept)
+    alarm   id, run, raised_t, raised_time, cleared_t, cleared_time (NULL while raised), mode (the
+            most probable unhealthy mode when it was raised)
+    action  id, run, alarm, at (UTC ISO time), who, kind (acknowledge, shelve, unshelve), reason:
+            what operators did with the alarms (ISA-18.2), oldest first
     event   id, run, at (UTC ISO wall-clock time), time (the data time it concerns), kind, tag, detail
     state   run, rows (diagnosed so far), checkpoint (the Diagnosis), monitor (the row assembler),
             position (JSON: where the source resumes), saved (UTC ISO time)
+
+A store of schema 1 (before y_sd, evidence, the alarm's mode, descriptions, units and actions) is brought to
+schema 2 when it is opened; the columns it lacks are NULL for its old rows.
 
 `Store.save` writes a batch of samples, results, alarms and events together with the state in one
 transaction: the store never holds a row whose state was not saved, nor state ahead of its rows.
@@ -37,23 +47,28 @@ from ..infer.result import Step
 from ..infer.table import TableWriter
 from ..version import VERSION
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
 SCHEMA = """
 CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
 CREATE TABLE IF NOT EXISTS run (
     id INTEGER PRIMARY KEY, started TEXT NOT NULL, version TEXT NOT NULL, plant TEXT NOT NULL,
     spec TEXT, spec_sha256 TEXT NOT NULL, model_sha256 TEXT NOT NULL, options TEXT NOT NULL,
-    modes TEXT NOT NULL, states TEXT NOT NULL, outputs TEXT NOT NULL, inputs TEXT NOT NULL);
+    modes TEXT NOT NULL, states TEXT NOT NULL, outputs TEXT NOT NULL, inputs TEXT NOT NULL, descriptions TEXT,
+    units TEXT);
 CREATE TABLE IF NOT EXISTS sample (
     run INTEGER NOT NULL, t INTEGER NOT NULL, time REAL, y TEXT NOT NULL, u TEXT NOT NULL,
     mode TEXT, anomaly INTEGER, changepoint INTEGER, PRIMARY KEY (run, t)) WITHOUT ROWID;
 CREATE TABLE IF NOT EXISTS result (
     run INTEGER NOT NULL, t INTEGER NOT NULL, map_mode TEXT NOT NULL, posterior TEXT NOT NULL,
     state_mean TEXT NOT NULL, y_pred TEXT NOT NULL, residual TEXT NOT NULL, ess REAL,
-    loglik REAL, alarm INTEGER NOT NULL, PRIMARY KEY (run, t)) WITHOUT ROWID;
+    loglik REAL, alarm INTEGER NOT NULL, y_sd TEXT, evidence_mode TEXT, evidence TEXT,
+    PRIMARY KEY (run, t)) WITHOUT ROWID;
 CREATE TABLE IF NOT EXISTS alarm (
     id INTEGER PRIMARY KEY, run INTEGER NOT NULL, raised_t INTEGER NOT NULL, raised_time REAL,
-    cleared_t INTEGER, cleared_time REAL);
+    cleared_t INTEGER, cleared_time REAL, mode TEXT);
+CREATE TABLE IF NOT EXISTS action (
+    id INTEGER PRIMARY KEY, run INTEGER NOT NULL, alarm INTEGER NOT NULL, at TEXT NOT NULL, who TEXT NOT NULL,
+    kind TEXT NOT NULL, reason TEXT);
 CREATE TABLE IF NOT EXISTS event (
     id INTEGER PRIMARY KEY, run INTEGER NOT NULL, at TEXT NOT NULL, time REAL, kind TEXT NOT NULL,
     tag TEXT, detail TEXT NOT NULL);
@@ -80,6 +95,34 @@ class Run:
     states: list
     outputs: list
     inputs: list
+    descriptions: dict  # mode name -> the spec's description
+    units: dict  # name -> unit
+
+
+ACTIONS = ("acknowledge", "shelve", "unshelve")
+
+
+@dataclass(frozen=True)
+class Alarm:
+    """An alarm episode with what operators did with it, in the ISA-18.2 states: active and
+    unacknowledged, active and acknowledged, cleared but unacknowledged, cleared (and acknowledged:
+    done), or shelved (hidden from the list of alarms to deal with, with a reason, until unshelved)."""
+
+    id: int
+    raised_t: int
+    raised_time: float | None
+    cleared_t: int | None
+    cleared_time: float | None
+    mode: str | None  # the most probable unhealthy mode when it was raised
+    acknowledged: tuple | None  # (who, at) of the acknowledgement
+    shelved: tuple | None  # (who, at, reason) while shelved
+
+    @property
+    def state(self) -> str:
+        if self.shelved:
+            return "shelved"
+        return (("active" if self.cleared_t is None else "cleared") + ", "
+                + ("acknowledged" if self.acknowledged else "unacknowledged"))
 
 
 @dataclass(frozen=True)
@@ -122,16 +165,35 @@ class Store:
             self.db.execute("PRAGMA journal_mode=WAL")
             self.db.execute(f"PRAGMA synchronous={synchronous}")
             self.db.execute("PRAGMA busy_timeout=10000")
+            found = self._meta_schema()
+            if found == "1":
+                self._upgrade()
+            elif found not in (None, str(SCHEMA_VERSION)):
+                raise StoreError(f"{self.path}: a store of schema {found}; this jmlgdsl reads schema {SCHEMA_VERSION}")
             self.db.executescript(SCHEMA)
-            found = self.db.execute("SELECT value FROM meta WHERE key = 'schema'").fetchone()
             if found is None:
                 self.db.execute("INSERT INTO meta VALUES ('schema', ?)", (str(SCHEMA_VERSION),))
-            elif found[0] != str(SCHEMA_VERSION):
-                raise StoreError(f"{self.path}: a store of schema {found[0]}; this jmlgdsl reads schema {SCHEMA_VERSION}")
         except OSError as exc:
             raise StoreError(f"cannot open the store {self.path}: {exc.strerror}") from None
         except sqlite3.DatabaseError as exc:
             raise StoreError(f"{self.path}: not a usable jmlgdsl store ({exc})") from None
+
+    def _meta_schema(self) -> str | None:
+        """The schema version a store records (None for a new, empty database)."""
+        try:
+            found = self.db.execute("SELECT value FROM meta WHERE key = 'schema'").fetchone()
+        except sqlite3.OperationalError:  # no meta table: a new database
+            return None
+        return None if found is None else found[0]
+
+    def _upgrade(self):
+        """Schema 1 to 2, in one transaction: the new columns (NULL for the rows already there) and
+        the action table."""
+        with self._transaction():
+            for table, column in (("run", "descriptions"), ("run", "units"), ("result", "y_sd"), ("result", "evidence_mode"),
+                                  ("result", "evidence"), ("alarm", "mode")):
+                self.db.execute(f"ALTER TABLE {table} ADD COLUMN {column} TEXT")
+            self.db.execute("UPDATE meta SET value = ? WHERE key = 'schema'", (str(SCHEMA_VERSION),))
 
     def close(self):
         self.db.close()
@@ -145,14 +207,14 @@ class Store:
     # ------------------------------------------------------------------ runs
     def run(self, id: int | None = None) -> Run | None:
         """A run by id, or the latest (None when the store has none)."""
-        query = "SELECT id, plant, model_sha256, options, modes, states, outputs, inputs FROM run "
+        query = "SELECT id, plant, model_sha256, options, modes, states, outputs, inputs, descriptions, units FROM run "
         row = self.db.execute(query + ("WHERE id = ?" if id is not None else "ORDER BY id DESC LIMIT 1"),
                               () if id is None else (id,)).fetchone()
         if row is None:
             if id is not None:
                 raise StoreError(f"{self.path}: no run {id}")
             return None
-        return Run(row[0], row[1], row[2], json.loads(row[3]), *(json.loads(v) for v in row[4:]))
+        return Run(row[0], row[1], row[2], json.loads(row[3]), *(json.loads(v or "{}") for v in row[4:]))
 
     def begin_run(self, spec: str | None, model, fingerprint: str, options: dict) -> Run:
         """Record a new run of a model with these options."""
@@ -160,9 +222,11 @@ class Store:
         sha = hashlib.sha256((spec or "").encode()).hexdigest()
         with self._transaction():
             cursor = self.db.execute("INSERT INTO run (started, version, plant, spec, spec_sha256, model_sha256, "
-                                     "options, modes, states, outputs, inputs) VALUES (?,?,?,?,?,?,?,?,?,?,?)",
+                                     "options, modes, states, outputs, inputs, descriptions, units) "
+                                     "VALUES (?,?,?,?,?,?,?,?,?,?,?,?,?)",
                                      (now(), VERSION, model.name, spec, sha, fingerprint,
-                                      json.dumps(options, sort_keys=True), *names))
+                                      json.dumps(options, sort_keys=True), *names, json.dumps(model.descriptions),
+                                      json.dumps(model.units)))
         return self.run(cursor.lastrowid)
 
     def saved(self, run: int) -> Saved | None:
@@ -173,35 +237,77 @@ class Store:
     # ------------------------------------------------------------------ the one write
     def save(self, run: int, samples, results, events, rows: int, checkpoint: bytes, monitor: bytes | None,
              position: dict | None):
-        """Commit in one transaction: samples [(t, Row)], results [Diagnosed], events [Event], and the
-        state after them (rows diagnosed, the Diagnosis checkpoint, the assembler, the source position)."""
+        """Commit in one transaction: samples [(t, Row)], results [(Diagnosed, predictive sd (ny,))],
+        events [Event], and the state after them (rows diagnosed, the Diagnosis checkpoint, the
+        monitor's own state, the source position)."""
         modes = self._modes(run)
         at = now()
         with self._transaction():
             self.db.executemany("INSERT INTO sample VALUES (?,?,?,?,?,?,?,?)", [
                 (run, t, row.time, vector(row.y), vector(row.u), None if row.mode is None else modes[row.mode],
                  row.anomaly, row.changepoint) for t, row in samples])
-            self.db.executemany("INSERT INTO result VALUES (?,?,?,?,?,?,?,?,?,?)", [
+            self.db.executemany("INSERT INTO result (run, t, map_mode, posterior, state_mean, y_pred, residual, ess, "
+                                "loglik, alarm, y_sd, evidence_mode, evidence) VALUES (?,?,?,?,?,?,?,?,?,?,?,?,?)", [
                 (run, d.step.t, modes[d.step.map_mode], vector(d.step.mode_posterior), vector(d.step.state_mean),
-                 vector(d.step.y_pred), vector(d.step.residual), _real(d.step.ess), _real(d.step.loglik), d.alarm)
-                for d in results])
-            self._alarms(run, results)
+                 vector(d.step.y_pred), vector(d.step.residual), _real(d.step.ess), _real(d.step.loglik), d.alarm,
+                 vector(sd), *_evidence(d.evidence, modes))
+                for d, sd in results])
+            self._alarms(run, [d for d, _ in results])
             self.db.executemany("INSERT INTO event (run, at, time, kind, tag, detail) VALUES (?,?,?,?,?,?)",
                                 [(run, at, e.time, e.kind, e.tag, e.detail) for e in events])
             self.db.execute("INSERT OR REPLACE INTO state VALUES (?,?,?,?,?,?)",
                             (run, rows, checkpoint, monitor, None if position is None else json.dumps(position), at))
 
     def _alarms(self, run, results):
-        """Alarm episodes from the results' 0/1 alarms, continuing the one open in the store."""
+        """Alarm episodes from the results' 0/1 alarms, continuing the one open in the store; each
+        names the most probable unhealthy mode of the row that raised it."""
         open_ = self.db.execute("SELECT id FROM alarm WHERE run = ? AND cleared_t IS NULL", (run,)).fetchone()
         for d in results:
             if d.alarm and open_ is None:
-                open_ = (self.db.execute("INSERT INTO alarm (run, raised_t, raised_time) VALUES (?,?,?)",
-                                         (run, d.step.t, d.row.time)).lastrowid,)
+                modes, healthy = self._modes(run), self.run(run).options.get("healthy", [])
+                unhealthy = [k for k, name in enumerate(modes) if name not in healthy]
+                mode = modes[max(unhealthy, key=lambda k: d.step.mode_posterior[k])] if unhealthy else None
+                open_ = (self.db.execute("INSERT INTO alarm (run, raised_t, raised_time, mode) VALUES (?,?,?,?)",
+                                         (run, d.step.t, d.row.time, mode)).lastrowid,)
             elif not d.alarm and open_ is not None:
                 self.db.execute("UPDATE alarm SET cleared_t = ?, cleared_time = ? WHERE id = ?",
                                 (d.step.t, d.row.time, open_[0]))
                 open_ = None
+
+    def act(self, run: int, alarm: int, kind: str, who: str, reason: str | None = None):
+        """Record what an operator did with an alarm (ISA-18.2: acknowledge, shelve with a reason,
+        unshelve), committed before it returns; an action that does not apply is refused."""
+        found = {a.id: a for a in self.alarms(run)}.get(alarm)
+        if found is None:
+            raise StoreError(f"run {run} has no alarm {alarm}")
+        if kind not in ACTIONS:
+            raise StoreError(f"unknown action {kind!r}; one of {', '.join(ACTIONS)}")
+        if not who.strip():
+            raise StoreError("say who acts (a name or initials)")
+        if kind == "acknowledge" and found.acknowledged:
+            raise StoreError(f"alarm {alarm} is acknowledged already")
+        if kind == "shelve" and (found.shelved or not (reason or "").strip()):
+            raise StoreError(f"alarm {alarm} is shelved already" if found.shelved else "shelving needs a reason")
+        if kind == "unshelve" and not found.shelved:
+            raise StoreError(f"alarm {alarm} is not shelved")
+        with self._transaction():
+            self.db.execute("INSERT INTO action (run, alarm, at, who, kind, reason) VALUES (?,?,?,?,?,?)",
+                            (run, alarm, now(), who.strip(), kind, (reason or "").strip() or None))
+
+    def alarms(self, run: int) -> list[Alarm]:
+        """A run's alarms, oldest first, with their acknowledgement and shelving."""
+        acknowledged, shelved = {}, {}
+        for alarm, at, who, kind, reason in self.db.execute(
+                "SELECT alarm, at, who, kind, reason FROM action WHERE run = ? ORDER BY id", (run,)):
+            if kind == "acknowledge":
+                acknowledged[alarm] = (who, at)
+            elif kind == "shelve":
+                shelved[alarm] = (who, at, reason)
+            else:
+                shelved.pop(alarm, None)
+        return [Alarm(*row, acknowledged.get(row[0]), shelved.get(row[0])) for row in self.db.execute(
+            "SELECT id, raised_t, raised_time, cleared_t, cleared_time, mode FROM alarm WHERE run = ? ORDER BY id",
+            (run,))]
 
     def _modes(self, run):
         if getattr(self, "_modes_of", (None,))[0] != run:
@@ -248,6 +354,11 @@ class Store:
             cells = ([repr(row[0])] if timed else []) + [_cell(v) for v in json.loads(row[1]) + json.loads(row[2])]
             writer.writerow(cells + ["" if row[i] is None else row[i] for i in labels])
         return True
+
+
+def _evidence(evidence, modes) -> tuple:
+    """(evidence_mode, evidence) columns of a row's Evidence (NULL, NULL without one)."""
+    return (None, None) if evidence is None else (modes[evidence.mode], vector(evidence.terms))
 
 
 def _real(value) -> float | None:
