@@ -18,7 +18,7 @@ import warnings
 from . import __version__, commands
 from .errors import JmlgError, SpecError, SpecWarning
 
-ORDER = ("check", "compile", "simulate", "run", "monitor", "export", "plot", "bench", "prbs", "learn", "fit")
+ORDER = ("check", "compile", "simulate", "run", "monitor", "dashboard", "export", "plot", "bench", "prbs", "learn", "fit")
 
 
 def _command_modules():

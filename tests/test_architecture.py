@@ -19,6 +19,7 @@ LAYERS = [
     {"infer", "simulate", "nonlinear"},
     {"diagnosis"},
     {"studies", "learn", "fitting", "monitor"},
+    {"page"},
     {"commands", "cli", "__main__", "jmlgdsl"},
 ]
 RANK = {name: rank for rank, names in enumerate(LAYERS) for name in names}
@@ -115,7 +116,8 @@ def test_the_cycle_finder_finds_cycles(edges, expected):
 # rest lives in packages whose names say what they hold.
 ROOT_MODULES = {"__init__", "__main__", "cli", "version", "errors", "names", "seeds", "gaussian", "output", "priors",
                 "progress", "drawing", "model", "data", "simulate", "nonlinear"}
-PACKAGES = {"lang", "compile", "infer", "diagnosis", "studies", "learn", "fitting", "monitor", "commands", "grammars"}
+PACKAGES = {"lang", "compile", "infer", "diagnosis", "studies", "learn", "fitting", "monitor", "page", "commands",
+            "grammars"}
 
 
 def test_the_root_holds_only_the_model_entry_points_and_leaf_helpers():

@@ -26,8 +26,9 @@ def test_no_command_prints_every_command_and_exits_2(capsys):
     captured = capsys.readouterr()
     assert captured.out == ""
     lines = captured.err.splitlines()
-    for name in ORDER:  # each command on a line of its own, with what it does
-        assert any(line.split()[:1] == [name] and len(line.split()) > 1 for line in lines), name
+    for name in ORDER:  # each command on a line of its own, with what it does beside it or just below
+        at = next(i for i, line in enumerate(lines) if line.split()[:1] == [name])
+        assert len(lines[at].split()) > 1 or lines[at + 1].startswith(" " * 10), name
     assert "Run 'jmlgdsl COMMAND --help' for the options of one command." in captured.err
 
 

@@ -30,8 +30,8 @@ DATA_FOLDERS = ("specs", "examples")
 
 
 def _shipped(path: Path) -> bool:
-    """Whether a file of the source tree belongs in the wheel: code, and the grammar's data."""
-    return path.suffix in (".py", ".lark") and "__pycache__" not in path.parts
+    """Whether a file of the source tree belongs in the wheel: code, the grammar and the page's files."""
+    return path.suffix in (".py", ".lark", ".html", ".js", ".css") and "__pycache__" not in path.parts
 
 
 def test_every_module_and_data_file_of_the_source_tree_is_installed():
@@ -39,7 +39,7 @@ def test_every_module_and_data_file_of_the_source_tree_is_installed():
               for folder, _, names in os.walk(ROOT / "jmlgdsl", followlinks=True)
               for name in names if _shipped(Path(folder) / name)}
     installed = {f.as_posix() for f in importlib.metadata.files("jmlgdsl") if _shipped(Path(f.as_posix()))}
-    assert "jmlgdsl/grammars/jmlg.lark" in source and "jmlgdsl/fitting/__init__.py" in source
+    assert {"jmlgdsl/grammars/jmlg.lark", "jmlgdsl/fitting/__init__.py", "jmlgdsl/page/static/page.js"} <= source
     assert source - installed == set(), "in the source tree but not installed"
     assert installed - source == set(), "installed but not in the source tree (a stale build?)"
 

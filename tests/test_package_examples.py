@@ -8,7 +8,7 @@ import pytest
 from conftest import ROOT
 
 PACKAGES = ["jmlgdsl", "jmlgdsl.infer", "jmlgdsl.diagnosis", "jmlgdsl.learn", "jmlgdsl.fitting", "jmlgdsl.studies",
-            "jmlgdsl.monitor"]
+            "jmlgdsl.monitor", "jmlgdsl.page"]
 
 
 @pytest.mark.parametrize("name", PACKAGES)

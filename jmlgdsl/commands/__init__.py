@@ -90,3 +90,32 @@ def check_particles(args, model):
 def healthy_modes(args) -> list[str] | None:
     """The modes --healthy names (None: the spec's first mode)."""
     return [m.strip() for m in args.healthy.split(",")] if args.healthy else None
+
+
+def add_page_options(p, default: str | None):
+    """The operator's page: --http HOST:PORT and its token (never on the command line)."""
+    page = p.add_argument_group("the operator's page")
+    page.add_argument("--http", metavar="HOST:PORT", default=default,
+                      help="serve the page there (127.0.0.1 keeps it to this machine; any other address needs a "
+                           "token)" + (f" (default {default})" if default else ""))
+    page.add_argument("--http-token-env", metavar="VAR",
+                      help="the environment variable holding the page's token: with a token, acknowledging and "
+                           "shelving alarms needs it")
+    page.add_argument("--http-token-file", metavar="FILE", help="the file holding the page's token (its first line)")
+
+
+def start_page(args, store_path, run: int | None = None):
+    """The page --http asks for, serving (None without --http); says where on standard error."""
+    import sys
+
+    from ..monitor.sources import secret
+    from ..page import Page, parse_address
+
+    if args.http is None:
+        return None
+    host, port = parse_address(args.http)
+    page = Page(store_path, host, port, token=secret("http-token", args.http_token_env, args.http_token_file),
+                run=run).start()
+    print(f"the operator's page: {page.url}", file=sys.stderr, flush=True)
+    return page
+

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import sys
 
-from . import add_alarm_options, add_filter_options, check_particles, healthy_modes
+from . import add_alarm_options, add_filter_options, add_page_options, check_particles, healthy_modes, start_page
 
 
 def register(subparsers):
@@ -55,6 +55,7 @@ def register(subparsers):
                    help="fixed-lag smoothing: store each row once L more rows have arrived, with "
                         "p(mode | data up to L rows later)")
     p.add_argument("--prefilter", metavar="ma:K", help="causal moving average over the last K readings")
+    add_page_options(p, default=None)
     p.set_defaults(func=main)
 
 
@@ -83,11 +84,16 @@ def main(args) -> int:
     stop = threading.Event()
     for signum in (signal.SIGTERM, signal.SIGINT):
         signal.signal(signum, lambda *_: stop.set())
-    with Store(args.store) as store:
-        monitor = Monitor(model, store, source, spec=_text(args.spec), options=options, tags=tags,
-                          new_run=args.new_run, log=lambda text: print(f"monitor: {text}", file=sys.stderr,
-                                                                       flush=True))
-        stopped = monitor.run(stop)
+    page = start_page(args, args.store)  # the store's latest run: the one this monitor goes on or starts
+    try:
+        with Store(args.store) as store:
+            monitor = Monitor(model, store, source, spec=_text(args.spec), options=options, tags=tags,
+                              new_run=args.new_run, log=lambda text: print(f"monitor: {text}", file=sys.stderr,
+                                                                           flush=True))
+            stopped = monitor.run(stop)
+    finally:
+        if page is not None:
+            page.stop()
     events = ", ".join(f"{kind} {n}" for kind, n in sorted(stopped.events.items()))
     print(f"{model.name}: {stopped.rows} rows diagnosed in run {stopped.run} of {args.store} ({stopped.stored} in "
           f"all){'; events: ' + events if events else ''}", file=sys.stderr)

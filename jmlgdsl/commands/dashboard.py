@@ -1,0 +1,41 @@
+"""`jmlgdsl dashboard STORE`: the operator's page of a monitor's store, finished or still running."""
+
+from __future__ import annotations
+
+import sys
+
+from . import add_page_options, start_page
+
+
+def register(subparsers):
+    p = subparsers.add_parser(
+        "dashboard", help="serve the operator's page of a monitor's store",
+        description="Serve the operator's page of a run in a store that 'jmlgdsl monitor' keeps (the latest "
+                    "run unless --run is given), whether the monitor is still running or has finished: the "
+                    "most probable mode, every mode's probability over time, each sensor against what the "
+                    "model expected, and the alarms to acknowledge or shelve with the evidence behind them. "
+                    "Runs until stopped (Ctrl-C, SIGTERM). 'jmlgdsl monitor --http' serves the same page "
+                    "from the monitor itself.")
+    p.add_argument("store", help="the monitor's store (SQLite database)")
+    p.add_argument("--run", type=int, metavar="N", help="which run of the store (default the latest)")
+    add_page_options(p, default="127.0.0.1:8050")
+    p.set_defaults(func=main)
+
+
+def main(args) -> int:
+    import signal
+    import threading
+
+    from ..monitor import Store, StoreError
+
+    with Store(args.store, create=False) as store:
+        if store.run(args.run) is None:
+            raise StoreError(f"{args.store}: the store holds no run yet")
+    stop = threading.Event()
+    for signum in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(signum, lambda *_: stop.set())
+    page = start_page(args, args.store, args.run)
+    stop.wait()
+    page.stop()
+    print("the page is stopped", file=sys.stderr)
+    return 0

@@ -1,0 +1,233 @@
+"""The operator's page over HTTP: the page itself (its HTML, script and style ship in jmlgdsl/page/
+static), a small JSON API on the store, and a server-sent event stream that pushes each row within
+a quarter of a second of its commit.
+
+    GET  /                         the page
+    GET  /api/run                  names, units, descriptions, the alarm rule, whether actions need a token
+    GET  /api/rows?after=T | ?first=A&last=B&limit=N | (nothing: the live end)
+    GET  /api/alarms               the alarms with their ISA-18.2 states
+    GET  /api/evidence?alarm=ID    each sensor's share of the evidence behind an alarm
+    GET  /api/stream?after=T       server-sent events: `rows` (as /api/rows) and `alarms` (when they change)
+    POST /api/alarms/ID/acknowledge | /shelve | /unshelve   JSON {"who": ..., "reason": ...}
+
+The server binds to 127.0.0.1 unless told otherwise, and any other address needs a token (from an
+environment variable or a file). With a token, actions need it (`Authorization: Bearer TOKEN`);
+reading the page does not. An action must come as JSON from the page's own origin, which a form or
+script on another site cannot send without the browser asking first (and the server never agrees),
+so a page elsewhere cannot act for an operator whose browser has the page open.
+"""
+
+from __future__ import annotations
+
+import hmac
+import ipaddress
+import json
+import re
+import threading
+import time
+from http import HTTPStatus
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from importlib import resources
+from urllib.parse import parse_qs, urlsplit
+
+from ..errors import JmlgError
+from ..monitor.store import Store, StoreError
+from . import views
+
+POLL = 0.25  # seconds between the event stream's looks at the store
+HEARTBEAT = 10.0  # seconds between keep-alive comments on a quiet event stream
+STREAM_ROWS = 500  # rows one event carries at most (a page that joins a long run catches up in steps)
+# what changes when an alarm is raised, cleared, acknowledged, shelved or unshelved
+ALARMS_STATE = ("SELECT (SELECT count(*) || ',' || coalesce(max(id), 0) FROM action WHERE run = ?1) || ';' || "
+                "(SELECT count(*) || ',' || count(cleared_t) FROM alarm WHERE run = ?1)")
+STATIC = {"/": ("index.html", "text/html; charset=utf-8"), "/page.js": ("page.js", "text/javascript; charset=utf-8"),
+          "/page.css": ("page.css", "text/css; charset=utf-8")}
+HEADERS = {"Content-Security-Policy": "default-src 'self'; img-src 'self' data:; frame-ancestors 'none'",
+           "X-Content-Type-Options": "nosniff", "Referrer-Policy": "no-referrer", "Cache-Control": "no-store"}
+ACTION = re.compile(r"^/api/alarms/(\d+)/(acknowledge|shelve|unshelve)$")
+
+
+class PageError(JmlgError):
+    """A page that cannot be served: an address it may not bind to, a port in use."""
+
+
+def parse_address(text: str) -> tuple[str, int]:
+    """(host, port) from --http HOST:PORT (or PORT alone: 127.0.0.1)."""
+    host, _, port = text.rpartition(":")
+    host = host.strip("[]") or "127.0.0.1"
+    try:
+        number = int(port)
+    except ValueError:
+        raise PageError(f"--http {text}: expected HOST:PORT, e.g. 127.0.0.1:8050") from None
+    if not 0 <= number <= 65535:
+        raise PageError(f"--http {text}: no port {number}")
+    return host, number
+
+
+def loopback(host: str) -> bool:
+    """Whether an address is this machine's own (only this machine's users can reach it)."""
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+class Page:
+    """The page of a store's run (the latest unless `run` is given), served from a thread once
+    `start`ed, at `url`, until `stop` (jmlgdsl.page shows an example)."""
+
+    def __init__(self, store_path, host: str = "127.0.0.1", port: int = 8050, *, token: str | None = None,
+                 run: int | None = None):
+        if not loopback(host) and not token:
+            raise PageError(f"--http {host}:{port}: the page may be reached from other machines there; give a "
+                            "token with --http-token-env or --http-token-file (or bind to 127.0.0.1)")
+        self.store_path, self.token, self.run_id = str(store_path), token, run
+        self.stopping = threading.Event()
+        self._local = threading.local()
+        try:
+            self.server = ThreadingHTTPServer((host, port), _handler(self))
+        except OSError as exc:
+            raise PageError(f"--http {host}:{port}: cannot serve the page there ({exc.strerror})") from None
+        self.server.daemon_threads = True
+        self.thread = None
+
+    @property
+    def url(self) -> str:
+        host, port = self.server.server_address[:2]
+        return f"http://{host}:{port}/"
+
+    def start(self) -> "Page":
+        self.thread = threading.Thread(target=self.server.serve_forever, name="page", daemon=True)
+        self.thread.start()
+        return self
+
+    def stop(self):
+        self.stopping.set()
+        self.server.shutdown()
+        self.server.server_close()
+
+    def store(self) -> Store:
+        """This thread's connection to the store (SQLite connections are not shared between threads)."""
+        store = getattr(self._local, "store", None)
+        if store is None:
+            store = self._local.store = Store(self.store_path, create=False)
+        return store
+
+    def run(self):
+        run = self.store().run(self.run_id)
+        if run is None:
+            raise StoreError(f"{self.store_path}: the store holds no run yet")
+        return run
+
+
+def _handler(page: Page):
+    class Handler(BaseHTTPRequestHandler):
+        server_version = "jmlgdsl"
+
+        def log_message(self, format, *args):  # the monitor's log is for the plant, not for page views
+            pass
+
+        def do_GET(self):
+            parts = urlsplit(self.path)
+            query = {k: v[-1] for k, v in parse_qs(parts.query).items()}
+            try:
+                if parts.path in STATIC:
+                    name, kind = STATIC[parts.path]
+                    self._send(HTTPStatus.OK, resources.files(__package__).joinpath("static", name).read_bytes(), kind)
+                elif parts.path == "/api/run":
+                    self._json(views.run_info(page.store(), page.run(), page.token is not None))
+                elif parts.path == "/api/rows":
+                    self._send(HTTPStatus.OK, views.rows(page.store(), page.run(), **_window(query)).encode(),
+                               "application/json")
+                elif parts.path == "/api/alarms":
+                    self._json(views.alarms(page.store(), page.run()))
+                elif parts.path == "/api/evidence":
+                    self._json(views.evidence(page.store(), page.run(), int(query.get("alarm", 0))))
+                elif parts.path == "/api/stream":
+                    self._stream(int(self.headers.get("Last-Event-ID") or query.get("after") or 0))
+                else:
+                    self._error(HTTPStatus.NOT_FOUND, f"no page {parts.path}")
+            except (ValueError, StoreError) as exc:
+                self._error(HTTPStatus.BAD_REQUEST, str(exc))
+
+        def do_POST(self):
+            found = ACTION.match(urlsplit(self.path).path)
+            if found is None:
+                return self._error(HTTPStatus.NOT_FOUND, f"no action {self.path}")
+            if self.headers.get_content_type() != "application/json" or not self._same_origin():
+                return self._error(HTTPStatus.FORBIDDEN, "actions come as JSON from the page itself")
+            if page.token is not None and not hmac.compare_digest(
+                    self.headers.get("Authorization", "").encode(), f"Bearer {page.token}".encode()):
+                return self._error(HTTPStatus.UNAUTHORIZED, "this page needs its token to act on alarms")
+            try:
+                body = json.loads(self.rfile.read(min(int(self.headers.get("Content-Length") or 0), 65536)) or b"{}")
+                store, run = page.store(), page.run()
+                store.act(run.id, int(found[1]), found[2], str(body.get("who", "")), body.get("reason"))
+                self._json(views.alarms(store, run))
+            except (ValueError, StoreError) as exc:
+                self._error(HTTPStatus.BAD_REQUEST, str(exc))
+
+        def _same_origin(self) -> bool:
+            origin = self.headers.get("Origin")
+            return origin is None or urlsplit(origin).netloc == self.headers.get("Host")
+
+        def _stream(self, after: int):
+            """Rows after `after` as they are stored, and the alarms whenever they change, until the
+            page goes away or the server stops."""
+            self.send_response(HTTPStatus.OK)
+            self.send_header("Content-Type", "text/event-stream")
+            for key, value in HEADERS.items():
+                self.send_header(key, value)
+            self.end_headers()
+            store, run, seen, quiet = page.store(), page.run(), None, time.monotonic()
+            try:
+                while not page.stopping.is_set():
+                    text = views.rows(store, run, after=after, limit=STREAM_ROWS)
+                    found = json.loads(text)["t"]
+                    if found:
+                        after = found[-1]
+                        self._event("rows", text, after)
+                    state = store.db.execute(ALARMS_STATE, (run.id,)).fetchone()[0]
+                    if state != seen:
+                        seen = state
+                        self._event("alarms", json.dumps(views.alarms(store, run)))
+                        quiet = time.monotonic()
+                    if found:
+                        quiet = time.monotonic()
+                    elif time.monotonic() - quiet > HEARTBEAT:
+                        self.wfile.write(b": still here\n\n")
+                        self.wfile.flush()
+                        quiet = time.monotonic()
+                    if len(found) < STREAM_ROWS:  # caught up: wait for the next commit
+                        page.stopping.wait(POLL)
+            except (BrokenPipeError, ConnectionResetError):
+                pass  # the page was closed
+
+        def _event(self, name: str, data: str, id: int | None = None):
+            self.wfile.write((f"event: {name}\n" + (f"id: {id}\n" if id is not None else "")
+                              + f"data: {data}\n\n").encode())
+            self.wfile.flush()
+
+        def _json(self, value):
+            self._send(HTTPStatus.OK, json.dumps(value).encode(), "application/json")
+
+        def _error(self, status, message: str):
+            self._send(status, json.dumps({"error": message}).encode(), "application/json")
+
+        def _send(self, status, body: bytes, kind: str):
+            self.send_response(status)
+            self.send_header("Content-Type", kind)
+            self.send_header("Content-Length", str(len(body)))
+            for key, value in HEADERS.items():
+                self.send_header(key, value)
+            self.end_headers()
+            self.wfile.write(body)
+
+    return Handler
+
+
+def _window(query: dict) -> dict:
+    """The rows a query asks for (views.rows's keywords)."""
+    return {key: int(query[key]) for key in ("after", "first", "last", "limit") if key in query}
