@@ -1,5 +1,6 @@
 """The operator's page in a real headless browser (Debian's chromium, driven by Playwright): a
-finished store's page shows the mode, the alarms and the evidence; a row published to the broker
+finished store's page shows the mode, the alarms and the evidence, and a past window when zoomed;
+a row published to the broker
 shows its mode on the page within 2 s; an acknowledgement clicked on the page is in the store and
 still there after the monitor is killed and started again; markup in a spec's mode description is
 shown as text and never run. Screenshots go to the test's folder (JMLGDSL_SCREENSHOTS names another)."""
@@ -79,6 +80,16 @@ def test_a_finished_store_shows_its_mode_alarms_and_evidence(tab, tmp_path):
         assert tab.text_content("#alarmlist tr[data-alarm='3'] td.state .what") == "active, unacknowledged"
         tab.click("#alarmlist tr[data-alarm='3']")
         shows(tab, "#whyfor", "alarm 3: grill")
+        assert tab.locator("#evidence .bar[data-output='temp'] .nats").text_content() != ""
+        box = tab.locator("#strip").bounding_box()
+        tab.mouse.move(box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)
+        with tab.expect_response(lambda response: "api/rows?first=" in response.url) as zoomed:
+            tab.mouse.wheel(0, -300)  # zoom in around the middle of the live window (rows 701-1000)
+        window = zoomed.value.json()["t"]
+        assert 701 < window[0] < window[-1] < 1000 and tab.get_attribute("#live", "class") == ""
+        with tab.expect_response(lambda response: response.url.endswith("api/rows")):
+            tab.click("#live")
+        assert tab.get_attribute("#live", "class") == "on"
         screenshot(tab, tmp_path, "page-dryer.png")
     finally:
         process.terminate()

@@ -375,7 +375,9 @@ async function select(alarm) {
   for (const output of found.outputs) {
     const bar = element("div", null, "bar");
     bar.dataset.output = output.name;
-    bar.appendChild(element("span", output.name));
+    const label = element("span", output.name);
+    label.title = output.name;
+    bar.appendChild(label);
     const track = element("div");
     const fill = element("div", null, "fill" + (output.nats < 0 ? " against" : ""));
     fill.style.width = `${(100 * Math.abs(output.nats) / largest).toFixed(1)}%`;
