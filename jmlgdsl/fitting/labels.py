@@ -26,6 +26,10 @@ from .likelihood import labelled
 from .posterior import Cached, Posterior, bfgs
 
 MAX_ROUNDS = 20  # labels that still change after this many rounds are left as they are
+# The logit coordinate of a Uniform unknown a round pushed against an edge comes back within this, where
+# the search that follows can still move it: d theta / d z shrinks as exp(-|z|) beyond.
+LOGIT_LIMIT = 4.0
+ROUND_GAIN = 0.01  # a round's fit stops after an iteration that raises its log posterior by less than this
 
 
 def most_probable_modes(model: Model, data: Data) -> np.ndarray:
@@ -38,7 +42,13 @@ def most_probable_modes(model: Model, data: Data) -> np.ndarray:
 def label_rounds(post: Posterior, z: np.ndarray, say) -> np.ndarray:
     """z after rounds of labelling the unlabelled rows of post's data by their most probable modes and
     fitting to the data so labelled, until the labels repeat (or MAX_ROUNDS). Each round's smoother
-    pass and likelihood evaluations are counted in post.evaluations."""
+    pass and likelihood evaluations are counted in post.evaluations.
+
+    Hard labels are biased where a fault's first rows look like the mode before it (a leak that has
+    not yet reached a measured level): the fit then blames the rows labelled with the fault for all of
+    it and may push its unknown against an edge of its prior. The rounds are a start, not the
+    estimate: the search on the data's own likelihood that follows corrects such a bias, from within
+    LOGIT_LIMIT of an edge."""
     labels = None
     for round_ in range(1, MAX_ROUNDS + 1):
         try:
@@ -54,8 +64,31 @@ def label_rounds(post: Posterior, z: np.ndarray, say) -> np.ndarray:
         labels = new
         step = Posterior(post.family, [replace(d, modes=m) for d, m in zip(post.datasets, labels)], post.algorithm)
         objective = Cached(step)
-        z = bfgs(objective, z).x
+        z = _fit_labelled(objective, z)
         post.evaluations += step.evaluations
         say(f"labelling round {round_}: " + ("" if changed is None else f"{changed} rows relabelled, ")
             + f"log posterior with those labels {-objective(z):.8g}")
-    return z
+    return np.array([np.clip(v, -LOGIT_LIMIT, LOGIT_LIMIT) if p.family == "Uniform" else v
+                     for p, v in zip(post.family.priors, z)])
+
+
+class _Enough(Exception):
+    """A round's fit has risen as far as a start needs."""
+
+
+def _fit_labelled(objective, z: np.ndarray) -> np.ndarray:
+    """BFGS on the labelled posterior from z, stopped once an iteration gains less than ROUND_GAIN: the
+    rounds need a start in the right basin, not the last digits (which cost BFGS as many evaluations
+    again, in line searches against the rounding of its finite differences)."""
+    last = {"z": z, "value": objective(z)}
+
+    def enough(v):
+        gain = last["value"] - objective(v)
+        last.update(z=v.copy(), value=objective(v))
+        if gain < ROUND_GAIN:
+            raise _Enough
+
+    try:
+        return bfgs(objective, z, enough).x
+    except _Enough:
+        return last["z"]
