@@ -1,11 +1,16 @@
-"""Many units of one plant in one filter (jmlgdsl.infer.units): every unit's results are those of
-filtering its data alone, bit for bit, through missing readings, inputs, gross errors and records
-of different lengths."""
+"""Many units of one plant in one filter (jmlgdsl.infer.units) and `jmlgdsl run` on several files:
+every unit's results are those of filtering its data alone, bit for bit, through missing readings,
+inputs, gross errors and records of different lengths, and its table, alarms and truth those of
+running it alone."""
+
+import csv
+import re
 
 import numpy as np
 import pytest
 
 import jmlgdsl
+from jmlgdsl.cli import main
 from jmlgdsl.errors import DataError
 from jmlgdsl.infer import FilterError, kalman
 from jmlgdsl.infer.units import Units, filter_units
@@ -119,3 +124,53 @@ def test_a_unit_is_named_in_what_goes_wrong(dryer):
     assert str(batched.value) == f"unit 0: {alone.value}"
     with pytest.raises(FilterError, match="number of units"):
         Units(dryer, 0)
+
+
+@pytest.fixture(scope="module")
+def unit_files(tmp_path_factory):
+    """Three dryers' records: the published sequence; a shorter one with a gap, an absurd reading
+    and a burst beyond the gate; and one that moves the heater current."""
+    folder = tmp_path_factory.mktemp("units")
+    with open("examples/dryer_seq1.csv", newline="") as f:
+        header, *rows = list(csv.reader(f))
+    spoilt = [r[:] for r in rows[:600]]
+    for r in spoilt[100:110]:
+        r[2] = ""
+    spoilt[300][2] = "1e9"
+    for r in spoilt[400:404]:
+        r[2] = str(float(r[2]) + 30)
+    moved = [r[:] for r in rows[200:900]]
+    for r in moved:
+        r[1] = str(15 + (int(r[0]) // 100) % 3)
+    paths = []
+    for name, body in (("a", rows), ("b", spoilt), ("c", moved)):
+        paths.append(folder / f"{name}.csv")
+        with open(paths[-1], "w", newline="") as f:
+            csv.writer(f).writerows([header] + body)
+    return paths
+
+
+@pytest.mark.parametrize("options", [[], ["--filter", "la-rbpf", "--seed", "3", "--persistence", "3"],
+                                     ["--lag", "5"], ["--prefilter", "ma:3", "--healthy", "normal,grill"]])
+def test_run_on_several_files_writes_each_units_table_as_alone(unit_files, tmp_path, capsys, options):
+    assert main(["run", "specs/dryer.jmlg", *map(str, unit_files), "-o", str(tmp_path / "out"), *options]) == 0
+    printed = capsys.readouterr().out
+    for path in unit_files:
+        alone = tmp_path / f"alone_{path.name}"
+        assert main(["run", "specs/dryer.jmlg", str(path), "-o", str(alone), *options]) == 0
+        said = capsys.readouterr().out
+        assert (tmp_path / "out" / path.name).read_bytes() == alone.read_bytes()
+        error = re.search(r"diagnosis error: (\S+) %", said).group(1)
+        assert f"{path}: " in printed and f"diagnosis error {error} %" in printed
+    assert "3 units" in printed
+
+
+def test_run_on_several_files_refuses_what_it_cannot_do_before_any_work(unit_files, tmp_path, capsys):
+    spec, a, b = "specs/dryer.jmlg", str(unit_files[0]), str(unit_files[1])
+    for extra, message in ((["--plot", str(tmp_path / "p.png")], "--plot takes one data file, not 2"),
+                           (["-o", "-"], "several data files write a table each; give a folder"),
+                           ([str(tmp_path / "a.csv")], "two data files would write the same table a.csv"),
+                           (["-o", a], "is a file, not a folder")):
+        assert main(["run", spec, a, b, *extra]) != 0
+        assert message in capsys.readouterr().err
+    assert not list(tmp_path.iterdir())

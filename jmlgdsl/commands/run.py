@@ -25,12 +25,17 @@ def register(subparsers):
                     "per hour and the NAB scores. On a terminal a run of more than a second shows "
                     "its count of rows and their rate on standard error as it goes.")
     p.add_argument("spec", help="plant spec (.jmlg) or compiled model (.json/.npz)")
-    p.add_argument("data", help="CSV data file, or - to read rows from standard input as they arrive "
-                                "(each row's results are then written to standard output at once, "
-                                "the summary to standard error at the end)")
+    p.add_argument("data", nargs="+",
+                   help="CSV data file, or - to read rows from standard input as they arrive (each row's "
+                        "results are then written to standard output at once, the summary to standard error "
+                        "at the end). Several files are several units of the same plant (a fleet: "
+                        "run SPEC units/*.csv -o OUTDIR/): each is diagnosed as it would be alone, with its "
+                        "own alarms and truth, and the imm filter steps all of them at once")
     add_filter_options(p)
     p.add_argument("-o", "--output", help="write one CSV row per time step here (- = standard output, "
-                                          "the default when the data come from standard input)")
+                                          "the default when the data come from standard input); with "
+                                          "several data files, a folder: OUTDIR/NAME.csv for each NAME.csv "
+                                          "given, every table written only once all of them are done")
     p.add_argument("--plot", metavar="FILE.png",
                    help="draw the mode posterior over time, the MAP and true modes, and measured vs "
                         "predicted outputs with residuals")
@@ -67,6 +72,9 @@ def main(args) -> int:
     from ..output import FIGURE, check_file
     from ..progress import Progress
 
+    if len(args.data) > 1:
+        return fleet(args)
+    args.data = args.data[0]
     streaming = args.data == "-"
     if streaming and args.output is None:
         args.output = "-"  # a stream's results come out row by row as its rows arrive
@@ -101,4 +109,70 @@ def main(args) -> int:
     if args.plot:
         kept.draw(diagnosis, args.plot)
         print(f"figure: {args.plot}", file=out)
+    return 0
+
+
+def fleet(args) -> int:
+    """`run` on several data files, one unit of the plant each: a table per unit in the folder -o
+    (none unless every unit is diagnosed) and a line per unit on standard output."""
+    import io
+    from pathlib import Path
+
+    import jmlgdsl
+
+    from ..data import iter_rows, open_source, open_target
+    from ..diagnosis import AlarmRule, TableSink
+    from ..diagnosis.fleet import Fleet
+    from ..diagnosis.prefilter import parse
+    from ..errors import DataError, JmlgError
+    from ..output import check_folder
+    from ..names import plural
+
+    for given, option in ((args.plot, "--plot"), (args.explain or None, "--explain")):
+        if given is not None:
+            raise JmlgError(f"{option} takes one data file, not {len(args.data)}")
+    if "-" in args.data:
+        raise JmlgError("standard input (-) cannot be one of several data files")
+    names = [Path(path).stem + ".csv" for path in args.data]
+    twice = sorted({name for name in names if names.count(name) > 1})
+    if twice:
+        raise JmlgError(f"two data files would write the same table {twice[0]}; give files with different names")
+    if args.output is not None:
+        if args.output == "-":
+            raise JmlgError("-o -: several data files write a table each; give a folder")
+        check_folder(args.output, names, inputs=[args.spec, *args.data])
+    window = parse(args.prefilter)
+    model = jmlgdsl.load(args.spec)
+    check_particles(args, model)
+    records = []
+    for path in args.data:
+        with open_source(path) as source:
+            records.append(list(iter_rows(source, model, source.name)))
+        if not records[-1]:
+            raise DataError(f"{path}: no data rows")
+    tables = [io.StringIO() for _ in args.data]
+    lag = None if args.smooth else args.lag or 0
+    sinks = [[TableSink(table, model, lag)] if args.output is not None else [] for table in tables]
+    run = Fleet(model, len(args.data), sinks=sinks, algorithm=args.filter, particles=args.particles,
+                seed=args.seed, resampling=args.resampling, ess_threshold=args.ess_threshold, lag=lag,
+                prefilter=window, rule=AlarmRule(tuple(healthy_modes(args) or model.modes[:1]), args.threshold,
+                                                 args.persistence)).run(records)
+    if args.output is not None:
+        Path(args.output).mkdir(parents=True, exist_ok=True)
+        for name, table in zip(names, tables):
+            with open_target(Path(args.output) / name) as out:
+                out.write(table.getvalue())
+    for path, unit in zip(args.data, run.units):
+        summary = unit.summary
+        line = (f"{path}: {plural(summary.T, 'step')}, last mode {model.modes[summary.current]}, "
+                f"{plural(unit.alarms.raised, 'alarm')} raised")
+        if summary.labelled:
+            line += f", diagnosis error {summary.diagnosis_error:.2f} %"
+        print(line)
+    steps = sum(unit.summary.T for unit in run.units)
+    how = "one filter for every unit" if run.filter is not None else "a filter per unit"
+    print(f"{model.name}: {plural(len(run.units), 'unit')}, filter {args.filter} ({how}), "
+          f"{1e6 * run.seconds / max(steps, 1):.2f} us per unit-step")
+    if args.output is not None:
+        print(f"tables: {args.output}")
     return 0
