@@ -5,6 +5,7 @@ folder that is not the checkout, through the installed `jmlgdsl` console script.
 import argparse
 import importlib
 import importlib.metadata
+import json
 import os
 import pkgutil
 import queue
@@ -14,6 +15,7 @@ import signal
 import subprocess
 import sys
 import threading
+import urllib.request
 from pathlib import Path
 
 import pytest
@@ -119,7 +121,7 @@ def test_the_set_up_line_runs_the_bundled_example(user_folder):
 
 def test_every_tour_line_runs_from_an_empty_folder(user_folder):
     folder, env = user_folder
-    lines = [line for line in _tour() if not line.startswith("tail ")]
+    lines = [line for line in _tour() if not line.startswith(("tail ", "jmlgdsl dashboard "))]  # they run on
     assert len(lines) >= 8
     for line in lines:
         _run(line, folder, env)
@@ -146,6 +148,25 @@ def test_the_readme_stream_prints_each_row_as_it_is_appended(user_folder):
                 with logged.open("a") as f:
                     f.write(row + "\n")
             assert lines.get(timeout=60).startswith(f"{number},{number - 1},normal,")
+    finally:
+        os.killpg(proc.pid, signal.SIGTERM)
+        proc.wait(timeout=60)
+
+
+def test_the_readme_dashboard_serves_the_store_the_tour_made(user_folder):
+    folder, env = user_folder
+    tour = _tour()
+    for line in tour[:next(i for i, line in enumerate(tour) if line.startswith("jmlgdsl monitor ")) + 1]:
+        if line.startswith(("jmlgdsl simulate ", "jmlgdsl monitor ")):
+            _run(line, folder, env)
+    line, = (line for line in tour if line.startswith("jmlgdsl dashboard "))
+    url = re.search(r"open (http://\S+)", _block("A short tour")).group(1)
+    proc = subprocess.Popen(["bash", "-c", line], cwd=folder, env=env, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)
+    try:
+        assert proc.stderr.readline().strip() == f"the operator's page: {url}/"
+        with urllib.request.urlopen(url + "/api/run", timeout=60) as answer:
+            assert json.load(answer)["plant"] == "dryer"
     finally:
         os.killpg(proc.pid, signal.SIGTERM)
         proc.wait(timeout=60)
