@@ -36,6 +36,10 @@ def register(subparsers):
                         "peak: a guard against local optima, at N times the cost (default 1)")
     p.add_argument("--seed", type=int, help="random seed for --samples and --starts (the same seed gives the same "
                                             "result)")
+    p.add_argument("--no-label-rounds", dest="label_rounds", action="store_false",
+                   help="for data without a mode column, climb the filter's likelihood from the start directly "
+                        "instead of first labelling the rows by their most probable modes and fitting to those "
+                        "labels (faster where the priors are already close; far from the truth it stays there)")
     p.add_argument("--strict", action="store_true",
                    help="exit with status 1 when the fit cannot be trusted (it did not converge, or its curvature "
                         "is noise: the warnings of the report); the fitted spec is written all the same")
@@ -50,7 +54,7 @@ def main(args) -> int:
     check_file(args.output, inputs=[args.spec, *args.data])  # before the work: never over an input
     progress = None if args.quiet else (lambda text: print(text, file=sys.stderr, flush=True))
     result = fit(args.spec, args.data, algorithm=args.filter, samples=args.samples, starts=args.starts,
-                 seed=args.seed, progress=progress)
+                 seed=args.seed, label_rounds=args.label_rounds, progress=progress)
     print(result.report(), file=sys.stderr)
     result.write(args.output)
     if args.output != "-":

@@ -30,14 +30,16 @@ __all__ = ["fit", "Fit", "Family", "FitError"]
 
 
 def fit(spec, data, *, algorithm: str = "imm", samples: int = 0, starts: int = 1, seed=None,
-        progress=None) -> Fit:
+        label_rounds: bool = True, progress=None) -> Fit:
     """Fit a spec's unknowns to data.
 
     spec: a .jmlg path or a parsed Spec. data: a CSV path, a jmlgdsl.data.Data, or a list of them
     (several recordings of the same plant). Rows whose every `mode` cell is filled give an exact
     likelihood; other recordings use the filter's (`algorithm`, IMM by default). `samples` > 0 adds
     posterior draws by random-walk Metropolis; `starts` > 1 also starts the search from starts - 1 draws
-    of the priors and keeps the highest peak (both seeded by `seed`). The returned Fit has the estimates,
+    of the priors and keeps the highest peak (both seeded by `seed`). Where some data are unlabelled, each
+    start first goes through rounds of labelling them by their most probable modes (`label_rounds`
+    False skips them: the search climbs the filter's likelihood from the start itself). The returned Fit has the estimates,
     standard errors, the fitted Model, `warnings` where the fit cannot be trusted (it did not converge,
     or its curvature is noise), and `text`, the spec rewritten with the fitted values and those warnings."""
     if samples < 0 or starts < 1:
@@ -51,7 +53,7 @@ def fit(spec, data, *, algorithm: str = "imm", samples: int = 0, starts: int = 1
                   for d in (data if isinstance(data, (list, tuple)) else [data])]
     if not recordings:
         raise FitError("no data to fit to")
-    result = maximise(family, recordings, algorithm, samples, seed, progress, starts)
+    result = maximise(family, recordings, algorithm, samples, seed, progress, starts, label_rounds)
     sources = ", ".join(Path(d.source).name for d in recordings)
     header = "\n".join([f"Fitted by 'jmlgdsl fit' to {sources}: log-likelihood {result.loglik_start:.6g} "
                         f"at the priors' medians, {result.loglik:.6g} fitted."]

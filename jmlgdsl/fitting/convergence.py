@@ -79,14 +79,16 @@ def ill_conditioned(H: np.ndarray) -> list[str]:
     return []
 
 
-def unmoved(z: np.ndarray, start: np.ndarray, informed, family) -> list[str]:
-    """A warning naming the unknowns the data inform that ended within UNMOVED prior standard
-    deviations of where the search began: a search that never left its start."""
-    names = [n for n, p, a, b, i in zip(family.names, family.priors, z, start, informed)
-             if i and abs(a - b) < UNMOVED * (p.args[1] if p.family in ("Normal", "LogNormal") else 1.0)]
+def unmoved(z: np.ndarray, start: np.ndarray, touched, family) -> list[str]:
+    """A warning naming the unknowns that ended within UNMOVED prior standard deviations (in z) of where
+    the search began though the data bear on them (`touched`: their curvature is not their prior's): a
+    search that never left its start. An unknown the data do not touch rightly stays at its prior's
+    median."""
+    names = [n for n, p, a, b, t in zip(family.names, family.priors, z, start, touched)
+             if t and abs(a - b) < UNMOVED * (p.args[1] if p.family in ("Normal", "LogNormal") else 1.0)]
     if not names:
         return []
-    return [f"{', '.join(names)} did not move from where the search started, though the data inform "
+    return [f"{', '.join(names)} did not move from where the search started, though the data bear on "
             f"{'it' if len(names) == 1 else 'them'}: the search did not find a peak"]
 
 

@@ -94,12 +94,13 @@ class Fit:
 
 
 def maximise(family: Family, datasets, algorithm: str = "imm", samples: int = 0, seed=None, progress=None,
-             starts: int = 1) -> Fit:
+             starts: int = 1, rounds: bool = True) -> Fit:
     """The maximum a posteriori values of the family's unknowns given the datasets (jmlgdsl.data.Data),
     with Laplace standard errors; `samples` > 0 adds that many Metropolis draws. The search starts at
     the priors' medians and, with `starts` > 1, also at starts - 1 draws from the priors, keeping the
     highest peak found; where some data are unlabelled, each start first goes through rounds of
-    labelling (jmlgdsl.fitting.labels). `progress(text)` hears of each round and optimiser iteration."""
+    labelling (jmlgdsl.fitting.labels) unless `rounds` is False. `progress(text)` hears of each round
+    and optimiser iteration."""
     start = time.perf_counter()
     rng = generator(seed)
     post = Posterior(family, datasets, algorithm)
@@ -112,7 +113,7 @@ def maximise(family: Family, datasets, algorithm: str = "imm", samples: int = 0,
     for note in alike:
         say(f"note: {note}")
     objective = Cached(post)
-    results = _search(post, objective, z0, starts, rng, say)
+    results = _search(post, objective, z0, starts, rng, say, rounds and not all(map(labelled, datasets)))
     z_start, result = min(results, key=lambda r: r[1].fun)
     z = result.x
     say("curvature at the estimate (Laplace)")
@@ -139,7 +140,7 @@ def maximise(family: Family, datasets, algorithm: str = "imm", samples: int = 0,
     warnings = ([f"the optimiser stopped early: {result.message}"] if result.nit >= MAX_ITERATIONS else []) \
         + convergence.not_at_peak(cov_z, gradient, family.names) \
         + convergence.curvature_mismatch(objective, z, f0, H, family.names) + convergence.ill_conditioned(H) \
-        + convergence.unmoved(z, z_start, informed, family) \
+        + convergence.unmoved(z, z_start, ~np.isclose(np.diag(H), own, rtol=PRIOR_SHARE - 1, atol=0), family) \
         + convergence.misfit(model, datasets, algorithm, loglik)
     draws, acceptance = (None, math.nan)
     if samples:
@@ -149,22 +150,21 @@ def maximise(family: Family, datasets, algorithm: str = "imm", samples: int = 0,
 
 
 def _search(post: Posterior, objective: Cached, z0: np.ndarray, starts: int, rng: np.random.Generator,
-            say) -> list:
-    """BFGS from z0 and from starts - 1 draws of the priors, each after rounds of labelling where some
-    data are unlabelled: (the start, scipy's result) per start."""
+            say, rounds: bool) -> list:
+    """BFGS from z0 and from starts - 1 draws of the priors, each after rounds of labelling if `rounds`:
+    (the start, scipy's result) per start."""
     iterations = itertools.count(1)
 
     def report_iteration(z):
         say(f"iteration {next(iterations)}: log posterior {-objective(z):.8g}")
 
-    unlabelled = not all(map(labelled, post.datasets))
     results = []
     for i in range(starts):
         z_start = z0 if i == 0 else np.array([p.to_z(p.draw(rng)) for p in post.family.priors])
         if starts > 1:
             say(f"start {i + 1} of {starts}" + (" (the priors' medians)" if i == 0 else " (drawn from the priors)"))
         z = z_start
-        if unlabelled:
+        if rounds:
             z = min((label_rounds(post, z_start, say), z_start), key=objective)  # never below the start
         results.append((z_start, bfgs(objective, z, report_iteration)))
     return results
