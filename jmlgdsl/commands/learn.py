@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import sys
 
 from ..errors import JmlgError
@@ -48,6 +49,13 @@ def register(subparsers):
     p.add_argument("--initial", type=probability, default=0.99, metavar="P",
                    help="prior probability of the first --mode, taken as the healthy one; the rest is "
                         "shared uniformly (without --template; default 0.99)")
+    p.add_argument("--relative-to", metavar="MODE",
+                   help="learn every other mode relative to this one (the normal one): its dynamics and noise "
+                        "shrunk toward MODE's as far as cross-validation on the mode's own rows says, with its "
+                        "own offset and noise scale; for short fault recordings over many sensors")
+    p.add_argument("--catch-all", metavar="NAME=SCALE", type=catch_all,
+                   help="add a mode NAME: the first mode with every noise sd times SCALE (as 'like FIRST "
+                        "{ noise scale SCALE }'), the detector of 'run --detect FIRST,NAME' (without --template)")
     p.add_argument("--max-iter", type=whole(0), default=100, help="EM iteration cap (default 100)")
     p.add_argument("--tol", type=float, default=1e-5, help="EM relative log-likelihood tolerance (default 1e-5)")
     p.add_argument("--figures", metavar="DIR", help="write validation (and step-fit) figures here")
@@ -66,6 +74,18 @@ def parse_modes(items):
             raise JmlgError(f"--mode takes NAME=CSV, not {item!r}")
         modes.setdefault(name, []).append(path)
     return modes
+
+
+def catch_all(text: str) -> tuple[str, float]:
+    """(name, scale) from NAME=SCALE."""
+    name, sep, scale = text.partition("=")
+    try:
+        value = float(scale)
+    except ValueError:
+        value = float("nan")
+    if not (sep and name.isidentifier() and value > 1):
+        raise argparse.ArgumentTypeError(f"expected NAME=SCALE with a scale above 1, not {text!r}")
+    return name, value
 
 
 def names(text: str) -> tuple[str, ...]:
@@ -87,7 +107,8 @@ def main(args) -> int:
     bank = learn(paths, jmlgdsl.load(args.template) if args.template else None, outputs=args.outputs,
                  inputs=args.inputs, dt=args.dt, name=args.name, stay=args.stay, initial=args.initial,
                  order=args.order, fopdt=args.fopdt, criterion=args.criterion, max_order=args.max_order,
-                 max_delay=args.max_delay, max_iter=args.max_iter, tol=args.tol,
+                 max_delay=args.max_delay, max_iter=args.max_iter, tol=args.tol, relative_to=args.relative_to,
+                 catch_all=args.catch_all,
                  progress=None if args.quiet else (lambda text: print(text, file=sys.stderr, flush=True)))
     report = sys.stderr if args.spec_out == "-" else sys.stdout  # the spec alone on standard output
     bank.write(args.spec_out)

@@ -13,11 +13,12 @@ import numpy as np
 from scipy.linalg import LinAlgWarning, solve_discrete_lyapunov
 
 from ..names import plural
-from ..errors import DataError
+from ..errors import DataError, JmlgError
 from ..lang.probabilities import otherwise_uniform
 from ..model import Model
 from . import arx, basis, steptest
 from .resolution import noise_floor, resolution, unresolved
+from .relative import Reference, RelativeFit, fit_relative
 from .em import EMResult
 from .basis import LaggedMode
 from .statespace import StateSpace
@@ -47,6 +48,7 @@ class LearnedMode:
     validation: Validation
     fopdt: steptest.FopdtFit | None = None
     notes: tuple[str, ...] = ()
+    relative: RelativeFit | None = None
 
     @property
     def experiment(self) -> Experiment:
@@ -84,8 +86,9 @@ class LearnedMode:
         else:
             verdict = (f"residual tests fail for {_listed(failing, str)} ({len(failing)} of {ny} outputs; "
                        f"a right model fails about {v.by_chance:.2g} by chance)")
-        line = (f"{self.name}: {self.structure}, EM {plural(self.em.iterations, 'iteration')}{self._stop()}, "
-                f"log-lik {self.em.loglik[-1]:.6g}; "
+        fitted = ("" if self.relative is not None else
+                  f", EM {plural(self.em.iterations, 'iteration')}{self._stop()}, log-lik {self.em.loglik[-1]:.6g}")
+        line = (f"{self.name}: {self.structure}{fitted}; "
                 f"poles {_listed(self.mode.poles())}; {gain}measurement sd {np.sqrt(np.diag(self.mode.R)).max():.3g}; "
                 f"{fit}; {verdict}")
         return "\n".join([line] + [f"  {note}" for note in self.notes])
@@ -119,7 +122,8 @@ class LearnedMode:
 
 
 def learn_modes(experiments: dict, order="auto", fopdt=False, dt=1.0, max_order=4, max_delay=0,
-                criterion="bic", max_iter=100, tol=1e-5, progress=None, outputs=None) -> list[LearnedMode]:
+                criterion="bic", max_iter=100, tol=1e-5, progress=None, outputs=None,
+                relative_to: str | None = None) -> list[LearnedMode]:
     """Fit every mode: `experiments` maps a mode's name to its Experiment, or to a list of them (runs
     of the same mode, pooled: their equations in least squares, their moments in EM). Structure:
     ARX order (na, nb, nk), "auto", or FOPDT step tests (one per mode).
@@ -134,7 +138,16 @@ def learn_modes(experiments: dict, order="auto", fopdt=False, dt=1.0, max_order=
     rounding to it would (a stuck sensor, collinear sensors: their measurement noise is floored at
     that rounding), and then of each mode as it is learned (a bank can take minutes). `outputs`
     names the outputs in those lines (default y1, y2, ...).
+
+    `relative_to` names a mode (the normal one) learned first as above; every other mode is then
+    learned relative to it (`relative`): its dynamics, offset and covariance, shrunk toward the
+    reference's as far as cross-validation on its own rows says, for fault recordings too short for
+    a model of their own.
     """
+    if relative_to is not None and relative_to not in experiments:
+        raise JmlgError(f"relative_to: no mode {relative_to!r} among {', '.join(experiments)}")
+    if relative_to is not None and fopdt:
+        raise JmlgError("modes relative to another are regressions, not step-test fits: relative_to takes no fopdt")
     by_mode = {k: tuple(v) if isinstance(v, (list, tuple)) else (v,) for k, v in experiments.items()}
     for name, exps in by_mode.items():
         sources = ", ".join(e.source for e in exps)
@@ -174,18 +187,34 @@ def learn_modes(experiments: dict, order="auto", fopdt=False, dt=1.0, max_order=
         def learn_mode(k, exps):
             return min((_refine_arx(k, exps, (n, n, 0), max_iter, tol, steps, notes[k]) for n in orders),
                        key=lambda lm: lm.criterion(criterion))
-    learned = []
+    learned, reference = {}, None
     start = time.perf_counter()
-    for i, (k, exps) in enumerate(by_mode.items(), 1):
-        learned.append(learn_mode(k, exps))
+    first = [relative_to] if relative_to is not None else []
+    for i, k in enumerate(dict.fromkeys(first + list(by_mode)), 1):
+        exps = by_mode[k]
+        if reference is None:
+            lm = learned[k] = learn_mode(k, exps)
+            if relative_to is not None:
+                reference = Reference.of([e.y for e in exps], [e.u for e in exps], lm.mode.lags, steps[:ny])
+        else:
+            lm = learned[k] = _relative(k, exps, reference, relative_to, steps, notes[k])
         if progress is not None:
-            lm = learned[-1]
-            progress(f"learned mode {i} of {len(by_mode)}, {k}: {lm.structure}, "
-                     f"EM {plural(lm.em.iterations, 'iteration')} "
+            fitted = "" if lm.relative is not None else f", EM {plural(lm.em.iterations, 'iteration')}"
+            progress(f"learned mode {i} of {len(by_mode)}, {k}: {lm.structure}{fitted} "
                      f"({time.perf_counter() - start:.1f} s so far)")
             for line in lm.notes[len(notes[k]):]:
                 progress(f"mode {k}: {line}")
-    return learned
+    return [learned[k] for k in by_mode]
+
+
+def _relative(name, exps, reference: Reference, reference_name, steps, notes) -> LearnedMode:
+    """One mode learned relative to the reference (`relative.fit_relative`), kept stable and validated."""
+    mode, fit = _located(exps[0], fit_relative, reference, [e.y for e in exps], [e.u for e in exps],
+                         exps[0].source)
+    mode, notes = _stable_mode(mode, exps, notes)
+    longest = max(exps, key=lambda e: len(e.y))
+    return LearnedMode(name, exps, fit.structure(reference_name), mode, EMResult(mode.reduced(), np.array([np.nan]), True),
+                       mode, validate(mode.statespace(longest.u[0]), longest.y, longest.u), None, notes, fit)
 
 
 def _refine_arx(name, exps, order, max_iter, tol, steps, notes) -> LearnedMode:
@@ -204,16 +233,23 @@ def _refine(name, exps, start: LaggedMode, structure, max_iter, tol, steps, note
     ny = start.ny
     mode, result = basis.fit_em(start, [e.y for e in exps], [e.u for e in exps], max_iter=max_iter, tol=tol,
                                 steps=steps[:ny])
-    radius = float(np.abs(mode.poles()).max())
-    if radius >= 1:
-        level = np.nanmean(np.vstack([e.y for e in exps]), axis=0)
-        mode = basis.stabilised(mode, level)
-        notes = notes + (f"poles scaled from modulus {radius:.6g} to {basis.MAX_RADIUS:g}: the data drift as if "
-                         "integrating (not stationary over the recording), which no stable mode reproduces; "
-                         "one-step predictions at the data's mean level are unchanged",)
+    mode, notes = _stable_mode(mode, exps, notes)
     longest = max(exps, key=lambda e: len(e.y))
     return LearnedMode(name, exps, structure, start, result, mode,
                        validate(mode.statespace(longest.u[0]), longest.y, longest.u), fopdt, notes)
+
+
+def _stable_mode(mode: LaggedMode, exps, notes) -> tuple[LaggedMode, tuple[str, ...]]:
+    """The mode with its poles brought inside the unit circle when the fit left any on or outside
+    it (`basis.stabilised`), and the notes with a line saying so."""
+    radius = float(np.abs(mode.poles()).max())
+    if radius < 1:
+        return mode, notes
+    level = np.nanmean(np.vstack([e.y for e in exps]), axis=0)
+    return basis.stabilised(mode, level), notes + (
+        f"poles scaled from modulus {radius:.6g} to {basis.MAX_RADIUS:g}: the data drift as if integrating (not "
+        "stationary over the recording), which no stable mode reproduces; one-step predictions at the data's mean "
+        "level are unchanged",)
 
 
 def _unresolved(exps, steps, outputs) -> tuple[str, ...]:
@@ -308,3 +344,24 @@ def assemble(learned: list[LearnedMode], *, P, p0, operating_input=None, **names
         B=B, D=np.stack([np.linalg.cholesky(m.R) for m in mods]), P=P, p0=p0, mu0=np.stack(x0),
         Sigma0=np.diag(spread), modes=tuple(lm.name for lm in learned),
         states=basis.state_names(outputs, inputs, n), **names)
+
+
+def with_catch_all(model: Model, name: str, scale: float, *, stay: float, initial: float) -> Model:
+    """The bank and one more mode, `name`: the first (healthy) mode with every noise standard
+    deviation times `scale`, as `like HEALTHY { noise scale S }` writes it. Anything unlike normal
+    operation is more probable under it than under the healthy mode, so with the healthy mode alone
+    it makes a detector that no fault mode has to be right for (`run --detect`). The transitions
+    become `stay STAY, otherwise uniform` and the prior `initial HEALTHY INITIAL, otherwise uniform`
+    over the larger bank."""
+    if name in model.modes:
+        raise JmlgError(f"the catch-all mode {name!r} is already a mode of the bank")
+    if not scale > 1:
+        raise JmlgError(f"the catch-all's noise scale must be above 1, not {scale}")
+    healthy = model.modes[0]
+    grown = {key: np.concatenate([getattr(model, key), getattr(model, key)[:1] * factor])
+             for key, factor in (("A", 1), ("F", 1), ("f", 1), ("C", 1), ("G", 1), ("g", 1), ("mu0", 1),
+                                 ("B", scale), ("D", scale))}
+    K = model.K + 1
+    return model.replace(**grown, P=default_transitions(K, stay), p0=healthy_prior(K, initial),
+                         modes=model.modes + (name,),
+                         descriptions={**model.descriptions, name: f"anything unlike {healthy}: its noise x{scale:g}"})

@@ -21,7 +21,7 @@ from ..model import Model
 from ..names import plural
 from ..output import writing
 from . import validate
-from .bank import Experiment, LearnedMode, assemble, default_transitions, healthy_prior, learn_modes
+from .bank import Experiment, LearnedMode, assemble, default_transitions, healthy_prior, learn_modes, with_catch_all
 from .resolution import RELATIVE
 from .writer import write_spec
 
@@ -65,7 +65,7 @@ class LearnedBank:
 def learn(experiments: dict, template: Model | None = None, *, outputs=(), inputs=(), dt: float = 1.0,
           name: str = "plant", stay: float = 0.99, initial: float = 0.99, order="auto", fopdt: bool = False,
           criterion: str = "bic", max_order: int = 4, max_delay: int = 0, max_iter: int = 100, tol: float = 1e-5,
-          progress=None) -> LearnedBank:
+          relative_to: str | None = None, catch_all: tuple[str, float] | None = None, progress=None) -> LearnedBank:
     """Learn a mode bank from experiments of every mode (docs/learning.md).
 
     experiments: {mode: source or [source, ...]}. A source is a CSV path, read by the bank's column
@@ -83,8 +83,17 @@ def learn(experiments: dict, template: Model | None = None, *, outputs=(), input
     ARX(N, N, 0), or (na, nb, nk), either also as text ("2", "2,2,1"); `fopdt`: each mode's one
     experiment is a step test. EM stops after `max_iter` iterations or when the log-likelihood gains
     less than `tol` relative. `progress(text)`, when given, hears of each mode as it is learned.
+
+    `relative_to`: a mode (the normal one) whose dynamics and covariance every other mode is learned
+    relative to, with its own offset and scale and changes shrunk as cross-validation on its own
+    rows says (`relative`): for short fault recordings over many sensors. `catch_all` = (NAME,
+    SCALE): one more mode, the first mode with its noise times SCALE (`bank.with_catch_all`), with
+    which the first mode alone detects anything unlike it (`run --detect FIRST,NAME`); not with a
+    template, whose transitions and prior have no place for it.
     """
     arx_order = _arx_order(order)
+    if catch_all is not None and template is not None:
+        raise JmlgError("catch_all takes no template: the template's transitions and prior have no place for it")
     for option, value, least in (("max_order", max_order, 1), ("max_delay", max_delay, 0),
                                  ("max_iter", max_iter, 0)):
         if value < least:
@@ -99,14 +108,20 @@ def learn(experiments: dict, template: Model | None = None, *, outputs=(), input
     by_mode = {mode: [e for source in sources[mode] for e in _experiments(source, columns, mode, k)]
                for k, mode in enumerate(modes)}
     learned = learn_modes(by_mode, arx_order, fopdt, frame["dt"], max_order, max_delay, criterion, max_iter, tol,
-                          progress, frame["outputs"])
+                          progress, frame["outputs"], relative_to)
     defaults = frame["input_defaults"]
     model = assemble(learned, operating_input=defaults if np.isfinite(defaults).all() else None, **frame)
+    if catch_all is not None:
+        model = with_catch_all(model, *catch_all, stay=stay, initial=initial)
     origins = dict.fromkeys(s.source if isinstance(s, Experiment) else str(s) for given in sources.values()
                             for s in given)
     how = ("FOPDT fits of step tests" if fopdt else
            f"states chosen by {criterion.upper()} of the EM fits, started from ARX" if arx_order == "auto"
            else f"ARX order {_written(order)}")
+    if relative_to is not None:
+        how += f"; the other modes relative to {relative_to} (cross-validated shrinkage toward its dynamics and noise)"
+    if catch_all is not None:
+        how += f"; catch-all mode {catch_all[0]}: {model.modes[0]} with its noise x{catch_all[1]:g}"
     return LearnedBank(tuple(learned), model,
                        write_spec(model, _header(origins, how, max_iter, tol, learned, model.outputs)))
 
