@@ -55,7 +55,21 @@ def register(subparsers):
                         "at and the outputs that carry it (their share of the log-likelihood ratio of that mode "
                         "against the healthy ones, in nats); with -o the table gains the columns evidence_mode "
                         "and evidence_<output>")
+    split = p.add_argument_group("detect, then name (one data file; the table holds the detector's columns)")
+    split.add_argument("--detect", metavar="MODE,MODE[,...]", type=mode_list,
+                       help="the alarm from these modes alone (the healthy ones and a catch-all, e.g. "
+                            "normal,anomaly; default: the whole bank)")
+    split.add_argument("--name", metavar="MODE,MODE[,...]", type=mode_list,
+                       help="while the alarm is up, name each row by the most probable of these modes (the "
+                            "fault modes, filtered on their own; default: the modes outside --detect). With the "
+                            "true mode in the data the summary adds, per fault, the share of its rows named right "
+                            "and the confusion among the faults")
     p.set_defaults(func=main)
+
+
+def mode_list(text: str) -> tuple[str, ...]:
+    """Mode names from comma-separated text."""
+    return tuple(m.strip() for m in text.split(",") if m.strip())
 
 
 def main(args) -> int:
@@ -66,13 +80,16 @@ def main(args) -> int:
 
     from ..data import iter_rows, open_source, open_target
     from ..diagnosis import AlarmRule, Diagnosis, Kept, Raised, TableSink
+    from ..diagnosis.alarms import DetectThenName
     from ..diagnosis.prefilter import parse
-    from ..diagnosis.report import evidence_report
-    from ..errors import DataError
+    from ..diagnosis.report import evidence_report, naming_report
+    from ..errors import DataError, JmlgError
     from ..output import FIGURE, check_file
     from ..progress import Progress
 
     if len(args.data) > 1:
+        if args.detect or args.name:
+            raise JmlgError(f"--detect and --name take one data file, not {len(args.data)}")
         return fleet(args)
     args.data = args.data[0]
     streaming = args.data == "-"
@@ -84,6 +101,15 @@ def main(args) -> int:
     model = jmlgdsl.load(args.spec)
     check_particles(args, model)
     healthy = healthy_modes(args) or model.modes[:1]
+    naming = None
+    if args.detect or args.name:
+        for given, option in ((args.prefilter, "--prefilter"), (args.explain or None, "--explain")):
+            if given is not None:
+                raise JmlgError(f"--detect and --name take no {option}: the namer filters the rows as they are")
+        naming = DetectThenName(model, args.detect, args.name, healthy,
+                                algorithm=args.filter, particles=args.particles, seed=args.seed,
+                                resampling=args.resampling, ess_threshold=args.ess_threshold)
+        model = naming.detector
     kept = Kept() if args.plot else None
     raised = Raised() if args.explain else None
     # a running count on a terminal, unless the table itself is streaming to the screen
@@ -98,12 +124,16 @@ def main(args) -> int:
         if args.output is not None:  # the table appears whole when the run ends, or not at all
             out = stack.enter_context(open_target(args.output))
             diagnosis.sinks.append(TableSink(out, model, diagnosis.filter.lag, flush=streaming, explain=args.explain))
-        diagnosis.sinks += [sink for sink in (kept, raised) if sink is not None]
-        diagnosis.run(iter_rows(source, model, source.name))
+        diagnosis.sinks += [sink for sink in (kept, raised, naming) if sink is not None]
+        rows = iter_rows(source, model if naming is None else naming.whole, source.name)
+        diagnosis.run(rows if naming is None else naming.rows(rows))
         if not diagnosis.summary.T:
             raise DataError(f"{source.name}: no data rows")
     out = sys.stderr if args.output == "-" else sys.stdout
     print(diagnosis.report(), file=out)
+    counts = None if naming is None else naming.counts()
+    if counts is not None:
+        print("\n".join(naming_report(naming.namer.modes, counts)), file=out)
     if raised is not None:
         print("\n".join(evidence_report(model, raised)), file=out)
     if args.plot:

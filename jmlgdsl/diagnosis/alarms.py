@@ -7,6 +7,8 @@ out whether a whole posterior is given at once (`AlarmRule.alarms`) or row by ro
 
 from __future__ import annotations
 
+import dataclasses
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -85,3 +87,86 @@ class AlarmStream:
 def _fault_probability(posterior, faulty: np.ndarray):
     """The posterior mass of the faulty modes, row by row (the same sums in batch and on a stream)."""
     return np.asarray(posterior, dtype=float)[..., faulty].sum(axis=-1)
+
+
+def sub_bank(model, modes):
+    """The Model restricted to some of its modes (names, kept in the model's order): their matrices,
+    the transitions among them with each row renormalised (a mode that only ever left for the others
+    stays), and the prior renormalised (uniform when it gives them nothing). How `run --detect`
+    splits one bank into a detector and a namer."""
+    index = sorted({model.mode_index(name) for name in modes})
+    P = model.P[np.ix_(index, index)]
+    sums = P.sum(axis=1, keepdims=True)
+    p0 = model.p0[index]
+    per_mode = ("A", "B", "C", "D", "F", "G", "f", "g", "mu0")
+    return model.replace(**{key: getattr(model, key)[index] for key in per_mode},
+                         P=np.where(sums > 0, P / np.where(sums > 0, sums, 1.0), np.eye(len(index))),
+                         p0=p0 / p0.sum() if p0.sum() > 0 else np.full(len(index), 1.0 / len(index)),
+                         modes=tuple(model.modes[k] for k in index),
+                         descriptions={model.modes[k]: model.descriptions[model.modes[k]] for k in index
+                                       if model.modes[k] in model.descriptions})
+
+
+class DetectThenName:
+    """Detect, then name, in one run over one bank: the alarm comes from the `detect` modes (default:
+    the whole bank) as the rule says, and while it is up each row is named by the most probable of
+    the `name` modes (default: the modes outside `detect`), the fault modes, filtered on their own
+    over every row.
+
+    A bank of fault modes alone puts some fault on top in normal operation too, so it cannot raise
+    the alarm; a detector (a healthy mode against a catch-all such as `like normal { noise scale 3
+    }`, or the whole bank with its healthy and fault modes) need not name anything right. Each keeps
+    to what it is good at. `detector` and `namer` are the two sub-banks (`sub_bank`); `rows(source)`
+    passes the rows on to the detector's Diagnosis, its truth as a 0/1 anomaly (true mode not
+    healthy), and keeps each row's true mode for the naming scores; the object is then a sink of that
+    Diagnosis: `collect` steps the namer's Filter on each finished row and names the row when its
+    alarm is up. `filter_options` go to the namer's Filter.
+    """
+
+    def __init__(self, model, detect, name, healthy, **filter_options):
+        from ..infer import Filter
+
+        detect = list(dict.fromkeys(detect or model.modes))
+        name = list(dict.fromkeys(name or [m for m in model.modes if m not in detect]))
+        for option, given in (("--detect", detect), ("--name", name)):
+            unknown = [m for m in given if m not in model.modes]
+            if unknown:
+                raise DataError(f"{option}: unknown mode {unknown[0]!r}{suggest(unknown[0], model.modes)}")
+        if not set(healthy) <= set(detect) or set(detect) <= set(healthy):
+            raise DataError("--detect: the detecting modes must hold the healthy ones and at least one other")
+        if not name or set(name) & set(healthy):
+            raise DataError("--name: the naming modes are fault modes: at least one, and none of the healthy ones")
+        self.whole = model
+        self.detector = sub_bank(model, detect)
+        self.namer = sub_bank(model, name)
+        self.faults = np.array([self.namer.modes.index(m) if m in self.namer.modes else -1
+                                for m in model.modes])  # the whole bank's mode index -> fault index (-1: none)
+        self.healthy = np.array([m in healthy for m in model.modes])
+        self.filter = Filter(self.namer, **filter_options)
+        self._truth = deque()  # the true mode of each row passed on and not yet collected
+        self.true, self.named = [], []
+
+    def rows(self, rows):
+        """The rows for the detector: the true mode taken out (its indices are the whole bank's),
+        the truth left as a 0/1 anomaly label."""
+        for row in rows:
+            self._truth.append(row.mode)
+            anomaly = row.anomaly
+            if anomaly is None and row.mode is not None:
+                anomaly = int(not self.healthy[row.mode])
+            yield dataclasses.replace(row, mode=None, anomaly=anomaly)
+
+    def collect(self, done):
+        """Step the namer on a finished row of the detector; name it when its alarm is up."""
+        step = self.filter.step(done.row.y, done.row.u)
+        truth = self._truth.popleft()
+        self.true.append(-1 if truth is None else int(self.faults[truth]))
+        self.named.append(int(np.argmax(step.mode_posterior)) if done.alarm else -1)
+
+    def counts(self):
+        """The naming scores (`metrics.NamingCounts`), or None when the data carry no true mode."""
+        from .metrics import naming_counts
+
+        if all(t < 0 for t in self.true):
+            return None
+        return naming_counts(self.true, self.named, self.namer.K)

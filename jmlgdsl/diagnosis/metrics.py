@@ -312,3 +312,53 @@ def score(alarm, anomaly, time, changepoint=None, window: float = WINDOW) -> Sco
     """All the scores of one file's 0/1 alarm series against its labels; NAB only with change points."""
     nab = NabCounts() if changepoint is None else nab_counts(changepoints(alarm), changepoint, time, window)
     return Scores(outlier_counts(alarm, anomaly), event_counts(alarm, anomaly, time), nab)
+
+
+@dataclass(frozen=True)
+class NamingCounts:
+    """How the rows of each true fault were named: `confusion` (F, F + 1) counts rows whose true
+    mode is fault i and which were named fault j, the last column the rows not named (no alarm up).
+    Counts pool by addition, as the other scores do."""
+
+    confusion: np.ndarray
+
+    def __add__(self, other: "NamingCounts") -> "NamingCounts":
+        return NamingCounts(self.confusion + other.confusion)
+
+    @property
+    def rows(self) -> np.ndarray:
+        """(F,) the rows of each true fault."""
+        return self.confusion.sum(axis=1)
+
+    @property
+    def right(self) -> np.ndarray:
+        """(F,) the rows of each true fault named right."""
+        return np.diag(self.confusion[:, :-1])
+
+    @property
+    def accuracy(self) -> np.ndarray:
+        """(F,) % of each fault's rows named right (NaN for a fault with no rows)."""
+        return np.array([_ratio(100 * r, n) for r, n in zip(self.right, self.rows)])
+
+    @property
+    def alarmed_accuracy(self) -> np.ndarray:
+        """(F,) % of each fault's rows named right among those named (the alarm up)."""
+        return np.array([_ratio(100 * r, n) for r, n in zip(self.right, self.rows - self.confusion[:, -1])])
+
+    @property
+    def overall(self) -> float:
+        """% of every fault's rows, together, named right."""
+        return _ratio(100 * self.right.sum(), self.rows.sum())
+
+
+def naming_counts(true_faults, named, F: int) -> NamingCounts:
+    """The naming of rows whose true fault index is in 0..F-1 (other rows, e.g. normal ones, given as
+    -1, are left out) by the named fault index, -1 where none was named."""
+    true_faults, named = np.asarray(true_faults, dtype=int), np.asarray(named, dtype=int)
+    if true_faults.shape != named.shape:
+        raise ValueError(f"{true_faults.shape} true faults against {named.shape} named")
+    if (true_faults >= F).any() or (named >= F).any() or (named < -1).any():
+        raise ValueError(f"fault indices must lie in 0..{F - 1} (or -1)")
+    scored = true_faults >= 0
+    column = np.where(named[scored] < 0, F, named[scored])
+    return NamingCounts(np.bincount(true_faults[scored] * (F + 1) + column, minlength=F * (F + 1)).reshape(F, F + 1))

@@ -88,3 +88,22 @@ def evidence_report(model, raised) -> list[str]:
     if raised.more:
         lines.append(f"  \u2026 {plural(raised.more, 'more alarm')} (see the evidence columns of the output CSV)")
     return lines
+
+
+def naming_report(faults, counts) -> list[str]:
+    """Lines on the naming of a detect-then-name run (`alarms.DetectThenName`) against the true modes:
+    per fault, the share of its rows named right (all of them; and of those named while the alarm
+    was up), then the confusion among the fault modes with a column for the rows not named."""
+    lines = [f"naming: {counts.overall:.1f} % of the faulty rows named right "
+             f"({int(counts.right.sum())} of {plural(int(counts.rows.sum()), 'row')})"]
+    for name, n, right, share, alarmed in zip(faults, counts.rows, counts.right, counts.accuracy,
+                                              counts.alarmed_accuracy):
+        if n:
+            lines.append(f"  {name}: {share:.1f} % ({right} of {n}), {alarmed:.1f} % of the rows named")
+    columns = list(faults) + ["none"]
+    width = max(6, *(len(m) for m in columns), len(str(int(counts.confusion.max()))))
+    lines += ["naming confusion (rows: true fault, columns: named fault, none: no alarm; steps):",
+              "  " + " " * width + " " + " ".join(f"{m:>{width}}" for m in columns)]
+    lines += [f"  {m:>{width}} " + " ".join(f"{int(c):>{width}}" for c in row)
+              for m, row, n in zip(faults, counts.confusion, counts.rows) if n]
+    return lines
