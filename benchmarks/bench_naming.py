@@ -244,12 +244,10 @@ def naming(names: list, test) -> dict:
     """Per fault, % of its faulty test rows named right; and over every faulty row ('all')."""
     right = {fault: [] for fault in FAULTS}
     for named, (_, _, truth) in zip(names, test):
-        faulty = truth != "normal"
         for fault in FAULTS:
             rows = truth == fault
             if rows.any():
                 right[fault].append(named[rows] == fault)
-        del faulty
     out = {fault: 100 * np.concatenate(r).mean() for fault, r in right.items()}
     out["all"] = 100 * np.concatenate([np.concatenate(r) for r in right.values()]).mean()
     return out
