@@ -5,7 +5,6 @@ import warnings
 from dataclasses import replace
 
 import numpy as np
-import pytest
 from test_fit import DRYER, simulated
 
 import jmlgdsl
