@@ -83,8 +83,9 @@ def _fit_labelled(objective, z: np.ndarray) -> np.ndarray:
     last = {"z": z, "value": objective(z)}
 
     def enough(v):
-        gain = last["value"] - objective(v)
-        last.update(z=v.copy(), value=objective(v))
+        value = objective(v)
+        gain = last["value"] - value
+        last.update(z=v.copy(), value=value)
         if gain < ROUND_GAIN:
             raise _Enough
 
