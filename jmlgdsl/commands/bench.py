@@ -36,13 +36,16 @@ def register(subparsers):
     from ..studies.sweep import DEFAULT_FILTERS, DEFAULT_PARTICLES
 
     p = subparsers.add_parser(
-        "bench", help="compare filters and particle counts: diagnosis error, time per step",
+        "bench", help="compare filters and particle counts: diagnosis error, naming, time per step",
         description="Run every filter at every particle count on data whose true mode is known (a "
                     "'mode' column) or on freshly simulated sequences, --runs times each with seeds "
                     "derived from --seed. Prints the diagnosis error (% of steps whose most probable "
                     "mode is wrong), the detection delay of the mode switches, the alarms' F1, FAR, MAR "
-                    "and NAB score (the spec's first mode taken as healthy), time per step and "
-                    "log-likelihood as Markdown tables, and writes "
+                    "and NAB score (alarm: P(not healthy) > 0.5), the naming (% of the faulty rows "
+                    "named right: while the alarm is up, by the most probable non-healthy mode; the "
+                    "runs' counts pooled), time per step and log-likelihood as Markdown tables, then "
+                    "per fault the share of its rows named right and the confusion among the faults "
+                    "for the setting that names best; writes "
                     "the tables (Markdown, CSV), every run (CSV) and figures to the output folder.")
     p.add_argument("spec", help="plant spec (.jmlg) or compiled model (.json/.npz)")
     p.add_argument("data", nargs="*", help="CSV data files with a 'mode' column (or use --simulate)")
@@ -61,6 +64,9 @@ def register(subparsers):
     p.add_argument("--lag", type=_lags, default=(0,), metavar="L,...",
                    help="smoothing lags to compare, e.g. 0,5,10,offline (0 is the filter; default 0): adds "
                         "tables and a figure of error and detection delay against the lag")
+    p.add_argument("--healthy", metavar="MODE[,MODE...]",
+                   help="the modes that raise no alarm, as in run (default: the first mode of the spec); "
+                        "the others are the faults to name")
     p.add_argument("--workers", type=int, help="processes (default: every core; 1 runs in this process)")
     p.add_argument("--scheduler", metavar="ADDRESS", help="run on this Dask scheduler (needs the dask extra)")
     p.add_argument("-o", "--output", default="bench", help="folder for tables and figures (default ./bench)")
@@ -77,6 +83,7 @@ def main(args) -> int:
     from ..diagnosis.prefilter import parse
     from ..output import check_folder
     from ..studies.study import sources, study
+    from . import healthy_modes
 
     stems = [Path(p).stem for p in args.data] or ["simulated"]
     check_folder(args.output, ["runs.csv"] + [f"{s}-table.{x}" for s in stems for x in ("md", "csv")],
@@ -86,7 +93,7 @@ def main(args) -> int:
     data = sources(model, args.data, args.simulate, args.modes, args.spec if args.nonlinear else None)
     done = study(model, data, args.runs, filters=args.filters, particles=args.particles, seed=args.seed,
                  prefilter=window, workers=args.workers, scheduler=args.scheduler, progress=sys.stderr,
-                 lags=args.lag)
+                 lags=args.lag, healthy=healthy_modes(args))
     print(done.report())
     written = done.write(args.output, figures_too=not args.no_figures)
     print("wrote " + ", ".join(str(p) for p in written))

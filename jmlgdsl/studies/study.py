@@ -51,11 +51,18 @@ def sources(model: Model, data=(), simulate: int | None = None, modes: str | Non
 
 @dataclass(frozen=True)
 class Study:
-    """The per-run records of a sweep on a model, with their tables per data source."""
+    """The per-run records of a sweep on a model, with their tables per data source; `healthy` names
+    the modes that raise no alarm, the others are the faults named."""
 
     model: Model
     records: list
     runs: int
+    healthy: tuple[str, ...]
+
+    @property
+    def faults(self) -> list[str]:
+        """The non-healthy modes, in the spec's order: the faults the naming scores count."""
+        return [m for m in self.model.modes if m not in self.healthy]
 
     @cached_property
     def by_source(self) -> dict:
@@ -66,7 +73,8 @@ class Study:
 
     def report(self) -> str:
         """Every source's tables as Markdown, under a heading that names the source and the runs."""
-        return "\n".join(f"## {self.model.name}, {name}: {plural(self.runs, 'run')} per setting\n\n{report(summary)}"
+        return "\n".join(f"## {self.model.name}, {name}: {plural(self.runs, 'run')} per setting; healthy: "
+                         f"{', '.join(self.healthy)}\n\n{report(summary, self.faults)}"
                          for name, (_, summary) in self.by_source.items())
 
     def write(self, folder, figures_too=True) -> list[Path]:
@@ -83,7 +91,7 @@ class Study:
         model = self.model
         written = [put("runs.csv", lambda path: write_records_csv(path, self.records))]
         for name, (mine, summary) in self.by_source.items():
-            written += [put(f"{name}-table.md", lambda path: path.write_text(report(summary))),
+            written += [put(f"{name}-table.md", lambda path: path.write_text(report(summary, self.faults))),
                         put(f"{name}-table.csv", lambda path: write_table_csv(path, summary))]
             if figures_too:
                 first = mine[0].get("lag", 0)  # the study figures of the first lag asked for
@@ -96,6 +104,8 @@ class Study:
         return written
 
 
-def study(model: Model, data_sources, runs: int = 25, **options) -> Study:
-    """Sweep every setting over `data_sources` (see `sources`) `runs` times (options as `sweep.sweep`)."""
-    return Study(model, sweep(model, data_sources, runs=runs, **options), runs)
+def study(model: Model, data_sources, runs: int = 25, healthy=None, **options) -> Study:
+    """Sweep every setting over `data_sources` (see `sources`) `runs` times (options as `sweep.sweep`),
+    with the modes `healthy` raising no alarm (default: the spec's first mode)."""
+    records = sweep(model, data_sources, runs=runs, healthy=healthy, **options)
+    return Study(model, records, runs, tuple(healthy or model.modes[:1]))

@@ -4,6 +4,9 @@ The unit of work is `run_job(job) -> record`, a plain top-level function of pick
 sweep runs the same in a local process pool or on a Dask cluster. Seeds come from one root seed
 through `numpy.random.SeedSequence.spawn`, so a sweep reproduces bit for bit wherever it runs.
 Diagnosis error = percentage of steps whose most probable (MAP) mode differs from the true mode.
+Naming = percentage of the faulty rows (true mode not healthy) named right: while a row's alarm is up
+it is named by its most probable non-healthy mode, as `run --name` names rows; the counts of a
+setting's runs are pooled by adding them (`metrics.NamingCounts`), not averaged.
 """
 
 from __future__ import annotations
@@ -11,6 +14,7 @@ from __future__ import annotations
 import csv
 import functools
 import math
+import operator
 import os
 import zlib
 from dataclasses import dataclass
@@ -20,9 +24,11 @@ import numpy as np
 from ..diagnosis.alarms import AlarmRule
 from ..errors import DataError
 from ..infer import ALGORITHMS, filter as run_filter, particle_bytes, smooth
-from ..diagnosis.metrics import switch_delays
+from ..diagnosis.metrics import NamingCounts, naming_counts, switch_delays
+from ..diagnosis.report import naming_report
 from ..diagnosis.truth import detection_scores
 from ..model import Model
+from ..names import plural
 from ..output import check_count
 from ..diagnosis.prefilter import moving_average
 from ..progress import Progress
@@ -31,9 +37,9 @@ from ..simulate import simulate
 DEFAULT_PARTICLES = (1, 4, 10, 25, 50, 100, 200, 400, 800, 1600)
 DEFAULT_FILTERS = ("pf", "rbpf", "la-rbpf", "fc-rbpf", "imm")
 DETERMINISTIC = ("imm", "exact")
-RECORD_FIELDS = ("data", "filter", "particles", "lag", "run", "error", "delay", "f1", "far", "mar", "nab",
-                 "ms_per_step", "loglik")
-MEASURES = RECORD_FIELDS[5:]  # what a run measures, averaged over runs in the tables
+MEASURES = ("error", "delay", "f1", "far", "mar", "nab", "ms_per_step", "loglik")  # averaged over runs in the tables
+# each run's naming % as well (the tables pool the runs' counts instead of averaging it)
+RECORD_FIELDS = ("data", "filter", "particles", "lag", "run", *MEASURES, "naming")
 JOB_BYTES = 4096  # a job, its seeds and its record, to refuse a sweep too large to list
 
 
@@ -75,6 +81,7 @@ class Job:
     filter_seed: np.random.SeedSequence
     prefilter: int | None = None  # moving-average window applied to the outputs
     lag: int | None = 0  # smoothing lag (0: filtering, None: off-line)
+    healthy: tuple[str, ...] | None = None  # the modes that raise no alarm (None: the spec's first mode)
 
 
 def sequence_of(job: Job) -> Sequence:
@@ -122,35 +129,48 @@ def filter_job(job: Job):
 def run_job(job: Job) -> dict:
     """Filter (or smooth) one sequence and measure it: diagnosis error %, mean detection delay of the
     mode switches in steps (the lag included), the alarms' F1, FAR %, MAR % and NAB (standard) with
-    the spec's first mode as the healthy one, milliseconds per step, log-likelihood."""
+    the job's healthy modes, milliseconds per step, log-likelihood, and the naming of the faulty
+    rows: its % (`naming`) and its confusion counts as nested lists (`naming_confusion`, plain data
+    like the rest of the record)."""
     data, result = filter_job(job)
     delays = switch_delays(result.map_modes, data.modes, job.lag)
-    alarms = alarm_scores(job.model, result.mode_posterior, data.modes, job.lag)
+    rule = AlarmRule(job.healthy or job.model.modes[:1])
+    alarm = rule.alarms(result.mode_posterior, job.model.modes)
+    names = naming(rule.faulty_modes(job.model.modes), result.mode_posterior, alarm, data.modes)
     return {"data": data.name, "filter": job.algorithm, "particles": job.particles, "lag": job.lag, "run": job.run,
             "error": result.diagnosis_error(data.modes), "delay": float(delays.mean()) if len(delays) else math.nan,
-            **alarms, "ms_per_step": 1e3 * result.seconds / result.T, "loglik": result.loglik}
+            **alarm_scores(job.model, rule, alarm, data.modes, job.lag), "ms_per_step": 1e3 * result.seconds / result.T,
+            "loglik": result.loglik, "naming": names.overall, "naming_confusion": names.confusion.tolist()}
 
 
-def alarm_scores(model: Model, posterior, true_modes, lag) -> dict:
-    """F1, FAR, MAR and NAB (standard) of the default alarm rule (the first mode healthy, threshold
-    0.5) against the true modes; a smoothed row's alarm counts where it is known, `lag` rows later."""
-    rule = AlarmRule((model.modes[0],))
-    alarm, truth = rule.alarms(posterior, model.modes), rule.truth(true_modes, model.modes)
+def alarm_scores(model: Model, rule: AlarmRule, alarm, true_modes, lag) -> dict:
+    """F1, FAR, MAR and NAB (standard) of the rule's alarms (threshold 0.5) against the true modes; a
+    smoothed row's alarm counts where it is known, `lag` rows later."""
     if lag:
         alarm = np.concatenate([np.zeros(lag, dtype=alarm.dtype), alarm])[:len(alarm)]
-    summary = detection_scores(alarm, truth, model.dt).summary()
+    summary = detection_scores(alarm, rule.truth(true_modes, model.modes), model.dt).summary()
     return {"f1": summary["f1"], "far": summary["far"], "mar": summary["mar"], "nab": summary["nab_standard"]}
 
 
+def naming(faulty, posterior, alarm, true_modes) -> NamingCounts:
+    """How the faulty rows were named, fault i being the i-th non-healthy mode (`faulty`, (K,) bool):
+    a row whose alarm is up is named by its most probable non-healthy mode, any other row is not named.
+    A smoothed row is named from its own smoothed posterior and alarm."""
+    fault_of = np.where(faulty, np.cumsum(faulty) - 1, -1)  # mode index -> fault index (-1: healthy)
+    named = np.where(alarm == 1, np.argmax(np.asarray(posterior)[:, faulty], axis=1), -1)
+    return naming_counts(fault_of[np.asarray(true_modes, dtype=int)], named, int(faulty.sum()))
+
+
 def make_jobs(model, sources, filters=DEFAULT_FILTERS, particles=DEFAULT_PARTICLES, runs=25, seed=0,
-              prefilter=None, lags=(0,)) -> list[Job]:
+              prefilter=None, lags=(0,), healthy=None) -> list[Job]:
     """Every (source, filter, particle count, run) with seeds derived from `seed`.
 
     Run r draws its data from the same seed for every filter (paired comparisons); each filter and
     particle count gets its own stream, keyed by (run, filter name, particle count), so adding a
     filter or a count to a sweep leaves every other setting's draws as they were. Deterministic
     filters (imm, exact) run once per run. Each smoothing lag in `lags` (0: the filter, None:
-    off-line) is a job of its own with the same seeds as the filter's.
+    off-line) is a job of its own with the same seeds as the filter's. `healthy` names the modes
+    that raise no alarm (default: the spec's first mode); at least one other mode must remain.
     """
     if not filters:
         raise DataError(f"no filter to run; choose from {', '.join(ALGORITHMS)}")
@@ -161,6 +181,8 @@ def make_jobs(model, sources, filters=DEFAULT_FILTERS, particles=DEFAULT_PARTICL
         raise DataError("the particle filters need at least one particle count")
     if runs < 1:
         raise DataError(f"the number of runs must be at least 1, got {runs}")
+    if healthy is not None and not AlarmRule(healthy).faulty_modes(model.modes).any():
+        raise DataError("--healthy names every mode; leave at least one fault mode")
     bad = [n for n in particles if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1]
     if bad:
         raise DataError(f"particle counts must be positive whole numbers, got {bad[0]!r}")
@@ -174,7 +196,8 @@ def make_jobs(model, sources, filters=DEFAULT_FILTERS, particles=DEFAULT_PARTICL
         data_seed = np.random.SeedSequence(seed, spawn_key=(run, 0))
         for algorithm, n in cells:
             filter_seed = np.random.SeedSequence(seed, spawn_key=(run, 1, zlib.crc32(algorithm.encode()), n or 0))
-            jobs += [Job(model, source, algorithm, n, run, data_seed, filter_seed, prefilter, lag)
+            jobs += [Job(model, source, algorithm, n, run, data_seed, filter_seed, prefilter, lag,
+                         None if healthy is None else tuple(healthy))
                      for lag in lags for source in sources]
     return jobs
 
@@ -223,14 +246,15 @@ def execute(jobs, workers=None, scheduler=None, progress=None) -> list[dict]:
 
 
 def sweep(model, sources, filters=DEFAULT_FILTERS, particles=DEFAULT_PARTICLES, runs=25, seed=0,
-          prefilter=None, workers=None, scheduler=None, progress=None, lags=(0,)) -> list[dict]:
+          prefilter=None, workers=None, scheduler=None, progress=None, lags=(0,), healthy=None) -> list[dict]:
     """Per-run records (see RECORD_FIELDS) of every filter at every particle count and lag on every source."""
-    jobs = make_jobs(model, sources, filters, particles, runs, seed, prefilter, lags)
+    jobs = make_jobs(model, sources, filters, particles, runs, seed, prefilter, lags, healthy)
     return execute(jobs, workers, scheduler, progress)
 
 
 def summarise(records) -> list[dict]:
-    """Mean and SD over runs for each (data, filter, particles, lag), in order of first appearance."""
+    """Mean and SD over runs for each (data, filter, particles, lag), in order of first appearance,
+    and the runs' naming counts added up (`naming_counts`, None without any) with their % (`naming`)."""
     groups = {}
     for r in records:
         groups.setdefault((r["data"], r["filter"], r["particles"], r.get("lag", 0)), []).append(r)
@@ -241,6 +265,10 @@ def summarise(records) -> list[dict]:
             values = np.array([r.get(key, math.nan) for r in group], dtype=float)
             row[f"{key}_mean"] = float(values.mean())
             row[f"{key}_sd"] = float(values.std(ddof=1)) if len(values) > 1 else math.nan
+        counts = [NamingCounts(np.array(c, dtype=int).reshape(len(c), len(c) + 1))  # F faults: (F, F + 1)
+                  for c in (r["naming_confusion"] for r in group if "naming_confusion" in r)]
+        row["naming_counts"] = functools.reduce(operator.add, counts) if counts else None
+        row["naming"] = row["naming_counts"].overall if counts else math.nan
         rows.append(row)
     return rows
 
@@ -265,9 +293,11 @@ QUANTITIES = {
     "error": ("Diagnosis error %, mean (SD) over runs", lambda r: mean_sd(r, "error", 2)),
     "delay": ("Detection delay, steps from a switch to the first right row (lag included), mean over runs",
               lambda r: f"{r['delay_mean']:.1f}"),
-    "f1": ("Alarms (the spec's first mode healthy, P > 0.5): F1, FAR %, MAR %, mean over runs",
+    "f1": ("Alarms (P(not healthy) > 0.5): F1, FAR %, MAR %, mean over runs",
            lambda r: f"{r['f1_mean']:.3f}, {r['far_mean']:.1f}, {r['mar_mean']:.1f}"),
     "nab": ("Alarms: NAB score (standard profile, 60 s windows), mean over runs", lambda r: f"{r['nab_mean']:.1f}"),
+    "naming": ("Naming: % of the faulty rows named right (while the alarm is up, by the most probable "
+               "non-healthy mode), pooled over runs", lambda r: f"{r['naming']:.1f}"),
     "ms_per_step": ("Time per step, ms (mean over runs)", lambda r: f"{r['ms_per_step_mean']:.3g}"),
     "loglik": ("Log-likelihood, mean (SD) over runs", lambda r: mean_sd(r, "loglik", 1)),
 }
@@ -290,23 +320,37 @@ def lag_name(lag) -> str:
     return "filtering" if lag == 0 else "off-line smoothing" if lag is None else f"lag {lag}"
 
 
-def report(summary) -> str:
-    """Every quantity's table, as Markdown; with several smoothing lags, a section for each."""
+def report(summary, faults=None) -> str:
+    """Every quantity's table, as Markdown; with several smoothing lags, a section for each. Naming
+    shows only where some run had faulty rows; given the fault names (the non-healthy modes in the
+    spec's order), each section ends with the naming per fault of its best setting."""
     lags = list(dict.fromkeys(r.get("lag", 0) for r in summary))
     sections = []
     for lag in lags:
         rows = [r for r in summary if r.get("lag", 0) == lag]
-        tables = "\n\n".join(markdown_table(rows, q) for q in QUANTITIES)
+        named = [r for r in rows if r["naming_counts"] is not None and r["naming_counts"].rows.sum()]
+        tables = "\n\n".join(markdown_table(rows, q) for q in QUANTITIES if q != "naming" or named)
+        if named and faults is not None:
+            tables += "\n\n" + best_naming(named, faults)
         sections.append(tables if len(lags) == 1 else f"### {lag_name(lag)}\n\n{tables}")
     return "\n\n".join(sections) + "\n"
 
 
+def best_naming(rows, faults) -> str:
+    """The naming per fault and the confusion among the faults (as `run --name` reports them) of the
+    setting that names the most faulty rows right (the first of equals), pooled over its runs."""
+    best = max(rows, key=lambda r: r["naming"])
+    who = best["filter"] + ("" if best["particles"] is None else f", N = {best['particles']}")
+    return (f"Naming of the best setting ({who}), {plural(best['runs'], 'run')} pooled:\n\n```\n"
+            + "\n".join(naming_report(faults, best["naming_counts"])) + "\n```")
+
+
 def write_table_csv(path, summary):
     """The same tables as CSV: one row per smoothing lag and particle count, per filter error mean/SD,
-    detection delay, ms/step and log-likelihood."""
+    detection delay, the alarms' scores, naming % (pooled), ms/step and log-likelihood."""
     filters = list(dict.fromkeys(r["filter"] for r in summary))
-    keys = ("error_mean", "error_sd", "delay_mean", "f1_mean", "far_mean", "mar_mean", "nab_mean", "ms_per_step_mean",
-            "loglik_mean", "loglik_sd")
+    keys = ("error_mean", "error_sd", "delay_mean", "f1_mean", "far_mean", "mar_mean", "nab_mean", "naming",
+            "ms_per_step_mean", "loglik_mean", "loglik_sd")
     with open(path, "w", newline="") as stream:
         writer = csv.writer(stream, lineterminator="\n")
         writer.writerow(["lag", "particles"] + [f"{f}_{k}" for f in filters for k in keys])
@@ -335,4 +379,4 @@ def write_records_csv(path, records):
         for r in records:
             writer.writerow([r["data"], r["filter"], "" if r["particles"] is None else r["particles"],
                              lag_cell(r.get("lag", 0)), r["run"],
-                             *(f"{r.get(k, math.nan):.10g}" for k in MEASURES)])
+                             *(f"{r.get(k, math.nan):.10g}" for k in RECORD_FIELDS[5:])])
