@@ -282,14 +282,14 @@ def main(argv=None):
     }
     print(f"\n### Detection (alarm at {PERSISTENCE} rows in a row; threshold set on {sum((t == 'normal').sum() for *_, t in test)} "
           "normal test rows)\n")
-    print("| detector | " + " | ".join(f"detected at {r:g} % FA | delay" for r in RATES) + " |")
-    print("|---|" + "---:|---:|" * len(RATES))
+    print("| detector | " + " | ".join(f"detected at {r:g} % FA | delay" for r in RATES) + " | rows/s |")
+    print("|---|" + "---:|---:|" * len(RATES) + "---:|")
     for label, score in detectors.items():
         start = time.perf_counter()
         found = detection([persisted(score(y)) for _, y, _ in test], test)
         rate = sum(len(y) for _, y, _ in test) / (time.perf_counter() - start)
         print(f"| {label} | " + " | ".join(f"{d:.1f} % | {delay:.1f}" + (f" ({m} missed)" if m else "")
-                                          for d, delay, m in found.values()) + f" |  <!-- {rate:.0f} rows/s -->")
+                                          for d, delay, m in found.values()) + f" | {rate:,.0f} |")
 
     var = VarBank({f: read[f] for f in FAULTS}, read["normal"])
     namers = {"VAR(1) per fault, best one-step likelihood": var.names_of,
