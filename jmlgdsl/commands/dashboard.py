@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import sys
 
-from . import add_page_options, start_page
+from . import STORE_HELP, add_page_options, add_store_password_options, start_page, store_password
 
 
 def register(subparsers):
@@ -16,8 +16,9 @@ def register(subparsers):
                     "model expected, and the alarms to acknowledge or shelve with the evidence behind them. "
                     "Runs until stopped (Ctrl-C, SIGTERM). 'jmlgdsl monitor --http' serves the same page "
                     "from the monitor itself.")
-    p.add_argument("store", help="the monitor's store (SQLite database)")
+    p.add_argument("store", help=STORE_HELP)
     p.add_argument("--run", type=int, metavar="N", help="which run of the store (default the latest)")
+    add_store_password_options(p)
     add_page_options(p, default="127.0.0.1:8050")
     p.set_defaults(func=main)
 
@@ -28,13 +29,14 @@ def main(args) -> int:
 
     from ..monitor import Store, StoreError
 
-    with Store(args.store, create=False) as store:
+    password = store_password(args)
+    with Store(args.store, create=False, password=password) as store:
         if store.run(args.run) is None:
             raise StoreError(f"{args.store}: the store holds no run yet")
     stop = threading.Event()
     for signum in (signal.SIGTERM, signal.SIGINT):
         signal.signal(signum, lambda *_: stop.set())
-    page = start_page(args, args.store, args.run)
+    page = start_page(args, args.store, args.run, password)
     stop.wait()
     page.stop()
     print("the page is stopped", file=sys.stderr)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from . import STORE_HELP, add_store_password_options, store_password
+
 
 def register(subparsers):
     p = subparsers.add_parser(
@@ -9,10 +11,11 @@ def register(subparsers):
         description="Write the result table of a run in a store that 'jmlgdsl monitor' keeps: the same "
                     "table, byte for byte, that 'jmlgdsl run -o' writes for the same rows. --samples also "
                     "writes the rows themselves as a data file, so 'jmlgdsl run' can diagnose them again.")
-    p.add_argument("store", help="the monitor's store (SQLite database)")
+    p.add_argument("store", help=STORE_HELP)
     p.add_argument("-o", "--output", default="-", help="the result table (default - : standard output)")
     p.add_argument("--samples", metavar="FILE.csv", help="also write the rows diagnosed, as a data file")
     p.add_argument("--run", type=int, metavar="N", help="which run of the store (default the latest)")
+    add_store_password_options(p)
     p.set_defaults(func=main)
 
 
@@ -25,7 +28,7 @@ def main(args) -> int:
 
     check_file(args.output, inputs=[args.store])
     check_file(args.samples, inputs=[args.store, args.output], option="--samples")
-    with Store(args.store, create=False) as store:
+    with Store(args.store, create=False, password=store_password(args)) as store:
         run = store.run(args.run)
         if run is None:
             raise DataError(f"{args.store}: the store holds no run yet")

@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import sys
 
-from . import add_alarm_options, add_filter_options, add_page_options, check_particles, healthy_modes, start_page
+from . import (STORE_HELP, add_alarm_options, add_filter_options, add_page_options, add_store_password_options,
+               check_particles, healthy_modes, start_page, store_password)
 
 
 def register(subparsers):
@@ -15,15 +16,16 @@ def register(subparsers):
                     "input (-), an MQTT broker (mqtt://HOST:PORT/PREFIX, mqtts://...) or an OPC UA server "
                     "(opc.tcp://HOST:PORT/PATH). Readings of tags that arrive at their own moments are put "
                     "on the spec's sample clock. Every row, its mode posterior, alarms and events go to the "
-                    "store (SQLite), committed with the diagnosis's state, so the monitor killed at any "
-                    "moment and started again with the same command resumes where it was. It runs until "
-                    "stopped (SIGTERM, Ctrl-C), or to the end of standard input or of an unfollowed file. "
+                    "store (SQLite, or PostgreSQL for many monitors), committed with the diagnosis's state, so "
+                    "the monitor killed at any moment and started again with the same command resumes where it "
+                    "was. It runs until stopped (SIGTERM, Ctrl-C), or to the end of standard input or of an "
+                    "unfollowed file. "
                     "'jmlgdsl export STORE' writes the result table.")
     p.add_argument("spec", help="plant spec (.jmlg) or compiled model (.json/.npz)")
     p.add_argument("--source", required=True, metavar="URL",
                    help="a CSV file (followed as it grows), - (standard input), mqtt://HOST:PORT/PREFIX, "
                         "mqtts://HOST:PORT/PREFIX or opc.tcp://HOST:PORT/PATH")
-    p.add_argument("--store", required=True, metavar="PATH", help="the store (SQLite database; made when absent)")
+    p.add_argument("--store", required=True, metavar="PATH|URL", help=STORE_HELP + "; made when absent")
     p.add_argument("--tags", metavar="FILE.toml", help="per spec name: topic or node id, unit scale and offset, "
                                                        "time stamps of the source or of arrival")
     p.add_argument("--new-run", action="store_true",
@@ -55,6 +57,7 @@ def register(subparsers):
                    help="fixed-lag smoothing: store each row once L more rows have arrived, with "
                         "p(mode | data up to L rows later)")
     p.add_argument("--prefilter", metavar="ma:K", help="causal moving average over the last K readings")
+    add_store_password_options(p)
     add_page_options(p, default=None)
     p.set_defaults(func=main)
 
@@ -84,9 +87,10 @@ def main(args) -> int:
     stop = threading.Event()
     for signum in (signal.SIGTERM, signal.SIGINT):
         signal.signal(signum, lambda *_: stop.set())
-    page = start_page(args, args.store)  # the store's latest run: the one this monitor goes on or starts
+    password = store_password(args)
+    page = start_page(args, args.store, password=password)  # the store's latest run: the one this monitor goes on
     try:
-        with Store(args.store) as store:
+        with Store(args.store, password=password) as store:
             monitor = Monitor(model, store, source, spec=_text(args.spec), options=options, tags=tags,
                               new_run=args.new_run, log=lambda text: print(f"monitor: {text}", file=sys.stderr,
                                                                            flush=True))

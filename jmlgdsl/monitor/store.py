@@ -1,5 +1,7 @@
-"""The monitor's store: one SQLite database (WAL mode) holding runs, their rows, results, alarms,
-events and the saved state they were diagnosed with.
+"""The monitor's store: one database holding runs, their rows, results, alarms, events and the
+saved state they were diagnosed with: an SQLite file (WAL mode), or a PostgreSQL database
+(postgresql://USER@HOST:PORT/DBNAME) that many monitors write and others read, with the same schema
+(jmlgdsl/monitor/databases.py runs it on either).
 
 Schema (vectors are JSON arrays in the order the `run` row lists the names; JSON null is NaN, a
 reading not measured):
@@ -36,16 +38,15 @@ import hashlib
 import itertools
 import json
 import math
-import sqlite3
 from dataclasses import dataclass
 from datetime import datetime, timezone
 
 import numpy as np
 
-from ..errors import JmlgError
 from ..infer.result import Step
 from ..infer.table import TableWriter
 from ..version import VERSION
+from .databases import StoreError, connect
 
 SCHEMA_VERSION = 2
 SCHEMA = """
@@ -77,10 +78,6 @@ CREATE TABLE IF NOT EXISTS state (
     run INTEGER PRIMARY KEY, rows INTEGER NOT NULL, checkpoint BLOB NOT NULL, monitor BLOB,
     position TEXT, saved TEXT NOT NULL);
 """
-
-
-class StoreError(JmlgError):
-    """A store that cannot be used: not a jmlgdsl store, another schema, no such run."""
 
 
 @dataclass(frozen=True)
@@ -151,49 +148,51 @@ def unvector(text) -> np.ndarray:
 
 
 class Store:
-    """An open store; `synchronous` is SQLite's: FULL makes every commit durable before the monitor
-    acknowledges what it holds."""
+    """An open store at a location: an SQLite file's path or a PostgreSQL URL (with its user's
+    `password`, or none to use libpq's PGPASSFILE or ~/.pgpass). `synchronous` is SQLite's: FULL
+    makes every commit durable before the monitor acknowledges what it holds (PostgreSQL's commits
+    are durable by default). Without `create`, a location that holds no store is refused."""
 
-    def __init__(self, path, synchronous: str = "FULL", create: bool = True):
-        self.path = str(path)
+    def __init__(self, location, synchronous: str = "FULL", create: bool = True, password: str | None = None):
+        self.path = str(location)
+        self.db = connect(self.path, password=password, synchronous=synchronous, create=create)
         try:
-            if not create:
-                with open(self.path, "rb") as probe:
-                    if probe.read(16) != b"SQLite format 3\0":
-                        raise StoreError(f"{self.path}: not a jmlgdsl store (not an SQLite database)")
-            self.db = sqlite3.connect(self.path, isolation_level=None, check_same_thread=False)
-            self.db.execute("PRAGMA journal_mode=WAL")
-            self.db.execute(f"PRAGMA synchronous={synchronous}")
-            self.db.execute("PRAGMA busy_timeout=10000")
-            found = self._meta_schema()
-            if found == "1":
-                self._upgrade()
-            elif found not in (None, str(SCHEMA_VERSION)):
-                raise StoreError(f"{self.path}: a store of schema {found}; this jmlgdsl reads schema {SCHEMA_VERSION}")
-            self.db.executescript(SCHEMA)
-            if found is None:
-                self.db.execute("INSERT INTO meta VALUES ('schema', ?)", (str(SCHEMA_VERSION),))
-        except OSError as exc:
-            raise StoreError(f"cannot open the store {self.path}: {exc.strerror}") from None
-        except sqlite3.DatabaseError as exc:
+            if self._meta_schema() != str(SCHEMA_VERSION):
+                self._make(create)
+        except StoreError:
+            self.db.close()
+            raise
+        except self.db.errors as exc:
+            self.db.close()
             raise StoreError(f"{self.path}: not a usable jmlgdsl store ({exc})") from None
 
     def _meta_schema(self) -> str | None:
-        """The schema version a store records (None for a new, empty database)."""
-        try:
-            found = self.db.execute("SELECT value FROM meta WHERE key = 'schema'").fetchone()
-        except sqlite3.OperationalError:  # no meta table: a new database
+        """The schema version a store records (None for a database without a store)."""
+        if self.db.execute(self.db.has_table, ("meta",)).fetchone() is None:
             return None
+        found = self.db.execute("SELECT value FROM meta WHERE key = 'schema'").fetchone()
         return None if found is None else found[0]
 
-    def _upgrade(self):
-        """Schema 1 to 2, in one transaction: the new columns (NULL for the rows already there) and
-        the action table."""
+    def _make(self, create: bool):
+        """Make the store's tables, or bring a store of schema 1 to schema 2 (the new columns, NULL
+        for the rows already there, and the action table), in one transaction that holds the lock,
+        so monitors that open a new store at once make it once."""
         with self._transaction():
-            for table, column in (("run", "descriptions"), ("run", "units"), ("result", "y_sd"), ("result", "evidence_mode"),
-                                  ("result", "evidence"), ("alarm", "mode")):
-                self.db.execute(f"ALTER TABLE {table} ADD COLUMN {column} TEXT")
-            self.db.execute("UPDATE meta SET value = ? WHERE key = 'schema'", (str(SCHEMA_VERSION),))
+            self.db.lock_schema()
+            found = self._meta_schema()
+            if found is None and not create:
+                raise StoreError(f"{self.path}: not a jmlgdsl store (it holds no store's tables)")
+            if found == "1":
+                for table, column in (("run", "descriptions"), ("run", "units"), ("result", "y_sd"),
+                                      ("result", "evidence_mode"), ("result", "evidence"), ("alarm", "mode")):
+                    self.db.execute(f"ALTER TABLE {table} ADD COLUMN {column} TEXT")
+                self.db.execute("UPDATE meta SET value = ? WHERE key = 'schema'", (str(SCHEMA_VERSION),))
+            elif found not in (None, str(SCHEMA_VERSION)):
+                raise StoreError(f"{self.path}: a store of schema {found}; this jmlgdsl reads schema {SCHEMA_VERSION}")
+            for statement in self.db.schema(SCHEMA).split(";")[:-1]:
+                self.db.execute(statement)
+            if found is None:
+                self.db.execute("INSERT INTO meta VALUES ('schema', ?)", (str(SCHEMA_VERSION),))
 
     def close(self):
         self.db.close()
@@ -221,13 +220,13 @@ class Store:
         names = [json.dumps(list(v)) for v in (model.modes, model.states, model.outputs, model.inputs)]
         sha = hashlib.sha256((spec or "").encode()).hexdigest()
         with self._transaction():
-            cursor = self.db.execute("INSERT INTO run (started, version, plant, spec, spec_sha256, model_sha256, "
-                                     "options, modes, states, outputs, inputs, descriptions, units) "
-                                     "VALUES (?,?,?,?,?,?,?,?,?,?,?,?,?)",
-                                     (now(), VERSION, model.name, spec, sha, fingerprint,
-                                      json.dumps(options, sort_keys=True), *names, json.dumps(model.descriptions),
-                                      json.dumps(model.units)))
-        return self.run(cursor.lastrowid)
+            new = self.db.insert("INSERT INTO run (started, version, plant, spec, spec_sha256, model_sha256, "
+                                "options, modes, states, outputs, inputs, descriptions, units) "
+                                "VALUES (?,?,?,?,?,?,?,?,?,?,?,?,?)",
+                                (now(), VERSION, model.name, spec, sha, fingerprint,
+                                 json.dumps(options, sort_keys=True), *names, json.dumps(model.descriptions),
+                                 json.dumps(model.units)))
+        return self.run(new)
 
     def saved(self, run: int) -> Saved | None:
         """The state last committed for a run (None before its first commit)."""
@@ -255,7 +254,9 @@ class Store:
             self._alarms(run, [d for d, _ in results])
             self.db.executemany("INSERT INTO event (run, at, time, kind, tag, detail) VALUES (?,?,?,?,?,?)",
                                 [(run, at, e.time, e.kind, e.tag, e.detail) for e in events])
-            self.db.execute("INSERT OR REPLACE INTO state VALUES (?,?,?,?,?,?)",
+            self.db.execute("INSERT INTO state VALUES (?,?,?,?,?,?) ON CONFLICT (run) DO UPDATE SET "
+                            "rows = excluded.rows, checkpoint = excluded.checkpoint, monitor = excluded.monitor, "
+                            "position = excluded.position, saved = excluded.saved",
                             (run, rows, checkpoint, monitor, None if position is None else json.dumps(position), at))
 
     def _alarms(self, run, results):
@@ -267,8 +268,8 @@ class Store:
                 modes, healthy = self._modes(run), self.run(run).options.get("healthy", [])
                 unhealthy = [k for k, name in enumerate(modes) if name not in healthy]
                 mode = modes[max(unhealthy, key=lambda k: d.step.mode_posterior[k])] if unhealthy else None
-                open_ = (self.db.execute("INSERT INTO alarm (run, raised_t, raised_time, mode) VALUES (?,?,?,?)",
-                                         (run, d.step.t, d.row.time, mode)).lastrowid,)
+                open_ = (self.db.insert("INSERT INTO alarm (run, raised_t, raised_time, mode) VALUES (?,?,?,?)",
+                                        (run, d.step.t, d.row.time, mode)),)
             elif not d.alarm and open_ is not None:
                 self.db.execute("UPDATE alarm SET cleared_t = ?, cleared_time = ? WHERE id = ?",
                                 (d.step.t, d.row.time, open_[0]))
@@ -382,13 +383,14 @@ class _Names:
 
 
 class _Transaction:
-    """BEGIN IMMEDIATE ... COMMIT, or ROLLBACK on an exception: whole or absent."""
+    """BEGIN ... COMMIT, or ROLLBACK on an exception: whole or absent (SQLite's BEGIN IMMEDIATE
+    takes the write lock at the start, so a transaction never fails halfway for want of it)."""
 
     def __init__(self, db):
         self.db = db
 
     def __enter__(self):
-        self.db.execute("BEGIN IMMEDIATE")
+        self.db.execute(self.db.begin)
 
     def __exit__(self, kind, exc, traceback):
         self.db.execute("ROLLBACK" if kind else "COMMIT")

@@ -38,8 +38,8 @@ POLL = 0.25  # seconds between the event stream's looks at the store
 HEARTBEAT = 10.0  # seconds between keep-alive comments on a quiet event stream
 STREAM_ROWS = 500  # rows one event carries at most (a page that joins a long run catches up in steps)
 # what changes when an alarm is raised, cleared, acknowledged, shelved or unshelved
-ALARMS_STATE = ("SELECT (SELECT count(*) || ',' || coalesce(max(id), 0) FROM action WHERE run = ?1) || ';' || "
-                "(SELECT count(*) || ',' || count(cleared_t) FROM alarm WHERE run = ?1)")
+ALARMS_STATE = ("SELECT (SELECT count(*) || ',' || coalesce(max(id), 0) FROM action WHERE run = ?) || ';' || "
+                "(SELECT count(*) || ',' || count(cleared_t) FROM alarm WHERE run = ?)")
 STATIC = {"/": ("index.html", "text/html; charset=utf-8"), "/page.js": ("page.js", "text/javascript; charset=utf-8"),
           "/page.css": ("page.css", "text/css; charset=utf-8")}
 HEADERS = {"Content-Security-Policy": "default-src 'self'; img-src 'self' data:; frame-ancestors 'none'",
@@ -79,11 +79,12 @@ class Page:
     `start`ed, at `url`, until `stop` (jmlgdsl.page shows an example)."""
 
     def __init__(self, store_path, host: str = "127.0.0.1", port: int = 8050, *, token: str | None = None,
-                 run: int | None = None):
+                 run: int | None = None, store_password: str | None = None):
         if not loopback(host) and not token:
             raise PageError(f"--http {host}:{port}: the page may be reached from other machines there; give a "
                             "token with --http-token-env or --http-token-file (or bind to 127.0.0.1)")
         self.store_path, self.token, self.run_id = str(store_path), token, run
+        self.store_password = store_password  # a PostgreSQL store's, for each thread's connection
         self.stopping = threading.Event()
         self._local = threading.local()
         try:
@@ -109,10 +110,10 @@ class Page:
         self.server.server_close()
 
     def store(self) -> Store:
-        """This thread's connection to the store (SQLite connections are not shared between threads)."""
+        """This thread's connection to the store (a connection is not shared between threads)."""
         store = getattr(self._local, "store", None)
         if store is None:
-            store = self._local.store = Store(self.store_path, create=False)
+            store = self._local.store = Store(self.store_path, create=False, password=self.store_password)
         return store
 
     def run(self):
@@ -189,7 +190,7 @@ def _handler(page: Page):
                     if found:
                         after = found[-1]
                         self._event("rows", text, after)
-                    state = store.db.execute(ALARMS_STATE, (run.id,)).fetchone()[0]
+                    state = store.db.execute(ALARMS_STATE, (run.id, run.id)).fetchone()[0]
                     if state != seen:
                         seen = state
                         self._event("alarms", json.dumps(views.alarms(store, run)))
