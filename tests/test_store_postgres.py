@@ -161,6 +161,17 @@ def test_export_equals_run(server, password, tmp_path, lag):
     assert query(server, url, "SELECT (posterior::json ->> 1)::float FROM result WHERE t = 1000")[0][0] > 0.9
 
 
+def test_a_user_who_may_only_read_exports_the_store(server, password, tmp_path, monkeypatch):
+    url = server.database()
+    assert main(["monitor", SPEC, "--source", str(DATA), "--no-follow", "--store", url, *password]) == 0
+    query(server, url, "CREATE ROLE reader LOGIN PASSWORD 'r34der'; "
+                       "GRANT SELECT ON ALL TABLES IN SCHEMA public TO reader")
+    monkeypatch.setenv("JMLGDSL_STORE_PASSWORD", "r34der")
+    reader = url.replace("jmlgdsl@", "reader@")
+    assert table("export", reader, *password, tmp_path=tmp_path) == table("run", SPEC, str(DATA), tmp_path=tmp_path,
+                                                                          name="run.csv")
+
+
 def test_killed_and_restarted_loses_and_repeats_nothing(server, tmp_path):
     url = server.database()
     passfile = tmp_path / "pgpass"  # libpq's own password file: no password option at all

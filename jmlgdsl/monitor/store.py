@@ -221,11 +221,11 @@ class Store:
         sha = hashlib.sha256((spec or "").encode()).hexdigest()
         with self._transaction():
             new = self.db.insert("INSERT INTO run (started, version, plant, spec, spec_sha256, model_sha256, "
-                                "options, modes, states, outputs, inputs, descriptions, units) "
-                                "VALUES (?,?,?,?,?,?,?,?,?,?,?,?,?)",
-                                (now(), VERSION, model.name, spec, sha, fingerprint,
-                                 json.dumps(options, sort_keys=True), *names, json.dumps(model.descriptions),
-                                 json.dumps(model.units)))
+                                 "options, modes, states, outputs, inputs, descriptions, units) "
+                                 "VALUES (?,?,?,?,?,?,?,?,?,?,?,?,?)",
+                                 (now(), VERSION, model.name, spec, sha, fingerprint,
+                                  json.dumps(options, sort_keys=True), *names, json.dumps(model.descriptions),
+                                  json.dumps(model.units)))
         return self.run(new)
 
     def saved(self, run: int) -> Saved | None:
