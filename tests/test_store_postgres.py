@@ -264,6 +264,10 @@ def test_the_page_reads_and_acts_on_the_store(server, password):
     finally:
         page.stop()
     assert query(server, url, "SELECT alarm, who, kind FROM action") == [(3, "ann", "acknowledge")]
+    deadline = time.monotonic() + WAIT  # each request's connection is closed with it, the stream's once it ends
+    while query(server, url, "SELECT count(*) FROM pg_stat_activity WHERE application_name = 'jmlgdsl'") != [(0,)]:
+        assert time.monotonic() < deadline, "the page left connections to the store open"
+        time.sleep(0.05)
 
 
 def test_monitors_in_schemas_of_their_own_write_one_database_at_once(server, password, tmp_path):

@@ -116,6 +116,14 @@ class Page:
             store = self._local.store = Store(self.store_path, create=False, password=self.store_password)
         return store
 
+    def release(self):
+        """Close this thread's connection, if it opened one, as its request ends (with its thread):
+        closed, not left to the garbage collector, which psycopg warns of."""
+        store = getattr(self._local, "store", None)
+        if store is not None:
+            self._local.store = None
+            store.close()
+
     def run(self):
         run = self.store().run(self.run_id)
         if run is None:
@@ -129,6 +137,12 @@ def _handler(page: Page):
 
         def log_message(self, format, *args):  # the monitor's log is for the plant, not for page views
             pass
+
+        def finish(self):
+            try:
+                super().finish()
+            finally:
+                page.release()
 
         def do_GET(self):
             parts = urlsplit(self.path)
