@@ -105,7 +105,7 @@ class PostgreSQL:
         except psycopg.ProgrammingError:
             raise StoreError(f"{url}: not a PostgreSQL URL (postgresql://USER@HOST:PORT/DBNAME)") from None
         if "password" in given:
-            raise StoreError("--store: put no password in the store URL (it would show in the process list, the "
+            raise StoreError("put no password in the store URL (it would show in the process list, the "
                              "logs and the store); use --store-password-env, --store-password-file or a PGPASSFILE")
         try:
             self.connection = psycopg.connect(url, autocommit=True, application_name="jmlgdsl",
