@@ -169,3 +169,24 @@ def test_particles_for_a_filter_without_particles_are_refused_before_the_store_i
                  "--filter", "imm", "--particles", "5"]) == 2
     assert capsys.readouterr().err.startswith("error: --particles: the imm filter uses no particles")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_store_that_fails_while_saving_says_so_and_keeps_nothing_of_the_batch(tmp_path):
+    import numpy as np
+
+    import jmlgdsl
+    from jmlgdsl.data import Row
+    from jmlgdsl.diagnosis import fingerprint
+    from jmlgdsl.monitor import Store, StoreError
+
+    model, path = jmlgdsl.load(SPEC), tmp_path / "dryer.db"
+    with Store(path) as store:
+        run = store.begin_run(None, model, fingerprint(model), {})
+        with sqlite3.connect(path) as other:  # the store's rows table gone from under it
+            other.execute("DROP TABLE result")
+        row = Row(2, 1.0, np.array([50.5]), np.array([15.0]), None)
+        with pytest.raises(StoreError, match=r"the store failed while saving \(no such table: result\); nothing of "
+                                             r"this batch was kept"):
+            store.save(run.id, [(1, row)], [], [], 1, b"state", None, None)
+        assert store.db.execute("SELECT count(*) FROM sample").fetchone()[0] == 0
+        assert store.saved(run.id) is None

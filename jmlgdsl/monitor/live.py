@@ -136,8 +136,10 @@ class Monitor:
                 self.diagnosis.finish()
                 self.dirty = True
         finally:
-            self.commit()
-            self.source.stop()
+            try:
+                self.commit()
+            finally:
+                self.source.stop()
         return Stopped(self.run_info.id, self.rows - self.started_rows, self.rows, dict(self.counts), ended)
 
     def _handle(self, item) -> bool:

@@ -239,6 +239,13 @@ class Store:
         """Commit in one transaction: samples [(t, Row)], results [(Diagnosed, predictive sd (ny,))],
         events [Event], and the state after them (rows diagnosed, the Diagnosis checkpoint, the
         monitor's own state, the source position)."""
+        try:
+            self._save(run, samples, results, events, rows, checkpoint, monitor, position)
+        except self.db.errors as exc:
+            raise StoreError(f"{self.path}: the store failed while saving ({exc}); nothing of this batch was kept, "
+                             "and the monitor started again resumes from its last commit") from None
+
+    def _save(self, run, samples, results, events, rows, checkpoint, monitor, position):
         modes = self._modes(run)
         at = now()
         with self._transaction():
@@ -393,4 +400,10 @@ class _Transaction:
         self.db.execute(self.db.begin)
 
     def __exit__(self, kind, exc, traceback):
-        self.db.execute("ROLLBACK" if kind else "COMMIT")
+        if kind is None:
+            self.db.execute("COMMIT")
+            return
+        try:
+            self.db.execute("ROLLBACK")
+        except self.db.errors:
+            pass  # the connection is gone, and its transaction with it
