@@ -47,6 +47,19 @@ def test_complete_rows_leave_at_once_in_order_and_late_ones_are_events():
                       ("out_of_order", "temp", 3.9)]
 
 
+def test_the_late_readings_of_one_message_are_one_event():
+    a = assembler()
+    a.add([("temp", 50.0, 1.0), ("current", 16.0, 1.0)])
+    a.add([("temp", 50.5, 2.0), ("current", 16.0, 2.0)])
+    rows, events = a.add([("temp", 50.0, 1.0), ("current", 16.0, 1.0), ("temp", 50.5, 2.0), ("temp", 51.0, 3.0)])
+    assert [(e.kind, e.tag, e.time, e.detail) for e in events] == [
+        ("late", None, 1.0, "3 readings (temp, current) for 1-2 s came after their rows were diagnosed")]
+    assert a.open == {3: {"temp": 51.0}}  # the reading that was not late is taken
+    _, events = a.add([("temp", 50.0, 1.0), ("temp", 50.5, 2.0)])
+    assert [(e.tag, e.detail) for e in events] == [("temp", "2 readings (temp) for 1-2 s came after their rows "
+                                                            "were diagnosed")]
+
+
 def test_a_row_waits_its_grace_then_its_missing_readings_are_missing():
     a = assembler(grace=2.0)
     rows, events = feed(a, [("temp", 50.0, 1.0), ("current", 15.5, 1.0), ("temp", 50.2, 3.0), ("temp", 50.3, 4.0)])

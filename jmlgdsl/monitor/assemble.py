@@ -12,7 +12,7 @@ An input holds its last value until it is stale (set points are often published 
 read in the previous row is waited for, one that was not is taken as held); an output never does (a measurement is of its own moment). A tag without a reading for `stale` seconds
 becomes stale, with an event, and fresh again with its next reading. What does not fit is counted
 as an event and dropped, never reordered into a row already diagnosed: a reading whose row has left
-(late), a second reading of a tag in one slot (duplicate: the first stands), and a reading older
+(late; the late readings of one message are one event), a second reading of a tag in one slot (duplicate: the first stands), and a reading older
 than its tag's previous one whose row is still open (out_of_order: it is used). Slots without any
 reading are a gap; a gap longer than `max_gap` seconds is skipped (its rows are not diagnosed, the
 clock restarts after it) rather than filled with rows of nothing.
@@ -36,6 +36,18 @@ class Event:
     tag: str | None
     detail: str
     time: float | None = None  # the data time it concerns, seconds
+
+
+def _late(readings) -> Event:
+    """One event for the readings of one message that came after their rows were diagnosed (a
+    message of many tags, or one delivered again after a reconnection, is one event, not one a tag)."""
+    names = list(dict.fromkeys(name for name, _ in readings))
+    low, high = min(t for _, t in readings), max(t for _, t in readings)
+    when = f"{low:g} s" if low == high else f"{low:g}-{high:g} s"
+    if len(readings) == 1:
+        return Event("late", names[0], f"a reading for {when} came after its row was diagnosed", low)
+    return Event("late", names[0] if len(names) == 1 else None,
+                 f"{len(readings)} readings ({', '.join(names)}) for {when} came after their rows were diagnosed", low)
 
 
 class Assembler:
@@ -64,18 +76,19 @@ class Assembler:
         """The readings of one message, [(name, value, time)], taken in together; the rows and events
         they complete: (rows, events). `arrival`: their times are their arrival's."""
         self.wall &= arrival
-        events = []
+        events, late = [], []
         for name, value, time in readings:
-            events += self._take(name, value, time)
+            if self.next_slot is not None and round(time / self.dt) < self.next_slot:
+                late.append((name, time))
+            else:
+                events += self._take(name, value, time)
         rows, closing = self._close() if self.next_slot is not None else ([], [])
-        return rows, events + closing
+        return rows, ([_late(late)] if late else []) + events + closing
 
     def _take(self, name, value, time):
         slot = round(time / self.dt)
         if self.next_slot is None:
             self.next_slot = slot
-        if slot < self.next_slot:
-            return [Event("late", name, f"a reading for {time:g} s came after its row was diagnosed", time)]
         events = []
         newest = self.newest.get(name, -math.inf)
         if time < newest:
