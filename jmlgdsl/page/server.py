@@ -154,7 +154,7 @@ def _handler(page: Page):
                 elif parts.path == "/api/run":
                     self._json(views.run_info(page.store(), page.run(), page.token is not None))
                 elif parts.path == "/api/rows":
-                    self._send(HTTPStatus.OK, views.rows(page.store(), page.run(), **_window(query)).encode(),
+                    self._send(HTTPStatus.OK, views.rows(page.store(), page.run(), **_window(query)).json.encode(),
                                "application/json")
                 elif parts.path == "/api/alarms":
                     self._json(views.alarms(page.store(), page.run()))
@@ -199,23 +199,22 @@ def _handler(page: Page):
             store, run, seen, quiet = page.store(), page.run(), None, time.monotonic()
             try:
                 while not page.stopping.is_set():
-                    text = views.rows(store, run, after=after, limit=STREAM_ROWS)
-                    found = json.loads(text)["t"]
-                    if found:
-                        after = found[-1]
-                        self._event("rows", text, after)
+                    found = views.rows(store, run, after=after, limit=STREAM_ROWS)
+                    if found.count:
+                        after = found.last
+                        self._event("rows", found.json, after)
                     state = store.db.execute(ALARMS_STATE, (run.id, run.id)).fetchone()[0]
                     if state != seen:
                         seen = state
                         self._event("alarms", json.dumps(views.alarms(store, run)))
                         quiet = time.monotonic()
-                    if found:
+                    if found.count:
                         quiet = time.monotonic()
                     elif time.monotonic() - quiet > HEARTBEAT:
                         self.wfile.write(b": still here\n\n")
                         self.wfile.flush()
                         quiet = time.monotonic()
-                    if len(found) < STREAM_ROWS:  # caught up: wait for the next commit
+                    if found.count < STREAM_ROWS:  # caught up: wait for the next commit
                         page.stopping.wait(POLL)
             except (BrokenPipeError, ConnectionResetError):
                 pass  # the page was closed

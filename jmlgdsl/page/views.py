@@ -9,6 +9,7 @@ costs one query.
 from __future__ import annotations
 
 import json
+from typing import NamedTuple
 
 from ..monitor.store import Run, Store
 
@@ -24,8 +25,16 @@ def run_info(store: Store, run: Run, token_required: bool) -> dict:
             "source": run.options.get("source"), "token_required": token_required}
 
 
+class Rows(NamedTuple):
+    """A window of rows as the page's JSON, with how many rows it holds and the last one's t."""
+
+    json: str
+    count: int
+    last: int | None
+
+
 def rows(store: Store, run: Run, *, after: int | None = None, first: int | None = None, last: int | None = None,
-         limit: int = MAX_ROWS) -> str:
+         limit: int = MAX_ROWS) -> Rows:
     """A window of finished rows as JSON columns (t, time, map_mode, alarm, posterior, y, y_pred,
     y_sd, evidence_mode, evidence): the rows after t = `after` (the live feed, at most `limit`), or
     those with `first` <= t <= `last`, thinned to at most `limit` by taking every k-th; with none of
@@ -56,7 +65,7 @@ def rows(store: Store, run: Run, *, after: int | None = None, first: int | None 
     parts = [f'"{n}":{v}' for n, v in zip(names, plain + vectors)]
     parts.append(f'"evidence_mode":{json.dumps(list(columns[8]))}')
     parts.append('"evidence":[' + ",".join("null" if v is None else v for v in columns[9]) + "]")
-    return "{" + ",".join(parts) + "}"
+    return Rows("{" + ",".join(parts) + "}", len(found), found[-1][0] if found else None)
 
 
 def _last_t(store: Store, run: Run) -> int:
