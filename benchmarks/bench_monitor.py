@@ -1,14 +1,23 @@
 """Throughput, latency, memory and store size of `jmlgdsl monitor` over MQTT (BENCHMARKS.md).
 
-    python benchmarks/bench_monitor.py                       # 180 s of a 20-sensor bank
-    python benchmarks/bench_monitor.py --seconds 30 --profile
+    python benchmarks/bench_monitor.py                              # both phases, one message per tag
+    python benchmarks/bench_monitor.py --payload row --backlog 1000000 --rate 0
+    python benchmarks/bench_monitor.py --backlog 5000 --rate 300 --seconds 30 --profile
+    python benchmarks/bench_monitor.py --pages 2                    # with the operator's page open twice
 
 A spec of 20 temperatures driven by one heater current (two modes) is written to a temporary
-folder, a mosquitto (from PATH or /usr/sbin) is started on 127.0.0.1, and a publisher process sends
-one message per tag and row (`{"t": ..., "v": ...}` on PREFIX/NAME, QoS 1) as fast as the broker
-takes them. The monitor runs in this process on the IMM filter, so its time stamps are exact: a
-row's latency runs from the arrival of its last reading to the end of the store commit that holds
-its posterior. Memory is this process's resident set size, sampled as rows are committed.
+folder with a record simulated from it, and a mosquitto (from PATH or /usr/sbin) is started on
+127.0.0.1. A publisher process sends the record's rows, either one message per tag and row
+(`{"t": ..., "v": ...}` on PREFIX/NAME) or one JSON object per row on PREFIX, at QoS 1.
+
+Two phases, because on a small machine the publisher's own CPU would otherwise set the pace:
+- throughput: the monitor connects once (so the broker keeps a persistent session for it), stops,
+  the publisher sends `--backlog` rows, and the monitor started again drains them as fast as the
+  broker delivers them; rows and tag updates per second are counted from its first reading to its
+  last commit, with the memory (resident set size) sampled every 10,000 rows;
+- latency: the publisher sends at `--rate` rows per second for `--seconds`, a pace the monitor
+  keeps, and a row's latency runs from the arrival of its last reading to the end of the store
+  commit that holds its posterior (the monitor runs in this process, so both stamps are exact).
 """
 
 from __future__ import annotations
@@ -33,28 +42,35 @@ import numpy as np
 import jmlgdsl
 from jmlgdsl.monitor import Monitor, Store, monitor_options, read_tags
 from jmlgdsl.monitor.mqtt import MqttSource
+from jmlgdsl.page import Page
 
 SENSORS = 20
+STALL = 60  # seconds without progress after which a phase ends (and says how far it got)
 
 PUBLISHER = """
 import json, sys, time
+import numpy as np
 import paho.mqtt.client as mqtt
-port, seconds, names = int(sys.argv[1]), float(sys.argv[2]), sys.argv[3].split(",")
+port, first, count, rate = int(sys.argv[1]), int(sys.argv[2]), int(sys.argv[3]), float(sys.argv[4])
+names, values, per_row = sys.argv[5].split(","), np.load(sys.argv[6], mmap_mode="r"), sys.argv[7] == "row"
 client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id="bench-publisher")
 client.max_inflight_messages_set(1000)
 client.max_queued_messages_set(0)
 client.connect("127.0.0.1", port)
 client.loop_start()
-end, t, last = time.monotonic() + seconds, 0, None
-while time.monotonic() < end:
-    t += 1
-    for i, name in enumerate(names):
-        value = 15.0 if name == "current" else 50.0 + i + 0.1 * ((t * 7919 + i) % 13)
-        last = client.publish("bank/" + name, json.dumps({"t": t, "v": value}), qos=1)
+start, last = time.monotonic(), None
+for t in range(first, first + count):
+    row = values[t - 1].tolist()
+    if per_row:
+        last = client.publish("bank", json.dumps({"t": t, **dict(zip(names, row))}), qos=1)
+    else:
+        for name, value in zip(names, row):
+            last = client.publish("bank/" + name, json.dumps({"t": t, "v": value}), qos=1)
     if t % 50 == 0:
-        last.wait_for_publish(30)  # keep the broker's pace, not the client's buffer's
-last.wait_for_publish(30)
-print(t)
+        last.wait_for_publish(60)  # keep the broker's pace, not the client's buffer's
+    if rate:
+        time.sleep(max(0.0, start + (t - first + 1) / rate - time.monotonic()))
+last.wait_for_publish(60)
 client.disconnect()
 client.loop_stop()
 """
@@ -80,8 +96,10 @@ def broker(folder: Path):
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
     config = folder / "mosquitto.conf"
+    # a backlog of any size is kept; the window of messages sent ahead of their acknowledgement is the
+    # broker's default (20): unlimited, a deep backlog delays the broker's keepalive answer
     config.write_text(f"listener {port} 127.0.0.1\nuser {getpass.getuser()}\npersistence false\n"
-                      "max_queued_messages 0\nmax_inflight_messages 0\nallow_anonymous true\n")
+                      "max_queued_messages 0\nallow_anonymous true\n")
     process = subprocess.Popen([mosquitto, "-c", str(config)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     for _ in range(500):
         try:
@@ -93,27 +111,33 @@ def broker(folder: Path):
 
 
 class Timed(Monitor):
-    """The monitor with time stamps: each row's last reading's arrival and its commit's end."""
+    """The monitor with the time of its first reading and last commit, its memory every 10,000 rows,
+    and with `latency`, each row's latency: from its last reading's arrival to its commit's end (kept
+    per row, so not in the run that measures memory)."""
 
-    def __init__(self, *args, **kwargs):
+    def __init__(self, *args, latency: bool, **kwargs):
         super().__init__(*args, **kwargs)
-        self.arrived, self.latencies, self.memory = {}, [], []
+        self.latency, self.arrived, self.latencies, self.memory = latency, {}, [], []
         self.started = None
 
     def _handle(self, item):
         if item[0] == "readings":
             self.started = self.started or time.time()
-            for _, _, stamp in item[1]:
-                self.arrived[stamp] = item[2]
+            if self.latency:
+                for _, _, stamp in item[1]:
+                    self.arrived[stamp] = item[2]
         return super()._handle(item)
 
     def commit(self):
-        times = [row.time for _, row in self.samples]
+        times = [row.time for _, row in self.samples] if self.latency else []
+        rows = len(self.samples)
         super().commit()
         done = time.time()
         self.latencies += [done - self.arrived.pop(t) for t in times if t in self.arrived]
-        if times and (not self.memory or self.rows - self.memory[-1][0] >= 10_000):
-            self.memory.append((self.rows, _rss()))
+        if rows:
+            self.finished = done
+            if not self.memory or self.rows - self.memory[-1][0] >= 10_000:
+                self.memory.append((self.rows, _rss()))
 
 
 def _rss() -> float:
@@ -122,62 +146,156 @@ def _rss() -> float:
         return next(int(line.split()[1]) for line in status if line.startswith("VmRSS")) / 1024
 
 
+READER = """
+import json, os, sys, threading, urllib.request
+url, pages, tally = sys.argv[1], int(sys.argv[2]), sys.argv[3]
+received = [0] * pages
+
+def read(i):
+    with urllib.request.urlopen(url + "api/stream", timeout=600) as stream:
+        for line in stream:
+            if line.startswith(b"data: {\\"t\\""):
+                received[i] += len(json.loads(line[6:])["t"])
+                with open(tally + ".new", "w") as out:
+                    out.write(str(sum(received) / pages))
+                os.replace(tally + ".new", tally)  # whole: read at any moment
+threads = [threading.Thread(target=read, args=(i,), daemon=True) for i in range(pages)]
+for thread in threads:
+    thread.start()
+for thread in threads:
+    thread.join()
+"""
+
+
+class Pages:
+    """The page served from the monitor's process, as `monitor --http` serves it, with `pages`
+    readers of its live feed in another process (as browsers would hold it open)."""
+
+    def __init__(self, store_path, pages: int, folder: Path):
+        self.page = Page(store_path, "127.0.0.1", 0).start()
+        self.tally = folder / "pages.txt"
+        self.readers = subprocess.Popen([sys.executable, "-c", READER, self.page.url, str(pages), str(self.tally)])
+
+    def stop(self) -> float:
+        """Stop the readers and the page; the rows each reader was sent, on average."""
+        self.readers.terminate()
+        self.readers.wait(30)
+        self.page.stop()
+        return float(self.tally.read_text()) if self.tally.exists() else 0.0
+
+
+def publish(port, first, count, rate, names, record, payload) -> subprocess.Popen:
+    """The publisher process, sending rows first .. first + count - 1 of the record."""
+    return subprocess.Popen([sys.executable, "-c", PUBLISHER, str(port), str(first), str(count), str(rate),
+                             ",".join(names), str(record), payload])
+
+
+def run_until(monitor, rows: int, publisher=None):
+    """Run the monitor until it has diagnosed `rows` rows (the last waits for its grace), or made no
+    progress for STALL seconds after the publisher ended."""
+    stop = threading.Event()
+
+    def watch():
+        seen, since = monitor.rows, time.time()
+        while monitor.rows < rows:
+            time.sleep(0.02)
+            if monitor.rows != seen or (publisher is not None and publisher.poll() is None):
+                seen, since = monitor.rows, time.time()
+            elif time.time() - since > STALL:
+                break
+        stop.set()
+    threading.Thread(target=watch, daemon=True).start()
+    return monitor.run(stop)
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--seconds", type=float, default=180.0, help="how long the publisher publishes")
+    parser.add_argument("--payload", choices=("tag", "row"), default="tag",
+                        help="one message per tag and row (PREFIX/NAME), or one JSON object per row on PREFIX")
+    parser.add_argument("--backlog", type=int, default=20_000, help="rows published while the monitor is down "
+                                                                    "(the throughput phase; 0 skips it)")
+    parser.add_argument("--rate", type=float, default=300.0, help="rows per second of the latency phase (0 skips it)")
+    parser.add_argument("--seconds", type=float, default=60.0, help="how long the latency phase publishes")
+    parser.add_argument("--pages", type=int, default=0, metavar="N",
+                        help="also serve the operator's page from the monitor's process, with N pages open on its "
+                             "live feed (each reading every row the page is sent)")
     parser.add_argument("--profile", action="store_true", help="print where the monitor's time goes")
+    parser.add_argument("--keep", action="store_true", help="keep the temporary folder (the store, the broker's "
+                                                            "configuration) and say where it is")
     args = parser.parse_args(argv)
     folder = Path(tempfile.mkdtemp(prefix="bench-monitor-"))
     spec = folder / "bank.jmlg"
     spec.write_text(spec_text(SENSORS))
     model = jmlgdsl.load(str(spec))
+    live = int(args.rate * args.seconds)
+    sim = jmlgdsl.simulate(model, args.backlog + live + 2, seed=1)
+    record = folder / "record.npy"
+    np.save(record, np.hstack([sim.y, sim.u]))
+    del sim  # the publisher reads the record from its file: none of it in the monitor's memory
+    names = list(model.outputs) + list(model.inputs)
     tags = read_tags(None, model)
     mosquitto, port = broker(folder)
     store_path = folder / "bank.db"
+    profile = cProfile.Profile() if args.profile else None
+    page = None
+    print(f"machine: {platform.machine()}, {os.cpu_count()} cores (nproc {len(os.sched_getaffinity(0))}), "
+          f"Python {platform.python_version()}, {platform.system()} {platform.release()}")
+    print(f"{SENSORS}-sensor bank, {len(tags)} tags, "
+          f"{'one message per tag and row' if args.payload == 'tag' else 'one message per row'}, IMM filter")
+
+    def monitor(store, latency=False):
+        nonlocal page
+        source = MqttSource(f"mqtt://127.0.0.1:{port}/bank", model, tags, client_id="jmlgdsl-bench")
+        made = Timed(model, store, source, spec=spec.read_text(), options=monitor_options(), tags=tags,
+                     latency=latency)
+        if args.pages and page is None:  # the pages, once the store holds the run they show
+            page = Pages(store_path, args.pages, folder)
+        return made
+
     try:
         with Store(store_path) as store:
-            source = MqttSource(f"mqtt://127.0.0.1:{port}/bank", model, tags, client_id="jmlgdsl-bench")
-            monitor = Timed(model, store, source, spec=spec.read_text(), options=monitor_options(), tags=tags)
-            stop = threading.Event()
-            names = ",".join(list(model.outputs) + list(model.inputs))
-            publisher = subprocess.Popen([sys.executable, "-c", PUBLISHER, str(port), str(args.seconds), names],
-                                         stdout=subprocess.PIPE, text=True)
-
-            def watch():
-                """Stop the monitor once it has every row published (the last two wait for their grace),
-                or has made no progress for 10 s."""
-                published = int(publisher.communicate()[0])
-                seen, since = monitor.rows, time.time()
-                while monitor.rows < published - 2 and time.time() - since < 10:
-                    time.sleep(0.05)
-                    if monitor.rows != seen:
-                        seen, since = monitor.rows, time.time()
-                stop.set()
-            threading.Thread(target=watch, daemon=True).start()
-            profile = cProfile.Profile() if args.profile else None
-            if profile:
-                profile.enable()
-            stopped = monitor.run(stop)
-            if profile:
-                profile.disable()
-            elapsed = time.time() - monitor.started
+            first = 1
+            if args.backlog:
+                run_until(monitor(store), 0)  # the persistent session, then down while the backlog is sent
+                started = time.time()
+                publish(port, first, args.backlog, 0, names, record, args.payload).wait()
+                print(f"backlog: {args.backlog} rows published in {time.time() - started:.1f} s")
+                drain = monitor(store)
+                if profile:
+                    profile.enable()
+                stopped = run_until(drain, args.backlog - 1)
+                if profile:
+                    profile.disable()
+                elapsed = drain.finished - drain.started
+                print(f"throughput: {stopped.rows} rows in {elapsed:.1f} s: {stopped.rows / elapsed:,.0f} rows/s, "
+                      f"{stopped.rows * len(tags) / elapsed:,.0f} tag updates/s"
+                      if args.payload == "tag" else
+                      f"throughput: {stopped.rows} rows in {elapsed:.1f} s: {stopped.rows / elapsed:,.0f} rows/s")
+                print("memory (RSS, MiB) by rows: " + ", ".join(f"{r}: {m:.1f}" for r, m in drain.memory))
+                print(f"events: {stopped.events}")
+                first = drain.rows + 1
+            if args.rate:
+                paced = monitor(store, latency=True)
+                publisher = publish(port, first, live, args.rate, names, record, args.payload)
+                stopped = run_until(paced, first + live - 2, publisher)
+                publisher.wait()
+                latency = np.array(paced.latencies) * 1000
+                print(f"latency at {args.rate:g} rows/s for {args.seconds:g} s ({stopped.rows} rows): median "
+                      f"{np.median(latency):.1f} ms, p99 {np.percentile(latency, 99):.1f} ms, max {latency.max():.1f} ms")
+            rows = store.db.execute("SELECT count(*) FROM result").fetchone()[0]
+            if page is not None:
+                print(f"{args.pages} pages open on the live feed, each sent {page.stop():.0f} rows")
     finally:
         mosquitto.terminate()
         mosquitto.wait(30)
-    rows = stopped.rows
-    latency = np.array(monitor.latencies) * 1000
     size = store_path.stat().st_size + sum(p.stat().st_size for p in folder.glob("bank.db-*"))
-    print(f"machine: {platform.machine()}, {os.cpu_count()} cores (nproc {len(os.sched_getaffinity(0))}), "
-          f"Python {platform.python_version()}, {platform.system()} {platform.release()}")
-    print(f"{SENSORS}-sensor bank, {len(tags)} tags, one message per tag and row, IMM filter, {args.seconds:g} s")
-    print(f"rows {rows}, {elapsed:.1f} s: {rows / elapsed:,.0f} rows/s, {rows * len(tags) / elapsed:,.0f} tag updates/s")
-    print(f"latency, last reading to committed posterior: median {np.median(latency):.1f} ms, "
-          f"p99 {np.percentile(latency, 99):.1f} ms, max {latency.max():.1f} ms")
-    print("memory (RSS, MiB) by rows: " + ", ".join(f"{r}: {m:.1f}" for r, m in monitor.memory))
-    print(f"store: {size / rows:,.0f} bytes per row ({size / 2**20:.1f} MiB); events {stopped.events}")
+    print(f"store: {size / rows:,.0f} bytes per row ({size / 2**20:.1f} MiB for {rows} rows)")
     if profile:
         pstats.Stats(profile).sort_stats("cumulative").print_stats(25)
-    shutil.rmtree(folder)
+    if args.keep:
+        print(f"kept {folder}")
+    else:
+        shutil.rmtree(folder)
     return 0
 
 
