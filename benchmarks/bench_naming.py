@@ -40,7 +40,6 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # many small matrices: threa
 
 import numpy as np  # noqa: E402
 
-import jmlgdsl  # noqa: E402
 from jmlgdsl.diagnosis.alarms import sub_bank  # noqa: E402
 from jmlgdsl.infer import filter as run_filter  # noqa: E402
 from jmlgdsl.learn import learn  # noqa: E402

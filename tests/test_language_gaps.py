@@ -8,7 +8,6 @@ import warnings
 import numpy as np
 import pytest
 from conftest import assert_located
-from scipy.linalg import expm
 
 from jmlgdsl.compile.lower import compile_file, compile_text
 from jmlgdsl.errors import SpecWarning
