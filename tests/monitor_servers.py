@@ -11,6 +11,7 @@ import signal
 import socket
 import sqlite3
 import subprocess
+import threading
 import time
 
 import pytest
@@ -20,6 +21,7 @@ from jmlgdsl.cli import main
 
 SPEC = str(ROOT / "specs" / "dryer.jmlg")
 DATA = ROOT / "examples" / "dryer_seq1.csv"
+LINES = DATA.read_text().splitlines(keepends=True)  # the header and 1000 rows
 WAIT = 30  # seconds any one wait may take before the test fails
 
 
@@ -48,6 +50,47 @@ def until(condition, what, process):
             pytest.fail(f"the monitor stopped while waiting for {what}: {process.stderr.read()}")
         assert time.monotonic() < deadline, f"gave up waiting for {what}"
         time.sleep(0.02)
+
+
+def killed_mid_file(command, data, stored, env=None) -> str:
+    """A monitor (`command`, following the file `data`, with --lag 2) while the dryer recording is
+    appended to that file, killed with SIGKILL mid-file and started again with the same command as
+    the file goes on growing: the restarted monitor's standard error once it has stored every row
+    but the 2 its lag holds back, and it was stopped. `stored()` counts the rows in the store."""
+    data.write_text("".join(LINES[:301]))
+    killed, done = threading.Event(), threading.Event()
+
+    def grow():  # the plant's logger: ten rows every 10 ms, going on through the kill and the restart
+        with open(data, "a") as out:
+            for start in range(301, 1001, 10):
+                if start == 701:
+                    killed.wait(WAIT)
+                out.writelines(LINES[start:start + 10])
+                out.flush()
+                if done.wait(0.01):
+                    return
+    writer = threading.Thread(target=grow)
+    first = subprocess.Popen(command, stderr=subprocess.PIPE, text=True, env=env)
+    second = None
+    try:
+        until(lambda: stored() >= 200, "the first monitor to store 200 rows", first)
+        writer.start()
+        until(lambda: stored() >= 500, "the first monitor to store 500 rows", first)
+        first.send_signal(signal.SIGKILL)
+        first.wait(WAIT)
+        assert stored() < 700  # mid-file
+        killed.set()
+        second = subprocess.Popen(command, stderr=subprocess.PIPE, text=True, env=env)
+        until(lambda: stored() == 1000 - 2, "the restarted monitor to store every row", second)
+        err = stop(second)
+        writer.join(WAIT)
+    finally:
+        killed.set()
+        done.set()
+        for process in (first, second):
+            if process is not None and process.poll() is None:
+                process.kill()
+    return err
 
 
 def stop(process):

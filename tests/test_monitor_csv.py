@@ -3,21 +3,14 @@ monitor killed with SIGKILL mid-stream and started again with the same command l
 row, a bad line is an event and not the end, and a store of another run is refused by name."""
 
 import os
-import signal
 import sqlite3
 import subprocess
-import threading
-import time
 
 import pytest
 from conftest import ROOT, jmlgdsl_command
+from monitor_servers import DATA, LINES, SPEC, WAIT, killed_mid_file
 
 from jmlgdsl.cli import main
-
-SPEC = str(ROOT / "specs" / "dryer.jmlg")
-DATA = ROOT / "examples" / "dryer_seq1.csv"
-LINES = DATA.read_text().splitlines(keepends=True)  # the header and 1000 rows
-WAIT = 30  # seconds any one wait may take before the test fails
 
 
 def table(*args, tmp_path, name="table.csv"):
@@ -35,13 +28,6 @@ def stored(store):
             return db.execute("SELECT count(*) FROM result").fetchone()[0]
         except sqlite3.OperationalError:
             return 0
-
-
-def until(condition, what):
-    deadline = time.monotonic() + WAIT
-    while not condition():
-        assert time.monotonic() < deadline, f"gave up waiting for {what}"
-        time.sleep(0.02)
 
 
 @pytest.mark.parametrize("lag", [0, 3])
@@ -62,41 +48,7 @@ def test_export_equals_run(tmp_path, lag):
 def test_killed_and_restarted_loses_and_repeats_nothing(tmp_path):
     data, store = tmp_path / "growing.csv", str(tmp_path / "dryer.db")
     command = [*jmlgdsl_command(), "monitor", SPEC, "--source", str(data), "--store", store, "--lag", "2"]
-    data.write_text("".join(LINES[:301]))
-    killed, done = threading.Event(), threading.Event()
-
-    def grow():  # the plant's logger: ten rows every 10 ms, going on through the kill and the restart
-        with open(data, "a") as out:
-            for start in range(301, 1001, 10):
-                if start == 701:
-                    killed.wait(WAIT)
-                out.writelines(LINES[start:start + 10])
-                out.flush()
-                if done.wait(0.01):
-                    return
-    writer = threading.Thread(target=grow)
-    first = subprocess.Popen(command, stderr=subprocess.PIPE, text=True)
-    try:
-        until(lambda: stored(store) >= 200, "the first monitor to store 200 rows")
-        writer.start()
-        until(lambda: stored(store) >= 500, "the first monitor to store 500 rows")
-        first.send_signal(signal.SIGKILL)
-        first.wait(WAIT)
-        killed_at = stored(store)
-        assert killed_at < 700  # mid-stream
-        killed.set()
-        second = subprocess.Popen(command, stderr=subprocess.PIPE, text=True)
-        until(lambda: stored(store) == 1000 - 2, "the restarted monitor to store every row")
-        second.send_signal(signal.SIGTERM)
-        _, err = second.communicate(timeout=WAIT)
-        writer.join(WAIT)
-    finally:
-        killed.set()
-        done.set()
-        for process in (first, locals().get("second")):
-            if process is not None and process.poll() is None:
-                process.kill()
-    assert second.returncode == 0, err
+    err = killed_mid_file(command, data, lambda: stored(store))
     assert "resume: run 1 resumed after row" in err
     expected = table("run", SPEC, str(DATA), "--lag", "2", tmp_path=tmp_path, name="run.csv").splitlines(True)
     exported = table("export", store, tmp_path=tmp_path)

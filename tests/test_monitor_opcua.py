@@ -134,16 +134,22 @@ def monitor(port, store, tags, *extra, env=None):
                             env=None if env is None else {**os.environ, **env})
 
 
+def diagnosed(process, plant, store) -> str:
+    """Once the monitor is connected, the recording written to the server's nodes and every row
+    stored: the monitor's standard error once stopped."""
+    until(lambda: events(store, "connect")() == 1, "the monitor to connect", process)
+    plant.write(rows())
+    until(lambda: query(store, "SELECT count(*) FROM result") == 1000, "every row stored", process)
+    return stop(process)
+
+
 def test_recording_written_to_nodes_is_diagnosed_as_run_diagnoses_it(plants, tags, tmp_path):
     port, store = free_port(), str(tmp_path / "dryer.db")
     process = monitor(port, store, tags)
     try:
         until(lambda: events(store, "disconnect")() >= 1, "the monitor to find no server", process)
         plant = plants(port)  # the server comes up after the monitor: it is tried again
-        until(lambda: events(store, "connect")() == 1, "the monitor to connect", process)
-        plant.write(rows())
-        until(lambda: query(store, "SELECT count(*) FROM result") == 1000, "every row stored", process)
-        err = stop(process)
+        err = diagnosed(process, plant, store)
     finally:
         process.kill()
     assert f"monitor: disconnect: cannot reach 127.0.0.1:{port} (" in err and "trying again in 1 s" in err
@@ -176,10 +182,7 @@ def test_an_encrypting_endpoint_is_used_with_the_client_certificate_and_refused_
     process = monitor(plant.port, store, tags, "--security", "Basic256Sha256,SignAndEncrypt",
                       "--certificate", str(cert), "--private-key", str(key))
     try:
-        until(lambda: events(store, "connect")() == 1, "the monitor to connect", process)
-        plant.write(rows())
-        until(lambda: query(store, "SELECT count(*) FROM result") == 1000, "every row stored", process)
-        err = stop(process)
+        err = diagnosed(process, plant, store)
     finally:
         process.kill()
     assert "nodes, security Basic256Sha256" in err

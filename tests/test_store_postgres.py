@@ -13,13 +13,12 @@ import shutil
 import signal
 import subprocess
 import tempfile
-import threading
 import time
 import urllib.request
 
 import pytest
 from conftest import jmlgdsl_command
-from monitor_servers import DATA, SPEC, WAIT, free_port
+from monitor_servers import DATA, SPEC, WAIT, free_port, killed_mid_file
 
 from jmlgdsl.cli import main
 from jmlgdsl.monitor import Store
@@ -28,7 +27,6 @@ from jmlgdsl.page import Page
 psycopg = pytest.importorskip("psycopg", reason="no psycopg: pip install 'psycopg[binary]'")
 
 PASSWORD = "pl4nt-s3cret"
-LINES = DATA.read_text().splitlines(keepends=True)  # the header and 1000 rows
 
 
 def binaries() -> str | None:
@@ -180,48 +178,7 @@ def test_killed_and_restarted_loses_and_repeats_nothing(server, tmp_path):
     env = {**os.environ, "PGPASSFILE": str(passfile)}
     data = tmp_path / "growing.csv"
     command = [*jmlgdsl_command(), "monitor", SPEC, "--source", str(data), "--store", url, "--lag", "2"]
-    data.write_text("".join(LINES[:301]))
-    killed, done = threading.Event(), threading.Event()
-
-    def grow():  # the plant's logger: ten rows every 10 ms, going on through the kill and the restart
-        with open(data, "a") as out:
-            for start in range(301, 1001, 10):
-                if start == 701:
-                    killed.wait(WAIT)
-                out.writelines(LINES[start:start + 10])
-                out.flush()
-                if done.wait(0.01):
-                    return
-
-    def until(condition, what):
-        deadline = time.monotonic() + WAIT
-        while not condition():
-            assert time.monotonic() < deadline, f"gave up waiting for {what}"
-            time.sleep(0.02)
-
-    writer = threading.Thread(target=grow)
-    first = subprocess.Popen(command, stderr=subprocess.PIPE, text=True, env=env)
-    second = None
-    try:
-        until(lambda: stored(server, url) >= 200, "the first monitor to store 200 rows")
-        writer.start()
-        until(lambda: stored(server, url) >= 500, "the first monitor to store 500 rows")
-        first.send_signal(signal.SIGKILL)
-        first.wait(WAIT)
-        assert stored(server, url) < 700  # mid-file
-        killed.set()
-        second = subprocess.Popen(command, stderr=subprocess.PIPE, text=True, env=env)
-        until(lambda: stored(server, url) == 1000 - 2, "the restarted monitor to store every row")
-        second.send_signal(signal.SIGTERM)
-        _, err = second.communicate(timeout=WAIT)
-        writer.join(WAIT)
-    finally:
-        killed.set()
-        done.set()
-        for process in (first, second):
-            if process is not None and process.poll() is None:
-                process.kill()
-    assert second.returncode == 0, err
+    err = killed_mid_file(command, data, lambda: stored(server, url), env)
     assert "resume: run 1 resumed after row" in err
     expected = table("run", SPEC, str(DATA), "--lag", "2", tmp_path=tmp_path, name="run.csv").splitlines(True)
     exported = subprocess.run([*jmlgdsl_command(), "export", url], capture_output=True, text=True, env=env,
