@@ -160,7 +160,6 @@ def test_a_store_of_the_first_schema_is_brought_up_to_date_and_resumed(tmp_path)
                               ("result", "evidence_mode"), ("result", "evidence"), ("alarm", "mode")):
             db.execute(f"ALTER TABLE {table} DROP COLUMN {column}")
         db.execute("DROP TABLE action")
-        db.execute("UPDATE state SET monitor = NULL")
         db.execute("UPDATE meta SET value = '1' WHERE key = 'schema'")
     with open(first, "a") as out:
         out.writelines(lines[501:])

@@ -83,7 +83,9 @@ class Monitor:
             self.rows, self.position = 0, None
         else:
             self.diagnosis = Diagnosis.resume(saved.checkpoint, model, sinks=[self])
-            self.assembler, self.previous = _own_state(saved.monitor)
+            # saved by this version with the checkpoint (Diagnosis.resume refuses another version's)
+            state = pickle.loads(saved.monitor)
+            self.assembler, self.previous = state["assembler"], state["previous"]
             self.rows, self.position = saved.rows, saved.position
         self.resumed = saved is not None
         self.samples, self.results, self.events, self.tokens = [], [], [], []
@@ -203,15 +205,6 @@ class Monitor:
         self.committed = clock.monotonic()
         tokens, self.tokens = self.tokens, []
         self.source.acknowledge(tokens)
-
-
-def _own_state(saved: bytes | None):
-    """(assembler, previous estimate) from the monitor's saved state; a store of schema 1 saved the
-    assembler alone (None for rows from a file)."""
-    state = None if saved is None else pickle.loads(saved)
-    if isinstance(state, dict):
-        return state["assembler"], state["previous"]
-    return state, None
 
 
 def _plain(value):
