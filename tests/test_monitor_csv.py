@@ -130,6 +130,7 @@ def test_a_store_that_fails_while_saving_says_so_and_keeps_nothing_of_the_batch(
     from jmlgdsl.data import Row
     from jmlgdsl.diagnosis import fingerprint
     from jmlgdsl.monitor import Store, StoreError
+    from jmlgdsl.monitor.store import Commit
 
     model, path = jmlgdsl.load(SPEC), tmp_path / "dryer.db"
     with Store(path) as store:
@@ -139,6 +140,6 @@ def test_a_store_that_fails_while_saving_says_so_and_keeps_nothing_of_the_batch(
         row = Row(2, 1.0, np.array([50.5]), np.array([15.0]), None)
         with pytest.raises(StoreError, match=r"the store failed while saving \(no such table: result\); nothing of "
                                              r"this batch was kept"):
-            store.save(run.id, [(1, row)], [], [], 1, b"state", None, None)
+            store.save([Commit(run.id, [(1, row)], [], [], 1, b"state", None, None)])
         assert store.db.execute("SELECT count(*) FROM sample").fetchone()[0] == 0
         assert store.saved(run.id) is None

@@ -156,7 +156,8 @@ def test_a_store_of_the_first_schema_is_brought_up_to_date_and_resumed(tmp_path)
     first.write_text("".join(lines[:501]))
     assert main(["monitor", SPEC, "--source", str(first), "--store", store, "--no-follow"]) == 0
     with sqlite3.connect(store) as db:  # as the first schema had it: no new columns, no actions
-        for table, column in (("run", "descriptions"), ("run", "units"), ("result", "y_sd"),
+        db.execute("DROP INDEX run_unit")
+        for table, column in (("run", "descriptions"), ("run", "units"), ("run", "unit"), ("result", "y_sd"),
                               ("result", "evidence_mode"), ("result", "evidence"), ("alarm", "mode")):
             db.execute(f"ALTER TABLE {table} DROP COLUMN {column}")
         db.execute("DROP TABLE action")

@@ -99,7 +99,7 @@ def main(args) -> int:
         if page is not None:
             page.stop()
     events = ", ".join(f"{kind} {n}" for kind, n in sorted(stopped.events.items()))
-    print(f"{model.name}: {stopped.rows} rows diagnosed in run {stopped.run} of {args.store} ({stopped.stored} in "
+    print(f"{model.name}: {stopped.rows} rows diagnosed in run {stopped.runs[0]} of {args.store} ({stopped.stored} in "
           f"all){'; events: ' + events if events else ''}", file=sys.stderr)
     return 0
 

@@ -22,7 +22,7 @@ from ..diagnosis.prediction import predictive_sd
 from ..infer import DEFAULT_ALGORITHM
 from ..errors import JmlgError
 from .assemble import Assembler, Event
-from .store import Store
+from .store import Commit, Store
 
 IDLE = 0.1  # seconds without input before the monitor commits and moves the wall clock on
 QUEUE = 10_000  # items a source may hand over ahead of the diagnosis
@@ -38,10 +38,11 @@ class MonitorError(JmlgError):
 
 @dataclasses.dataclass(frozen=True)
 class Stopped:
-    """How a monitor ended: rows diagnosed here and in the store, events here by kind, and whether
-    the data ended (an unfollowed file, standard input) or the monitor was stopped."""
+    """How a monitor ended: its runs (one per unit of a fleet), rows diagnosed here and in the store,
+    events here by kind, and whether the data ended (an unfollowed file, standard input) or the
+    monitor was stopped."""
 
-    run: int
+    runs: tuple
     rows: int
     stored: int
     events: dict
@@ -61,150 +62,205 @@ class Monitor:
     """Diagnose what a source delivers, into a store. `options` are the Diagnosis's (algorithm,
     particles, seed, resampling, ess_threshold, lag, prefilter), the alarm rule's (healthy, threshold,
     persistence) and the assembler's (grace, stale, max_gap); they are recorded with the run, and a
-    restart with others is refused, as is another model, unless `new_run`."""
+    restart with others is refused, as is another model, unless `new_run`.
+
+    `units` names the units of a fleet (jmlgdsl.monitor.fleet): each has its run in the store, its
+    own diagnosis, assembler and source position, and every commit holds every unit's rows and
+    state. The source then hands over (unit index, item) pairs (None: an item for every unit); a
+    source of one plant hands over items."""
 
     def __init__(self, model, store: Store, source, *, spec: str | None, options: dict, tags: dict,
-                 new_run: bool = False, log=None):
+                 units=None, new_run: bool = False, log=None):
         self.model, self.store, self.source, self.log = model, store, source, log or (lambda text: None)
         self.options = dict(options, healthy=list(options["healthy"] or model.modes[:1]), source=source.name,
                             tags={name: dataclasses.asdict(tag) for name, tag in tags.items()})
         self.tags = tags
-        self.run_info = self._run(spec, new_run)
-        saved = store.saved(self.run_info.id)
+        self.fleet = units is not None
+        self.units = [self._unit(spec, new_run, name) for name in (units if self.fleet else [None])]
+        self.tokens = []
+        self.committed = clock.monotonic()
+        self.counts = {}
+        self.started_rows = self.stored
+
+    def _unit(self, spec, new_run, name) -> "Watch":
+        """A unit's part of the monitor: its run (found again, or begun), resumed from its saved state."""
+        run = self._run(spec, new_run, name)
+        watch = Watch(self, name, run)
+        saved = self.store.saved(run.id)
         if saved is None:
             options = self.options
             rule = AlarmRule(tuple(options["healthy"]), options["threshold"], options["persistence"])
             keys = ("algorithm", "particles", "seed", "resampling", "ess_threshold", "lag", "prefilter")
-            self.diagnosis = Diagnosis(model, rule=rule, scored=False, explain=True, sinks=[self],
-                                       **{k: options[k] for k in keys})
-            self.assembler = None if source.rows else Assembler(model, tags, options["grace"], options["stale"],
-                                                                options["max_gap"])
-            self.previous = None  # the last finished row's estimate, for the next row's predictive band
-            self.rows, self.position = 0, None
+            watch.diagnosis = Diagnosis(self.model, rule=rule, scored=False, explain=True, sinks=[watch],
+                                        **{k: options[k] for k in keys})
+            watch.assembler = None if self.source.rows else Assembler(self.model, self.tags, options["grace"],
+                                                                      options["stale"], options["max_gap"])
         else:
-            self.diagnosis = Diagnosis.resume(saved.checkpoint, model, sinks=[self])
+            watch.diagnosis = Diagnosis.resume(saved.checkpoint, self.model, sinks=[watch])
             # saved by this version with the checkpoint (Diagnosis.resume refuses another version's)
             state = pickle.loads(saved.monitor)
-            self.assembler, self.previous = state["assembler"], state["previous"]
-            self.rows, self.position = saved.rows, saved.position
-        self.resumed = saved is not None
-        self.samples, self.results, self.events, self.tokens = [], [], [], []
-        self.nan_sd = np.full(model.ny, np.nan)
-        self.dirty = False
-        self.committed = clock.monotonic()
-        self.counts = {}
-        self.started_rows = self.rows
+            watch.assembler, watch.previous = state["assembler"], state["previous"]
+            watch.rows, watch.position = saved.rows, saved.position
+        watch.resumed = saved is not None
+        return watch
 
-    def _run(self, spec, new_run):
-        run = self.store.run()
+    def _run(self, spec, new_run, unit):
+        run = self.store.run(unit=unit)
         model_sha = fingerprint(self.model)
         if run is not None and not new_run:
+            if (run.unit is None) != (unit is None):
+                raise MonitorError(f"the store {self.store.path} holds the runs of "
+                                   f"{'a fleet' if unit is None else 'one plant'}, not of "
+                                   f"{'a fleet' if unit is not None else 'one plant'}; give another store, or "
+                                   "--new-run to start a new run in the store")
+            whose = "" if unit is None else f" of unit {unit}"
             if run.model_sha256 != model_sha:
-                raise MonitorError(f"the store {self.store.path} holds a run of another model (plant {run.plant!r}, "
-                                   f"fingerprint {run.model_sha256[:12]}) than this spec (plant "
+                raise MonitorError(f"the store {self.store.path} holds a run{whose} of another model (plant "
+                                   f"{run.plant!r}, fingerprint {run.model_sha256[:12]}) than this spec (plant "
                                    f"{self.model.name!r}, fingerprint {model_sha[:12]}); give the spec it was "
                                    f"started with, or --new-run to start a new run in the store")
             for key in sorted(set(run.options) | set(self.options)):
                 if run.options.get(key) != _plain(self.options.get(key)):
-                    raise MonitorError(f"the store {self.store.path} holds a run started with {key} "
+                    raise MonitorError(f"the store {self.store.path} holds a run{whose} started with {key} "
                                        f"{run.options.get(key)!r}, not {self.options.get(key)!r}; restart it with "
                                        f"the same options, or --new-run to start a new run in the store")
             return run
-        return self.store.begin_run(spec, self.model, model_sha, self.options)
+        return self.store.begin_run(spec, self.model, model_sha, self.options, unit)
+
+    @property
+    def stored(self) -> int:
+        """Rows diagnosed in the store's runs of this monitor, every unit together."""
+        return sum(watch.rows for watch in self.units)
 
     # ----------------------------------------------------------------- the loop
     def run(self, stop: threading.Event | None = None) -> Stopped:
         """Diagnose until the data end or `stop` is set; every handled item is committed on return."""
         stop = stop or threading.Event()
         items = queue.Queue(maxsize=QUEUE)
-        self.source.start(items.put, self.position)
-        self._event(Event("resume" if self.resumed else "start", None,
-                          f"run {self.run_info.id} {'resumed after' if self.resumed else 'started at'} row {self.rows}"))
-        self.dirty, ended = True, False
+        if self.fleet:
+            self.source.start(items.put, [watch.position for watch in self.units])
+        else:
+            self.source.start(lambda item: items.put((0, item)), self.units[0].position)
+        for watch in self.units:
+            watch.event(Event("resume" if watch.resumed else "start", None,
+                              f"run {watch.run.id} {'resumed after' if watch.resumed else 'started at'} row "
+                              f"{watch.rows}"))
+        ended = False
         try:
             while not stop.is_set() and not ended:
                 try:
-                    item = items.get(timeout=IDLE)
+                    unit, item = items.get(timeout=IDLE)
                 except queue.Empty:
-                    if self.assembler is not None:
-                        self._assembled(*self.assembler.advance(clock.time()))
+                    for watch in self.units:
+                        if watch.assembler is not None:
+                            watch.assembled(*watch.assembler.advance(clock.time()))
                     self.commit()
                     continue
-                ended = self._handle(item)
-                if len(self.samples) >= BATCH or len(self.tokens) >= BATCH or items.empty() and (
-                        self.results or clock.monotonic() - self.committed >= GROUP):
+                ended = self._handle(unit, item)
+                waiting = sum(len(watch.samples) for watch in self.units)
+                if waiting >= BATCH or len(self.tokens) >= BATCH or items.empty() and (
+                        any(watch.results for watch in self.units) or clock.monotonic() - self.committed >= GROUP):
                     self.commit()
             if ended:
-                self.diagnosis.finish()
-                self.dirty = True
+                for watch in self.units:
+                    watch.diagnosis.finish()
+                    watch.dirty = True
         finally:
             try:
                 self.commit()
             finally:
                 self.source.stop()
-        return Stopped(self.run_info.id, self.rows - self.started_rows, self.rows, dict(self.counts), ended)
+        return Stopped(tuple(watch.run.id for watch in self.units), self.stored - self.started_rows, self.stored,
+                       dict(self.counts), ended)
 
-    def _handle(self, item) -> bool:
-        """Take one item from the source; True at the end of the data."""
+    def _handle(self, unit, item) -> bool:
+        """Take one item from the source for a unit (None: for every unit); True at the end of the data."""
         kind = item[0]
+        watches = self.units if unit is None else [self.units[unit]]
         if kind == "row":
-            _, row, self.position = item
-            self._feed(row)
+            _, row, watches[0].position = item
+            watches[0].feed(row)
         elif kind == "readings":
             _, readings, arrival, token = item
             own = [stamp is not None and self.tags[name].time == "source" for name, _, stamp in readings]
-            self._assembled(*self.assembler.add([(name, self.tags[name].value(value), stamp if mine else arrival)
-                                                 for (name, value, stamp), mine in zip(readings, own)],
-                                                not any(own)))
+            watches[0].assembled(*watches[0].assembler.add(
+                [(name, self.tags[name].value(value), stamp if mine else arrival)
+                 for (name, value, stamp), mine in zip(readings, own)], not any(own)))
+            watches[0].dirty = True  # the assembler holds the readings: it is saved before they are acknowledged
             self.tokens.append(token)
         elif kind == "malformed":
             _, message, token = item
-            self._event(Event("malformed", None, message))
+            for watch in watches:
+                watch.event(Event("malformed", None, message))
             self.tokens.append(token)
         elif kind == "event":
-            self._event(item[1])
+            for watch in watches:
+                watch.event(item[1])
         elif kind == "fatal":
             raise MonitorError(item[1])
-        self.dirty = True
         return kind == "end"
 
-    def _assembled(self, rows, events):
-        for event in events:
-            self._event(event)
-        for row in rows:
-            self._feed(row)
+    def commit(self):
+        """Store what was handled since the last commit with the state after it, every unit's in one
+        transaction; then acknowledge it to the source."""
+        dirty = [watch for watch in self.units if watch.dirty]
+        if not dirty and not self.tokens:
+            return
+        self.store.save([watch.commit() for watch in dirty])
+        for watch in dirty:
+            watch.samples, watch.results, watch.events, watch.dirty = [], [], [], False
+        self.committed = clock.monotonic()
+        tokens, self.tokens = self.tokens, []
+        self.source.acknowledge(tokens)
 
-    def _feed(self, row):
+
+class Watch:
+    """One unit's part of a monitor (the whole of it for one plant): its run, diagnosis, row
+    assembler, last estimate, rows and source position, and what waits for the next commit. It is
+    its diagnosis's sink."""
+
+    def __init__(self, monitor: Monitor, name: str | None, run):
+        self.monitor, self.name, self.run = monitor, name, run
+        self.diagnosis = self.assembler = None
+        self.previous = None  # the last finished row's estimate, for the next row's predictive band
+        self.rows, self.position, self.resumed = 0, None, False
+        self.samples, self.results, self.events = [], [], []
+        self.dirty = False
+        self.nan_sd = np.full(monitor.model.ny, np.nan)
+
+    def assembled(self, rows, events):
+        for event in events:
+            self.event(event)
+        for row in rows:
+            self.feed(row)
+
+    def feed(self, row):
         self.rows += 1
         self.samples.append((self.rows, row))
         self.diagnosis.feed(row)
+        self.dirty = True
 
     def collect(self, done):
         """The diagnosis's sink: a finished row, stored with the next commit with the spread of its
         one-step prediction (from the row before it)."""
         last = self.previous
         sd = (self.nan_sd if last is None else
-              predictive_sd(self.model, last.mode_posterior, last.state_mean, last.state_cov, done.row.u))
+              predictive_sd(self.monitor.model, last.mode_posterior, last.state_mean, last.state_cov, done.row.u))
         self.results.append((done, sd))
         self.previous = done.step
 
-    def _event(self, event: Event):
+    def event(self, event: Event):
+        monitor = self.monitor
         self.events.append(event)
-        self.counts[event.kind] = self.counts.get(event.kind, 0) + 1
-        self.log(f"{event.kind}: {event.tag + ': ' if event.tag else ''}{event.detail}")
+        self.dirty = True
+        monitor.counts[event.kind] = monitor.counts.get(event.kind, 0) + 1
+        monitor.log(f"{self.name + ': ' if self.name else ''}{event.kind}: {event.tag + ': ' if event.tag else ''}"
+                    f"{event.detail}")
 
-    def commit(self):
-        """Store what was handled since the last commit with the state after it, in one transaction;
-        then acknowledge it to the source."""
-        if not self.dirty:
-            return
-        self.store.save(self.run_info.id, self.samples, self.results, self.events, self.rows,
-                        self.diagnosis.checkpoint(), pickle.dumps({"assembler": self.assembler,
-                                                                   "previous": self.previous}), self.position)
-        self.samples, self.results, self.events, self.dirty = [], [], [], False
-        self.committed = clock.monotonic()
-        tokens, self.tokens = self.tokens, []
-        self.source.acknowledge(tokens)
+    def commit(self) -> Commit:
+        """This unit's part of the next commit: its rows, results and events, and its state after them."""
+        return Commit(self.run.id, self.samples, self.results, self.events, self.rows, self.diagnosis.checkpoint(),
+                      pickle.dumps({"assembler": self.assembler, "previous": self.previous}), self.position)
 
 
 def _plain(value):

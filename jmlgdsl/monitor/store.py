@@ -9,7 +9,8 @@ reading not measured):
     run     id, started (UTC ISO time), version, plant, spec (the spec file's text), spec_sha256,
             model_sha256 (the compiled model's fingerprint), options (JSON: filter, alarm rule, lag,
             source, ...), modes, states, outputs, inputs (JSON name lists), descriptions (JSON: mode
-            name -> the spec's description), units (JSON: name -> unit)
+            name -> the spec's description), units (JSON: name -> physical unit), unit (the unit of a
+            fleet this run diagnoses, e.g. pump07; NULL for a monitor of one plant)
     sample  run, t, time, y, u, mode, anomaly, changepoint: every row diagnosed, as assembled
     result  run, t, map_mode, posterior, state_mean, y_pred, residual, ess, loglik, alarm: every
             finished row (ess NULL for a filter without particles) (with --lag the posterior and state
@@ -24,11 +25,15 @@ reading not measured):
     state   run, rows (diagnosed so far), checkpoint (the Diagnosis), monitor (the row assembler),
             position (JSON: where the source resumes), saved (UTC ISO time)
 
-A store of schema 1 (before y_sd, evidence, the alarm's mode, descriptions, units and actions) is brought to
-schema 2 when it is opened; the columns it lacks are NULL for its old rows.
+A store of an older schema (1: before y_sd, evidence, the alarm's mode, descriptions, units and
+actions; 2: before the run's unit) is brought to schema 3 when it is opened; the columns it lacks
+are NULL for its old rows.
 
-`Store.save` writes a batch of samples, results, alarms and events together with the state in one
-transaction: the store never holds a row whose state was not saved, nor state ahead of its rows.
+A fleet's monitor keeps a run per unit: every unit's rows, alarms and state are its run's, and the
+`unit` column names the unit (SELECT ... FROM result JOIN run ON run.id = result.run WHERE
+run.unit = 'pump07'). `Store.save` writes a batch of samples, results, alarms and events of any
+number of runs together with their state in one transaction: the store never holds a row whose
+state was not saved, nor state ahead of its rows.
 """
 
 from __future__ import annotations
@@ -48,14 +53,15 @@ from ..infer.table import TableWriter
 from ..version import VERSION
 from .databases import StoreError, connect
 
-SCHEMA_VERSION = 2
+SCHEMA_VERSION = 3
 SCHEMA = """
 CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
 CREATE TABLE IF NOT EXISTS run (
     id INTEGER PRIMARY KEY, started TEXT NOT NULL, version TEXT NOT NULL, plant TEXT NOT NULL,
     spec TEXT, spec_sha256 TEXT NOT NULL, model_sha256 TEXT NOT NULL, options TEXT NOT NULL,
     modes TEXT NOT NULL, states TEXT NOT NULL, outputs TEXT NOT NULL, inputs TEXT NOT NULL, descriptions TEXT,
-    units TEXT);
+    units TEXT, unit TEXT);
+CREATE INDEX IF NOT EXISTS run_unit ON run (unit, id);
 CREATE TABLE IF NOT EXISTS sample (
     run INTEGER NOT NULL, t INTEGER NOT NULL, time REAL, y TEXT NOT NULL, u TEXT NOT NULL,
     mode TEXT, anomaly INTEGER, changepoint INTEGER, PRIMARY KEY (run, t)) WITHOUT ROWID;
@@ -93,7 +99,8 @@ class Run:
     outputs: list
     inputs: list
     descriptions: dict  # mode name -> the spec's description
-    units: dict  # name -> unit
+    units: dict  # name -> physical unit
+    unit: str | None = None  # the unit of a fleet (None: a monitor of one plant)
 
 
 ACTIONS = ("acknowledge", "shelve", "unshelve")
@@ -122,6 +129,22 @@ class Alarm:
                 + ("acknowledged" if self.acknowledged else "unacknowledged"))
 
 
+@dataclass
+class Commit:
+    """What one run's part of a commit writes: samples [(t, Row)], results [(Diagnosed, predictive sd
+    (ny,))], events [Event], and the state after them (rows diagnosed, the Diagnosis checkpoint, the
+    monitor's own state, the source position)."""
+
+    run: int
+    samples: list
+    results: list
+    events: list
+    rows: int
+    checkpoint: bytes
+    monitor: bytes | None
+    position: dict | None
+
+
 @dataclass(frozen=True)
 class Saved:
     """The state a run was last committed with."""
@@ -130,6 +153,11 @@ class Saved:
     checkpoint: bytes
     monitor: bytes | None
     position: dict | None
+
+
+UPGRADES = {"1": (("run", "descriptions"), ("run", "units"), ("result", "y_sd"), ("result", "evidence_mode"),
+                  ("result", "evidence"), ("alarm", "mode")),
+            "2": (("run", "unit"),)}  # the columns each older schema lacks
 
 
 def now() -> str:
@@ -155,6 +183,7 @@ class Store:
 
     def __init__(self, location, synchronous: str = "FULL", create: bool = True, password: str | None = None):
         self.path = str(location)
+        self._runs = {}
         self.db = connect(self.path, password=password, synchronous=synchronous, create=create)
         try:
             if self._meta_schema() != str(SCHEMA_VERSION):
@@ -174,18 +203,18 @@ class Store:
         return None if found is None else found[0]
 
     def _make(self, create: bool):
-        """Make the store's tables, or bring a store of schema 1 to schema 2 (the new columns, NULL
-        for the rows already there, and the action table), in one transaction that holds the lock,
-        so monitors that open a new store at once make it once."""
+        """Make the store's tables, or bring an older store to this schema (the new columns, NULL for
+        the rows already there, and the new tables), in one transaction that holds the lock, so
+        monitors that open a new store at once make it once."""
         with self._transaction():
             self.db.lock_schema()
             found = self._meta_schema()
             if found is None and not create:
                 raise StoreError(f"{self.path}: not a jmlgdsl store (it holds no store's tables)")
-            if found == "1":
-                for table, column in (("run", "descriptions"), ("run", "units"), ("result", "y_sd"),
-                                      ("result", "evidence_mode"), ("result", "evidence"), ("alarm", "mode")):
-                    self.db.execute(f"ALTER TABLE {table} ADD COLUMN {column} TEXT")
+            if found in UPGRADES:
+                for version in range(int(found), SCHEMA_VERSION):
+                    for table, column in UPGRADES[str(version)]:
+                        self.db.execute(f"ALTER TABLE {table} ADD COLUMN {column} TEXT")
                 self.db.execute("UPDATE meta SET value = ? WHERE key = 'schema'", (str(SCHEMA_VERSION),))
             elif found not in (None, str(SCHEMA_VERSION)):
                 raise StoreError(f"{self.path}: a store of schema {found}; this jmlgdsl reads schema {SCHEMA_VERSION}")
@@ -204,28 +233,38 @@ class Store:
         self.close()
 
     # ------------------------------------------------------------------ runs
-    def run(self, id: int | None = None) -> Run | None:
-        """A run by id, or the latest (None when the store has none)."""
-        query = "SELECT id, plant, model_sha256, options, modes, states, outputs, inputs, descriptions, units FROM run "
-        row = self.db.execute(query + ("WHERE id = ?" if id is not None else "ORDER BY id DESC LIMIT 1"),
-                              () if id is None else (id,)).fetchone()
-        if row is None:
-            if id is not None:
+    def run(self, id: int | None = None, unit: str | None = None) -> Run | None:
+        """A run by id, or the latest (of a fleet's `unit`, when given); None when the store has none."""
+        query = ("SELECT id, plant, model_sha256, options, modes, states, outputs, inputs, descriptions, units, unit "
+                 "FROM run ")
+        if id is not None:
+            row = self.db.execute(query + "WHERE id = ?", (id,)).fetchone()
+            if row is None:
                 raise StoreError(f"{self.path}: no run {id}")
+        elif unit is not None:
+            row = self.db.execute(query + "WHERE unit = ? ORDER BY id DESC LIMIT 1", (unit,)).fetchone()
+        else:
+            row = self.db.execute(query + "ORDER BY id DESC LIMIT 1").fetchone()
+        if row is None:
             return None
-        return Run(row[0], row[1], row[2], json.loads(row[3]), *(json.loads(v or "{}") for v in row[4:]))
+        return Run(row[0], row[1], row[2], json.loads(row[3]), *(json.loads(v or "{}") for v in row[4:10]), row[10])
 
-    def begin_run(self, spec: str | None, model, fingerprint: str, options: dict) -> Run:
-        """Record a new run of a model with these options."""
+    def units(self) -> list[str]:
+        """The units of a fleet that have runs in the store, in the order their first runs began."""
+        return [row[0] for row in self.db.execute(
+            "SELECT unit FROM run WHERE unit IS NOT NULL GROUP BY unit ORDER BY min(id)")]
+
+    def begin_run(self, spec: str | None, model, fingerprint: str, options: dict, unit: str | None = None) -> Run:
+        """Record a new run of a model with these options (of a fleet's `unit`, when given)."""
         names = [json.dumps(list(v)) for v in (model.modes, model.states, model.outputs, model.inputs)]
         sha = hashlib.sha256((spec or "").encode()).hexdigest()
         with self._transaction():
             new = self.db.insert("INSERT INTO run (started, version, plant, spec, spec_sha256, model_sha256, "
-                                 "options, modes, states, outputs, inputs, descriptions, units) "
-                                 "VALUES (?,?,?,?,?,?,?,?,?,?,?,?,?)",
+                                 "options, modes, states, outputs, inputs, descriptions, units, unit) "
+                                 "VALUES (?,?,?,?,?,?,?,?,?,?,?,?,?,?)",
                                  (now(), VERSION, model.name, spec, sha, fingerprint,
                                   json.dumps(options, sort_keys=True), *names, json.dumps(model.descriptions),
-                                  json.dumps(model.units)))
+                                  json.dumps(model.units), unit))
         return self.run(new)
 
     def saved(self, run: int) -> Saved | None:
@@ -234,37 +273,37 @@ class Store:
         return None if row is None else Saved(row[0], row[1], row[2], None if row[3] is None else json.loads(row[3]))
 
     # ------------------------------------------------------------------ the one write
-    def save(self, run: int, samples, results, events, rows: int, checkpoint: bytes, monitor: bytes | None,
-             position: dict | None):
-        """Commit in one transaction: samples [(t, Row)], results [(Diagnosed, predictive sd (ny,))],
-        events [Event], and the state after them (rows diagnosed, the Diagnosis checkpoint, the
-        monitor's own state, the source position)."""
+    def save(self, commits: list[Commit]):
+        """Commit every run's part (a Commit each) in one transaction: all of them, or none."""
         try:
-            self._save(run, samples, results, events, rows, checkpoint, monitor, position)
+            with self._transaction():
+                at = now()
+                for commit in commits:
+                    self._save(commit, at)
         except self.db.errors as exc:
             raise StoreError(f"{self.path}: the store failed while saving ({exc}); nothing of this batch was kept, "
                              "and the monitor started again resumes from its last commit") from None
 
-    def _save(self, run, samples, results, events, rows, checkpoint, monitor, position):
+    def _save(self, commit: Commit, at: str):
+        run, samples, results, events = commit.run, commit.samples, commit.results, commit.events
         modes = self._modes(run)
-        at = now()
-        with self._transaction():
-            self.db.executemany("INSERT INTO sample VALUES (?,?,?,?,?,?,?,?)", [
-                (run, t, row.time, vector(row.y), vector(row.u), None if row.mode is None else modes[row.mode],
-                 row.anomaly, row.changepoint) for t, row in samples])
-            self.db.executemany("INSERT INTO result (run, t, map_mode, posterior, state_mean, y_pred, residual, ess, "
-                                "loglik, alarm, y_sd, evidence_mode, evidence) VALUES (?,?,?,?,?,?,?,?,?,?,?,?,?)", [
-                (run, d.step.t, modes[d.step.map_mode], vector(d.step.mode_posterior), vector(d.step.state_mean),
-                 vector(d.step.y_pred), vector(d.step.residual), _real(d.step.ess), _real(d.step.loglik), d.alarm,
-                 vector(sd), *_evidence(d.evidence, modes))
-                for d, sd in results])
-            self._alarms(run, [d for d, _ in results])
-            self.db.executemany("INSERT INTO event (run, at, time, kind, tag, detail) VALUES (?,?,?,?,?,?)",
-                                [(run, at, e.time, e.kind, e.tag, e.detail) for e in events])
-            self.db.execute("INSERT INTO state VALUES (?,?,?,?,?,?) ON CONFLICT (run) DO UPDATE SET "
-                            "rows = excluded.rows, checkpoint = excluded.checkpoint, monitor = excluded.monitor, "
-                            "position = excluded.position, saved = excluded.saved",
-                            (run, rows, checkpoint, monitor, None if position is None else json.dumps(position), at))
+        self.db.executemany("INSERT INTO sample VALUES (?,?,?,?,?,?,?,?)", [
+            (run, t, row.time, vector(row.y), vector(row.u), None if row.mode is None else modes[row.mode],
+             row.anomaly, row.changepoint) for t, row in samples])
+        self.db.executemany("INSERT INTO result (run, t, map_mode, posterior, state_mean, y_pred, residual, ess, "
+                            "loglik, alarm, y_sd, evidence_mode, evidence) VALUES (?,?,?,?,?,?,?,?,?,?,?,?,?)", [
+            (run, d.step.t, modes[d.step.map_mode], vector(d.step.mode_posterior), vector(d.step.state_mean),
+             vector(d.step.y_pred), vector(d.step.residual), _real(d.step.ess), _real(d.step.loglik), d.alarm,
+             vector(sd), *_evidence(d.evidence, modes))
+            for d, sd in results])
+        self._alarms(run, [d for d, _ in results])
+        self.db.executemany("INSERT INTO event (run, at, time, kind, tag, detail) VALUES (?,?,?,?,?,?)",
+                            [(run, at, e.time, e.kind, e.tag, e.detail) for e in events])
+        self.db.execute("INSERT INTO state VALUES (?,?,?,?,?,?) ON CONFLICT (run) DO UPDATE SET "
+                        "rows = excluded.rows, checkpoint = excluded.checkpoint, monitor = excluded.monitor, "
+                        "position = excluded.position, saved = excluded.saved",
+                        (run, commit.rows, commit.checkpoint, commit.monitor,
+                         None if commit.position is None else json.dumps(commit.position), at))
 
     def _alarms(self, run, results):
         """Alarm episodes from the results' 0/1 alarms, continuing the one open in the store; each
@@ -272,7 +311,7 @@ class Store:
         open_ = self.db.execute("SELECT id FROM alarm WHERE run = ? AND cleared_t IS NULL", (run,)).fetchone()
         for d in results:
             if d.alarm and open_ is None:
-                modes, healthy = self._modes(run), self.run(run).options.get("healthy", [])
+                modes, healthy = self._modes(run), self._recorded(run).options.get("healthy", [])
                 unhealthy = [k for k, name in enumerate(modes) if name not in healthy]
                 mode = modes[max(unhealthy, key=lambda k: d.step.mode_posterior[k])] if unhealthy else None
                 open_ = (self.db.insert("INSERT INTO alarm (run, raised_t, raised_time, mode) VALUES (?,?,?,?)",
@@ -318,9 +357,13 @@ class Store:
             (run,))]
 
     def _modes(self, run):
-        if getattr(self, "_modes_of", (None,))[0] != run:
-            self._modes_of = (run, self.run(run).modes)
-        return self._modes_of[1]
+        return self._recorded(run).modes
+
+    def _recorded(self, run) -> Run:
+        """A run as recorded (it does not change once begun), read once."""
+        if run not in self._runs:
+            self._runs[run] = self.run(run)
+        return self._runs[run]
 
     def _transaction(self):
         return _Transaction(self.db)
