@@ -122,7 +122,7 @@ def add_page_options(p, default: str | None):
     page.add_argument("--http-token-file", metavar="FILE", help="the file holding the page's token (its first line)")
 
 
-def start_page(args, store_path, run: int | None = None, password: str | None = None):
+def start_page(args, store_path, run: int | None = None, password: str | None = None, unit: str | None = None):
     """The page --http asks for, serving (None without --http), reading the store with its password;
     says where on standard error."""
     import sys
@@ -134,7 +134,7 @@ def start_page(args, store_path, run: int | None = None, password: str | None = 
         return None
     host, port = parse_address(args.http)
     page = Page(store_path, host, port, token=secret("http-token", args.http_token_env, args.http_token_file),
-                run=run, store_password=password).start()
+                run=run, unit=unit, store_password=password).start()
     print(f"the operator's page: {page.url}", file=sys.stderr, flush=True)
     return page
 

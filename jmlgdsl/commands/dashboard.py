@@ -17,7 +17,10 @@ def register(subparsers):
                     "Runs until stopped (Ctrl-C, SIGTERM). 'jmlgdsl monitor --http' serves the same page "
                     "from the monitor itself.")
     p.add_argument("store", help=STORE_HELP)
-    p.add_argument("--run", type=int, metavar="N", help="which run of the store (default the latest)")
+    which = p.add_mutually_exclusive_group()
+    which.add_argument("--run", type=int, metavar="N", help="which run of the store (default the latest)")
+    which.add_argument("--unit", metavar="NAME", help="a fleet's store: the latest run of this unit (the page "
+                                                      "lists the others)")
     add_store_password_options(p)
     add_page_options(p, default="127.0.0.1:8050")
     p.set_defaults(func=main)
@@ -31,12 +34,13 @@ def main(args) -> int:
 
     password = store_password(args)
     with Store(args.store, create=False, password=password) as store:
-        if store.run(args.run) is None:
-            raise StoreError(f"{args.store}: the store holds no run yet")
+        if store.run(args.run, unit=args.unit) is None:
+            raise StoreError(f"{args.store}: the store holds no run " + (f"of unit {args.unit}; its units: "
+                             f"{', '.join(store.units()) or 'none'}" if args.unit else "yet"))
     stop = threading.Event()
     for signum in (signal.SIGTERM, signal.SIGINT):
         signal.signal(signum, lambda *_: stop.set())
-    page = start_page(args, args.store, args.run, password)
+    page = start_page(args, args.store, args.run, password, args.unit)
     stop.wait()
     page.stop()
     print("the page is stopped", file=sys.stderr)

@@ -14,7 +14,9 @@ def register(subparsers):
     p.add_argument("store", help=STORE_HELP)
     p.add_argument("-o", "--output", default="-", help="the result table (default - : standard output)")
     p.add_argument("--samples", metavar="FILE.csv", help="also write the rows diagnosed, as a data file")
-    p.add_argument("--run", type=int, metavar="N", help="which run of the store (default the latest)")
+    which = p.add_mutually_exclusive_group()
+    which.add_argument("--run", type=int, metavar="N", help="which run of the store (default the latest)")
+    which.add_argument("--unit", metavar="NAME", help="a fleet's store: the latest run of this unit")
     add_store_password_options(p)
     p.set_defaults(func=main)
 
@@ -29,9 +31,13 @@ def main(args) -> int:
     check_file(args.output, inputs=[args.store])
     check_file(args.samples, inputs=[args.store, args.output], option="--samples")
     with Store(args.store, create=False, password=store_password(args)) as store:
-        run = store.run(args.run)
+        run = store.run(args.run, unit=args.unit)
         if run is None:
-            raise DataError(f"{args.store}: the store holds no run yet")
+            raise DataError(f"{args.store}: the store holds no run " + (f"of unit {args.unit}; its units: "
+                            f"{', '.join(store.units()) or 'none'}" if args.unit else "yet"))
+        if run.unit is not None and args.unit is None and args.run is None:
+            raise DataError(f"{args.store}: a fleet's store; say which unit with --unit (one of "
+                            f"{', '.join(store.units())})")
         for path, write in ((args.output, store.write_table), (args.samples, store.write_samples)):
             if path is None:
                 continue

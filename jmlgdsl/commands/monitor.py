@@ -26,6 +26,11 @@ def register(subparsers):
                    help="a CSV file (followed as it grows), - (standard input), mqtt://HOST:PORT/PREFIX, "
                         "mqtts://HOST:PORT/PREFIX or opc.tcp://HOST:PORT/PATH")
     p.add_argument("--store", required=True, metavar="PATH|URL", help=STORE_HELP + "; made when absent")
+    p.add_argument("--units", metavar="NAMES",
+                   help="watch the units of a fleet with one spec: names and ranges such as pump01..pump200,spare; "
+                        "{unit} in --source and in the tag file stands for each one's name (a CSV file per unit, "
+                        "data/{unit}.csv; MQTT topics PREFIX/{unit}/NAME on one connection; OPC UA node ids). "
+                        "Each unit has its own run in the store, named by its unit column (docs/fleet.md)")
     p.add_argument("--tags", metavar="FILE.toml", help="per spec name: topic or node id, unit scale and offset, "
                                                        "time stamps of the source or of arrival")
     p.add_argument("--new-run", action="store_true",
@@ -69,12 +74,14 @@ def main(args) -> int:
     import jmlgdsl
 
     from ..monitor import Monitor, Store, monitor_options, read_tags
+    from ..monitor.fleet import unit_names
     from ..monitor.sources import credentials, open_bus
     from ..diagnosis.prefilter import parse
 
     model = jmlgdsl.load(args.spec)
     check_particles(args, model)
     tags = read_tags(args.tags, model)
+    units = None if args.units is None else unit_names(args.units)
     options = monitor_options(
         algorithm=args.filter, particles=args.particles, seed=args.seed, resampling=args.resampling,
         ess_threshold=args.ess_threshold, lag=args.lag, prefilter=parse(args.prefilter),
@@ -83,7 +90,7 @@ def main(args) -> int:
     source = open_bus(args.source, model, tags, follow=not args.no_follow, client_id=args.client_id,
                       credentials=credentials(args.username, args.password_env, args.password_file),
                       ca_file=args.ca_file, security=args.security, certificate=args.certificate,
-                      private_key=args.private_key)
+                      private_key=args.private_key, units=units)
     stop = threading.Event()
     for signum in (signal.SIGTERM, signal.SIGINT):
         signal.signal(signum, lambda *_: stop.set())
@@ -92,14 +99,16 @@ def main(args) -> int:
     try:
         with Store(args.store, password=password) as store:
             monitor = Monitor(model, store, source, spec=_text(args.spec), options=options, tags=tags,
-                              new_run=args.new_run, log=lambda text: print(f"monitor: {text}", file=sys.stderr,
+                              units=units, new_run=args.new_run, log=lambda text: print(f"monitor: {text}", file=sys.stderr,
                                                                            flush=True))
             stopped = monitor.run(stop)
     finally:
         if page is not None:
             page.stop()
     events = ", ".join(f"{kind} {n}" for kind, n in sorted(stopped.events.items()))
-    print(f"{model.name}: {stopped.rows} rows diagnosed in run {stopped.runs[0]} of {args.store} ({stopped.stored} in "
+    runs = (f"run {stopped.runs[0]}" if units is None else
+            f"the runs of {len(units)} units ({stopped.runs[0]}..{stopped.runs[-1]})")
+    print(f"{model.name}: {stopped.rows} rows diagnosed in {runs} of {args.store} ({stopped.stored} in "
           f"all){'; events: ' + events if events else ''}", file=sys.stderr)
     return 0
 

@@ -1,5 +1,6 @@
 """Readings from an MQTT broker (paho-mqtt 2): each spec name NAME from topic PREFIX/NAME (or the tag
-file's topic), and objects of several names per sample on PREFIX itself.
+file's topic), and objects of several names per sample on PREFIX itself. For the units of a fleet
+(jmlgdsl.monitor.fleet) the topics are PREFIX/UNIT/NAME and PREFIX/UNIT, all on one connection.
 
 The session is persistent (a fixed client id, clean session off) and subscribed at QoS 1, so the
 broker keeps what is published while the monitor is down and delivers it when it is back. Messages
@@ -19,6 +20,7 @@ import time
 import paho.mqtt.client as mqtt
 
 from . import bus
+from .fleet import PLACEHOLDER, for_unit, unit_tags
 from .payload import Malformed, decode
 from .urls import address
 
@@ -27,18 +29,25 @@ REFUSED = (134, 135)  # bad user name or password, not authorized: trying again 
 
 class MqttSource:
     """A broker's messages as readings: put(("readings", [(name, value, time)], arrival, token)),
-    put(("malformed", message, token)) and put(("event", Event)); `acknowledge(tokens)` after a commit."""
+    put(("malformed", message, token)) and put(("event", Event)); `acknowledge(tokens)` after a commit.
+    With `units`, every item is handed over as (unit index, item) (None: the connection's, for every unit)."""
 
     rows = False
 
-    def __init__(self, url, model, tags, *, client_id: str, credentials=None, ca_file=None):
+    def __init__(self, url, model, tags, *, client_id: str, credentials=None, ca_file=None, units=None):
         self.tls = url.startswith("mqtts://")
         self.host, self.port, prefix = address(url, 8883 if self.tls else 1883)
         self.name = f"{'mqtts' if self.tls else 'mqtt'}://{self.host}:{self.port}/{prefix}"
         self.names = list(model.outputs) + list(model.inputs)
-        self.topics = {tag.topic or (f"{prefix}/{name}" if prefix else name): name for name, tag in tags.items()}
-        if prefix:
-            self.topics[prefix] = None  # one object of several names per sample
+        self.units = units
+        self.topics = {}  # topic -> (unit index or None, spec name or None: an object of several names)
+        for i, unit in enumerate([None] if units is None else units):
+            where = (prefix if unit is None else for_unit(prefix, unit) if PLACEHOLDER in prefix
+                     else "/".join(filter(None, (prefix, unit))))
+            for name, tag in (tags if unit is None else unit_tags(tags, unit)).items():
+                self.topics[tag.topic or (f"{where}/{name}" if where else name)] = (i, name)
+            if where:
+                self.topics[where] = (i, None)
         self.client_id, self.credentials, self.ca_file = client_id, credentials, ca_file
         self.client = None
 
@@ -53,41 +62,45 @@ class MqttSource:
             client.tls_set(ca_certs=self.ca_file)
         where = f"{self.host}:{self.port}"
 
+        def hand(item, unit=None):
+            put(item if self.units is None else (unit, item))
+
         def on_connect(client, userdata, flags, reason, properties):
             if reason.is_failure:
                 if reason.value in REFUSED:
                     client.disconnect()
-                    put(("fatal", bus.refused(self.name, "broker", reason)))
+                    hand(("fatal", bus.refused(self.name, "broker", reason)))
                 else:
-                    put(("event", bus.unreachable(where, f"it refused the connection: {reason}")))
+                    hand(("event", bus.unreachable(where, f"it refused the connection: {reason}")))
                 return
             client.subscribe([(topic, 1) for topic in self.topics])
             resumed = "resumed its session" if flags.session_present else "a new session"
-            put(("event", bus.connected(where, f"as {self.client_id}, {resumed}")))
+            hand(("event", bus.connected(where, f"as {self.client_id}, {resumed}")))
 
         def on_connect_fail(client, userdata):
             error = sys.exc_info()[1]  # paho calls this while it handles the connection's OSError
             if isinstance(error, ssl.SSLCertVerificationError):
-                put(("fatal", f"{self.name}: the broker's certificate is not trusted ({error.verify_message}); give "
+                hand(("fatal", f"{self.name}: the broker's certificate is not trusted ({error.verify_message}); give "
                               "the certificate authority that signed it with --ca-file"))
             elif isinstance(error, ssl.SSLError):
-                put(("fatal", f"{self.name}: no TLS connection ({error.reason or error}): is {self.port} the "
+                hand(("fatal", f"{self.name}: no TLS connection ({error.reason or error}): is {self.port} the "
                               "broker's TLS port?"))
             else:
-                put(("event", bus.unreachable(where, error or "no answer")))
+                hand(("event", bus.unreachable(where, error or "no answer")))
 
         def on_disconnect(client, userdata, flags, reason, properties):
             if self.client is not None:
-                put(("event", bus.lost(where, reason)))
+                hand(("event", bus.lost(where, reason)))
 
         def on_message(client, userdata, message):
             token = (message.mid, message.qos)
+            unit, name = self.topics.get(message.topic, (None, None))
             try:
                 if message.topic not in self.topics:  # a subscription left in the session by an earlier run
                     raise Malformed("not a topic of this monitor's tags")
-                put(("readings", decode(message.payload, self.topics[message.topic], self.names), time.time(), token))
+                hand(("readings", decode(message.payload, name, self.names), time.time(), token), unit)
             except Malformed as exc:
-                put(("malformed", f"topic {message.topic}: {exc}", token))
+                hand(("malformed", f"topic {message.topic}: {exc}", token), unit)
 
         client.on_connect, client.on_connect_fail = on_connect, on_connect_fail
         client.on_disconnect, client.on_message = on_disconnect, on_message

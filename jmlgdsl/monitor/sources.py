@@ -3,6 +3,8 @@
     path/to/data.csv, -              CsvSource (jmlgdsl.monitor.follow)
     mqtt://HOST:PORT/PREFIX          MqttSource (jmlgdsl.monitor.mqtt); mqtts:// over TLS
     opc.tcp://HOST:PORT/PATH         OpcuaSource (jmlgdsl.monitor.opcua)
+
+and, for the units of a fleet, the same with {unit} in them (jmlgdsl.monitor.fleet).
 """
 
 from __future__ import annotations
@@ -11,6 +13,7 @@ import os
 from urllib.parse import urlsplit
 
 from ..errors import JmlgError
+from .fleet import PLACEHOLDER, FleetError, UnitSources, for_unit, unit_tags
 from .follow import CsvSource
 
 
@@ -47,8 +50,9 @@ def secret(what: str, env: str | None, path: str | None) -> str | None:
 
 def open_bus(url: str, model, tags, *, follow: bool = True, client_id: str | None = None, credentials=None,
              ca_file: str | None = None, security: str | None = None, certificate: str | None = None,
-             private_key: str | None = None):
-    """The source a --source URL names (not yet started); an option its kind does not take is refused."""
+             private_key: str | None = None, units=None):
+    """The source a --source URL names (not yet started), of the named `units` of a fleet when given;
+    an option its kind does not take is refused."""
     scheme = urlsplit(url).scheme if "://" in url else ""
     given = {"--username": credentials is not None, "--client-id": client_id, "--ca-file": ca_file,
              "--security": security, "--certificate": certificate, "--private-key": private_key}
@@ -57,17 +61,30 @@ def open_bus(url: str, model, tags, *, follow: bool = True, client_id: str | Non
 
         _refuse(url, "an MQTT source", given, "--security", "--certificate", "--private-key")
         return MqttSource(url, model, tags, client_id=client_id or f"jmlgdsl-{model.name}",
-                          credentials=credentials, ca_file=ca_file)
+                          credentials=credentials, ca_file=ca_file, units=units)
     if scheme == "opc.tcp":
         from .opcua import OpcuaSource
 
         _refuse(url, "an OPC UA source", given, "--client-id", "--ca-file")
+        if units is not None:
+            plain = sorted(name for name, tag in tags.items() if PLACEHOLDER not in (tag.node or ""))
+            if plain:
+                raise FleetError(f"--units with an OPC UA source: the tag file's node id of {plain[0]} holds no "
+                                 f"{PLACEHOLDER}, so every unit would read the same node")
+            return UnitSources([OpcuaSource(url, model, unit_tags(tags, unit), credentials=credentials,
+                                            security=security, certificate=certificate, private_key=private_key)
+                                for unit in units], url)
         return OpcuaSource(url, model, tags, credentials=credentials, security=security, certificate=certificate,
                            private_key=private_key)
     if scheme:
         raise JmlgError(f"--source {url}: unknown scheme {scheme!r}; use a CSV file, -, mqtt://, mqtts:// or "
                         "opc.tcp://")
     _refuse(url, "a CSV source", given, *given)
+    if units is not None:
+        if PLACEHOLDER not in url:
+            raise FleetError(f"--units with a CSV source: give the files as a template with {PLACEHOLDER} in it, "
+                             f"e.g. data/{PLACEHOLDER}.csv, not {url}")
+        return UnitSources([CsvSource(for_unit(url, unit), model, follow) for unit in units], url)
     return CsvSource(url, model, follow)
 
 

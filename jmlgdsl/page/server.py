@@ -75,15 +75,16 @@ def loopback(host: str) -> bool:
 
 
 class Page:
-    """The page of a store's run (the latest unless `run` is given), served from a thread once
-    `start`ed, at `url`, until `stop` (jmlgdsl.page shows an example)."""
+    """The page of a store's run (the latest unless `run` is given, or the latest of a fleet's `unit`;
+    the page can switch to any other unit of a fleet), served from a thread once `start`ed, at `url`,
+    until `stop` (jmlgdsl.page shows an example)."""
 
     def __init__(self, store_path, host: str = "127.0.0.1", port: int = 8050, *, token: str | None = None,
-                 run: int | None = None, store_password: str | None = None):
+                 run: int | None = None, unit: str | None = None, store_password: str | None = None):
         if not loopback(host) and not token:
             raise PageError(f"--http {host}:{port}: the page may be reached from other machines there; give a "
                             "token with --http-token-env or --http-token-file (or bind to 127.0.0.1)")
-        self.store_path, self.token, self.run_id = str(store_path), token, run
+        self.store_path, self.token, self.run_id, self.unit = str(store_path), token, run, unit
         self.store_password = store_password  # a PostgreSQL store's, for each thread's connection
         self.stopping = threading.Event()
         self._local = threading.local()
@@ -124,8 +125,14 @@ class Page:
             self._local.store = None
             store.close()
 
-    def run(self):
-        run = self.store().run(self.run_id)
+    def run(self, unit: str | None = None):
+        """The run the page shows: the one it was started on (default the latest), or a fleet's unit's latest."""
+        if unit:
+            run = self.store().run(unit=unit)
+            if run is None:
+                raise StoreError(f"{self.store_path}: the store holds no run of unit {unit}")
+            return run
+        run = self.store().run(self.run_id, unit=self.unit)
         if run is None:
             raise StoreError(f"{self.store_path}: the store holds no run yet")
         return run
@@ -152,23 +159,24 @@ def _handler(page: Page):
                     name, kind = STATIC[parts.path]
                     self._send(HTTPStatus.OK, resources.files(__package__).joinpath("static", name).read_bytes(), kind)
                 elif parts.path == "/api/run":
-                    self._json(views.run_info(page.store(), page.run(), page.token is not None))
+                    self._json(views.run_info(page.store(), page.run(query.get("unit")), page.token is not None))
                 elif parts.path == "/api/rows":
-                    self._send(HTTPStatus.OK, views.rows(page.store(), page.run(), **_window(query)).json.encode(),
-                               "application/json")
+                    self._send(HTTPStatus.OK, views.rows(page.store(), page.run(query.get("unit")),
+                                                         **_window(query)).json.encode(), "application/json")
                 elif parts.path == "/api/alarms":
-                    self._json(views.alarms(page.store(), page.run()))
+                    self._json(views.alarms(page.store(), page.run(query.get("unit"))))
                 elif parts.path == "/api/evidence":
-                    self._json(views.evidence(page.store(), page.run(), int(query.get("alarm", 0))))
+                    self._json(views.evidence(page.store(), page.run(query.get("unit")), int(query.get("alarm", 0))))
                 elif parts.path == "/api/stream":
-                    self._stream(int(self.headers.get("Last-Event-ID") or query.get("after") or 0))
+                    self._stream(int(self.headers.get("Last-Event-ID") or query.get("after") or 0), query.get("unit"))
                 else:
                     self._error(HTTPStatus.NOT_FOUND, f"no page {parts.path}")
             except (ValueError, StoreError) as exc:
                 self._error(HTTPStatus.BAD_REQUEST, str(exc))
 
         def do_POST(self):
-            found = ACTION.match(urlsplit(self.path).path)
+            parts = urlsplit(self.path)
+            found = ACTION.match(parts.path)
             if found is None:
                 return self._error(HTTPStatus.NOT_FOUND, f"no action {self.path}")
             if self.headers.get_content_type() != "application/json" or not self._same_origin():
@@ -178,7 +186,7 @@ def _handler(page: Page):
                 return self._error(HTTPStatus.UNAUTHORIZED, "this page needs its token to act on alarms")
             try:
                 body = json.loads(self.rfile.read(min(int(self.headers.get("Content-Length") or 0), 65536)) or b"{}")
-                store, run = page.store(), page.run()
+                store, run = page.store(), page.run(parse_qs(parts.query).get("unit", [None])[-1])
                 store.act(run.id, int(found[1]), found[2], str(body.get("who", "")), body.get("reason"))
                 self._json(views.alarms(store, run))
             except (ValueError, StoreError) as exc:
@@ -188,7 +196,7 @@ def _handler(page: Page):
             origin = self.headers.get("Origin")
             return origin is None or urlsplit(origin).netloc == self.headers.get("Host")
 
-        def _stream(self, after: int):
+        def _stream(self, after: int, unit: str | None):
             """Rows after `after` as they are stored, and the alarms whenever they change, until the
             page goes away or the server stops."""
             self.send_response(HTTPStatus.OK)
@@ -196,7 +204,7 @@ def _handler(page: Page):
             for key, value in HEADERS.items():
                 self.send_header(key, value)
             self.end_headers()
-            store, run, seen, quiet = page.store(), page.run(), None, time.monotonic()
+            store, run, seen, quiet = page.store(), page.run(unit), None, time.monotonic()
             try:
                 while not page.stopping.is_set():
                     found = views.rows(store, run, after=after, limit=STREAM_ROWS)

@@ -32,6 +32,13 @@ function element(tag, text, className) {
   return node;
 }
 
+// A fleet's page shows one unit at a time: ?unit=NAME picks it (default the one the server was started on).
+const UNIT = new URLSearchParams(location.search).get("unit");
+
+function api(path) {
+  return UNIT ? `${path}${path.includes("?") ? "&" : "?"}unit=${encodeURIComponent(UNIT)}` : path;
+}
+
 async function getJSON(url) {
   const response = await fetch(url, {cache: "no-store"});
   if (!response.ok) throw new Error((await response.json()).error || response.statusText);
@@ -40,9 +47,16 @@ async function getJSON(url) {
 
 // ------------------------------------------------------------------ start
 async function start() {
-  state.run = await getJSON("api/run");
+  state.run = await getJSON(api("api/run"));
   const run = state.run;
   $("plant").textContent = run.plant;
+  if (run.fleet.length) {
+    const units = $("unit");
+    for (const name of run.fleet) units.appendChild(element("option", name)).value = name;
+    units.value = run.unit;
+    units.hidden = false;
+    units.addEventListener("change", () => { location.search = `?unit=${encodeURIComponent(units.value)}`; });
+  }
   $("source").textContent = `${run.source || ""} · filter ${run.filter}${run.lag ? ", lag " + run.lag : ""}`;
   document.title = `${run.plant}: jmlgdsl monitor`;
   $("tokenbox").hidden = !run.token_required;
@@ -55,15 +69,15 @@ async function start() {
   for (const canvas of document.querySelectorAll("canvas")) interact(canvas);
   $("live").addEventListener("click", () => goLive());
   window.addEventListener("resize", draw);
-  state.rows = await getJSON("api/rows");
-  showAlarms(await getJSON("api/alarms"));
+  state.rows = await getJSON(api("api/rows"));
+  showAlarms(await getJSON(api("api/alarms")));
   draw();
   stream();
 }
 
 function stream() {
   const last = state.rows.t.length ? state.rows.t[state.rows.t.length - 1] : 0;
-  const source = new EventSource(`api/stream?after=${last}`);
+  const source = new EventSource(api(`api/stream?after=${last}`));
   source.addEventListener("rows", (event) => append(JSON.parse(event.data)));
   source.onopen = () => { if (state.live) latest(state.rows); };
   source.addEventListener("alarms", (event) => showAlarms(JSON.parse(event.data)));
@@ -116,7 +130,7 @@ function goLive() {
   state.live = true;
   state.window = null;
   $("live").className = "on";
-  getJSON("api/rows").then((rows) => { state.rows = rows; draw(); });
+  getJSON(api("api/rows")).then((rows) => { state.rows = rows; draw(); });
 }
 
 let pending = null;
@@ -128,7 +142,7 @@ function moveTo(first, last) {
   clearTimeout(pending);
   pending = setTimeout(async () => {   // the rows of the new window, thinned to the page's width
     const [a, b] = state.window;
-    state.rows = await getJSON(`api/rows?first=${Math.max(1, a)}&last=${b}&limit=1500`);
+    state.rows = await getJSON(api(`api/rows?first=${Math.max(1, a)}&last=${b}&limit=1500`));
     draw();
   }, 120);
 }
@@ -351,7 +365,7 @@ async function act(alarm, kind, reason) {
   $("actionerror").textContent = "";
   const headers = {"Content-Type": "application/json"};
   if (state.run.token_required) headers.Authorization = `Bearer ${$("token").value}`;
-  const response = await fetch(`api/alarms/${alarm.id}/${kind}`, {
+  const response = await fetch(api(`api/alarms/${alarm.id}/${kind}`), {
     method: "POST", headers, body: JSON.stringify({who: $("who").value, reason})});
   const answer = await response.json();
   if (!response.ok) { $("actionerror").textContent = answer.error; return; }
@@ -362,7 +376,7 @@ async function select(alarm) {
   state.selected = alarm.id;
   for (const row of $("alarmlist").children) row.classList.toggle("selected", Number(row.dataset.alarm) === alarm.id);
   $("whyfor").textContent = `alarm ${alarm.id}: ${alarm.mode || ""}`;
-  const found = await getJSON(`api/evidence?alarm=${alarm.id}`);
+  const found = await getJSON(api(`api/evidence?alarm=${alarm.id}`));
   const box = $("evidence");
   box.replaceChildren();
   if (!found.rows) {

@@ -1,0 +1,108 @@
+"""A fleet: many units of one plant (pumps, dryers, gearboxes of one design) watched by one monitor
+with one spec. `--units pump01..pump200` names the units; `{unit}` in the source and in the tag
+file stands for each unit's name:
+
+    mqtt://HOST:PORT/PREFIX          topics PREFIX/{unit}/NAME (and PREFIX/{unit} for objects of
+                                     several names), on one connection; or a tag file's topics
+                                     with {unit} in them
+    data/{unit}.csv                  a file per unit, each followed as it grows
+    opc.tcp://HOST:PORT/PATH         a tag file whose node ids hold {unit}: a session per unit
+
+Each unit has its run in the store (the run's `unit` column names it) and every commit holds the
+rows and state of every unit that moved (jmlgdsl.monitor.live).
+
+    >>> unit_names("pump01..pump03,spare")
+    ['pump01', 'pump02', 'pump03', 'spare']
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import re
+import threading
+
+from ..errors import JmlgError
+
+PLACEHOLDER = "{unit}"
+RANGE = re.compile(r"^(?P<stem>.*?)(?P<first>\d+)\.\.(?P=stem)(?P<last>\d+)$")
+NAME = re.compile(r"^[A-Za-z0-9_.-]+$")  # a unit's name goes into topics, file names and SQL values
+
+
+class FleetError(JmlgError):
+    """A unit list or a template that cannot name a fleet's units."""
+
+
+def unit_names(text: str) -> list[str]:
+    """The unit names of `--units`: comma-separated names and ranges STEM01..STEM20 (the digits'
+    width kept, as in pump001..pump120), each name once."""
+    names = []
+    for item in (part.strip() for part in text.split(",")):
+        found = RANGE.match(item)
+        if found:
+            first, last = found["first"], found["last"]
+            if int(last) < int(first):
+                raise FleetError(f"--units {item}: the range runs backwards")
+            width = len(first) if first.startswith("0") or len(first) == len(last) else 0
+            names += [f"{found['stem']}{n:0{width}d}" for n in range(int(first), int(last) + 1)]
+        elif NAME.match(item):
+            names.append(item)
+        else:
+            raise FleetError(f"--units {text}: {item!r} is not a unit name (letters, digits, _ . -) nor a range "
+                             "such as pump01..pump20")
+    twice = sorted({name for name in names if names.count(name) > 1})
+    if twice:
+        raise FleetError(f"--units {text}: unit {twice[0]} is named twice")
+    return names
+
+
+def for_unit(template: str | None, unit: str) -> str | None:
+    """A template with {unit} replaced by a unit's name."""
+    return None if template is None else template.replace(PLACEHOLDER, unit)
+
+
+def unit_tags(tags: dict, unit: str) -> dict:
+    """A tag file's tags for one unit (its topics and node ids with {unit} replaced)."""
+    return {name: dataclasses.replace(tag, topic=for_unit(tag.topic, unit), node=for_unit(tag.node, unit))
+            for name, tag in tags.items()}
+
+
+class UnitSources:
+    """One source per unit, as one source of a fleet: each unit's items handed over as (unit index,
+    item), its acknowledgement tokens as (unit index, token), its position as the list of the
+    units' positions; the data end once every unit's have."""
+
+    def __init__(self, sources, name: str):
+        self.sources, self.name = list(sources), name
+        self.rows = self.sources[0].rows
+        self._ended, self._lock = 0, threading.Lock()
+
+    def start(self, put, positions):
+        def unit_put(i):
+            def handed(item):
+                kind = item[0]
+                if kind in ("readings", "malformed"):
+                    item = item[:-1] + ((i, item[-1]),)
+                if kind == "end":
+                    with self._lock:  # the sources' threads end at their own moments
+                        self._ended += 1
+                        last = self._ended == len(self.sources)
+                    if last:
+                        put((None, item))
+                    return
+                put((i, item))
+            return handed
+
+        for i, (source, position) in enumerate(zip(self.sources, positions)):
+            source.start(unit_put(i), position)
+
+    def acknowledge(self, tokens):
+        mine = [[] for _ in self.sources]
+        for i, token in tokens:
+            mine[i].append(token)
+        for source, given in zip(self.sources, mine):
+            if given:
+                source.acknowledge(given)
+
+    def stop(self):
+        for source in self.sources:
+            source.stop()
