@@ -31,6 +31,15 @@ def register(subparsers):
                         "{unit} in --source and in the tag file stands for each one's name (a CSV file per unit, "
                         "data/{unit}.csv; MQTT topics PREFIX/{unit}/NAME on one connection; OPC UA node ids). "
                         "Each unit has its own run in the store, named by its unit column (docs/fleet.md)")
+    p.add_argument("--cluster", metavar="auto|HOST:PORT",
+                   help="with --units: spread the units over a Ray cluster, a shard of units per actor, each with "
+                        "its own connection to the source and the store (auto: a Ray on this machine for this "
+                        "command, reachable from 127.0.0.1 only; HOST:PORT: a cluster started with ray start "
+                        "--head). A shard whose process dies is started again and resumes from its last commit. "
+                        "Needs pip install 'jmlgdsl[cluster]'")
+    p.add_argument("--shards", type=int, metavar="N",
+                   help="with --cluster: the number of shards (default one per CPU of the cluster, at most one per "
+                        "unit; keep it the same across restarts, as each shard keeps its own MQTT session)")
     p.add_argument("--tags", metavar="FILE.toml", help="per spec name: topic or node id, unit scale and offset, "
                                                        "time stamps of the source or of arrival")
     p.add_argument("--new-run", action="store_true",
@@ -68,15 +77,14 @@ def register(subparsers):
 
 
 def main(args) -> int:
-    import signal
-    import threading
-
     import jmlgdsl
 
     from ..monitor import Monitor, Store, monitor_options, read_tags
     from ..monitor.fleet import unit_names
     from ..monitor.sources import credentials, open_bus
     from ..diagnosis.prefilter import parse
+    from ..errors import JmlgError
+    from ..names import plural
 
     model = jmlgdsl.load(args.spec)
     check_particles(args, model)
@@ -87,30 +95,70 @@ def main(args) -> int:
         ess_threshold=args.ess_threshold, lag=args.lag, prefilter=parse(args.prefilter),
         healthy=healthy_modes(args), threshold=args.threshold,
         persistence=args.persistence, grace=args.grace, stale=args.stale, max_gap=args.max_gap)
-    source = open_bus(args.source, model, tags, follow=not args.no_follow, client_id=args.client_id,
-                      credentials=credentials(args.username, args.password_env, args.password_file),
-                      ca_file=args.ca_file, security=args.security, certificate=args.certificate,
-                      private_key=args.private_key, units=units)
-    stop = threading.Event()
-    for signum in (signal.SIGTERM, signal.SIGINT):
-        signal.signal(signum, lambda *_: stop.set())
+    if (args.cluster or args.shards) and units is None:
+        raise JmlgError(f"{'--cluster' if args.cluster else '--shards'} spreads the units of a fleet: give --units")
+    if args.shards is not None and (args.cluster is None or args.shards < 1):
+        raise JmlgError("--shards needs --cluster" if args.cluster is None else "--shards: at least 1")
+    recipe = dict(url=args.source, follow=not args.no_follow, client_id=args.client_id,
+                  credentials=credentials(args.username, args.password_env, args.password_file),
+                  ca_file=args.ca_file, security=args.security, certificate=args.certificate,
+                  private_key=args.private_key)
+    source = open_bus(model=model, tags=tags, units=units, **recipe)  # refuses a bad source before anything starts
+    stop = stopped_by_signals()
     password = store_password(args)
-    page = start_page(args, args.store, password=password)  # the store's latest run: the one this monitor goes on
+    page = start_page(args, args.store, password=password, unit=units and units[0])
     try:
-        with Store(args.store, password=password) as store:
-            monitor = Monitor(model, store, source, spec=_text(args.spec), options=options, tags=tags,
-                              units=units, new_run=args.new_run, log=lambda text: print(f"monitor: {text}", file=sys.stderr,
-                                                                           flush=True))
-            stopped = monitor.run(stop)
+        if args.cluster:
+            stopped = _sharded(args, model, password, options, tags, units, recipe, stop)
+        else:
+            with Store(args.store, password=password) as store:
+                monitor = Monitor(model, store, source, spec=_text(args.spec), options=options, tags=tags,
+                                  units=units, new_run=args.new_run,
+                                  log=lambda text: print(f"monitor: {text}", file=sys.stderr, flush=True))
+                stopped = [monitor.run(stop)]
     finally:
         if page is not None:
             page.stop()
-    events = ", ".join(f"{kind} {n}" for kind, n in sorted(stopped.events.items()))
-    runs = (f"run {stopped.runs[0]}" if units is None else
-            f"the runs of {len(units)} units ({stopped.runs[0]}..{stopped.runs[-1]})")
-    print(f"{model.name}: {stopped.rows} rows diagnosed in {runs} of {args.store} ({stopped.stored} in "
-          f"all){'; events: ' + events if events else ''}", file=sys.stderr)
+    counts = {}
+    for part in stopped:
+        for kind, n in part.events.items():
+            counts[kind] = counts.get(kind, 0) + n
+    events = ", ".join(f"{kind} {n}" for kind, n in sorted(counts.items()))
+    runs = sorted(run for part in stopped for run in part.runs)
+    where = f"run {runs[0]}" if units is None else f"the runs of {plural(len(units), 'unit')} ({runs[0]}..{runs[-1]})"
+    shards = f" by {plural(len(stopped), 'shard')}" if args.cluster else ""
+    print(f"{model.name}: {sum(part.rows for part in stopped)} rows diagnosed in {where} of {args.store}{shards} "
+          f"({sum(part.stored for part in stopped)} in all){'; events: ' + events if events else ''}", file=sys.stderr)
     return 0
+
+
+def _sharded(args, model, password, options, tags, units, recipe, stop):
+    """The fleet's units in shards on a Ray cluster: each shard's Stopped."""
+    from ..cluster import connect, disconnect
+    from ..monitor.shards import run_shards
+    from ..names import plural
+
+    ray = connect(args.cluster)
+    stop = stopped_by_signals(stop)  # Ray puts its own handlers in when it starts
+    try:
+        count = args.shards or max(1, min(len(units), int(ray.cluster_resources().get("CPU", 1))))
+        print(f"monitor: {plural(len(units), 'unit')} in {plural(count, 'shard')} on the Ray cluster "
+              f"{args.cluster}", file=sys.stderr, flush=True)
+        return run_shards(ray, model, args.store, password, spec=_text(args.spec), options=options, tags=tags,
+                          units=units, count=count, source=recipe, new_run=args.new_run, stop=stop)
+    finally:
+        disconnect()
+
+
+def stopped_by_signals(stop=None):
+    """An event (`stop`, or a new one) that SIGTERM and Ctrl-C set."""
+    import signal
+    import threading
+
+    stop = stop or threading.Event()
+    for signum in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(signum, lambda *_: stop.set())
+    return stop
 
 
 def _text(path) -> str | None:

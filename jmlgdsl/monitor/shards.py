@@ -1,0 +1,108 @@
+"""A fleet's monitor spread over a Ray cluster (`jmlgdsl monitor --units ... --cluster auto|HOST:PORT`):
+the units split into shards, each shard a `Monitor` of its units in a Ray actor, with its own
+connection to the source (an MQTT session of its own, its units' files or OPC UA sessions) and
+to the store (PostgreSQL for a cluster of machines; an SQLite file serves the shards of one).
+
+Every shard commits its units' rows with their state, and acknowledges to its source only after,
+as a monitor on its own does. An actor that dies (its process killed, its machine gone) is started
+again by Ray: its Monitor resumes its units' runs from their last commit, its source delivers again
+what was not acknowledged, and its `run` call is made again, so no row is lost or diagnosed twice.
+The driver makes (or checks) every unit's run before any shard starts, so a restarted shard only
+ever resumes; `stop` ends every shard with a last commit.
+
+    >>> split(["p1", "p2", "p3", "p4", "p5"], 2)
+    [['p1', 'p2', 'p3'], ['p4', 'p5']]
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+from urllib.parse import urlsplit
+
+from ..errors import JmlgError
+from .live import Monitor, Stopped
+from .sources import open_bus
+from .store import Store
+
+STOPPING = 30.0  # seconds the shards have to commit and end once stopped
+
+
+def split(units: list, count: int) -> list[list]:
+    """`units` in `count` contiguous shards of sizes that differ by one at most (the first ones larger)."""
+    size, extra = divmod(len(units), count)
+    bounds = [0]
+    for k in range(count):
+        bounds.append(bounds[-1] + size + (k < extra))
+    return [units[a:b] for a, b in zip(bounds, bounds[1:])]
+
+
+class Shard:
+    """A Monitor of some units of a fleet, as a Ray actor runs it: made (resumed from the store) when
+    the actor starts or starts again, `run()` until `stop()`. `source` holds open_bus's keywords
+    (the URL, credentials, ...); the shard's MQTT client id is the fleet's with its index."""
+
+    def __init__(self, model, location: str, password: str | None, spec: str | None, options: dict, tags: dict,
+                 units: list, index: int, source: dict):
+        recipe = dict(source)
+        if urlsplit(recipe["url"]).scheme in ("mqtt", "mqtts"):  # a persistent session of its own
+            recipe["client_id"] = f"{recipe.get('client_id') or 'jmlgdsl-' + model.name}-{index}"
+        self.store = Store(location, password=password)
+        self.monitor = Monitor(model, self.store, open_bus(model=model, tags=tags, units=units, **recipe), spec=spec,
+                               options=options, tags=tags, units=units)
+        self.stopping = threading.Event()
+
+    def run(self) -> Stopped:
+        try:
+            return self.monitor.run(self.stopping)
+        finally:
+            self.store.close()
+
+    def stop(self):
+        self.stopping.set()
+
+    def pid(self) -> int:
+        """The actor's process (to watch it, or kill it in a test of restarts)."""
+        return os.getpid()
+
+
+def run_shards(ray, model, location: str, password: str | None, *, spec: str | None, options: dict, tags: dict,
+               units: list, count: int, source: dict, new_run: bool = False, stop: threading.Event | None = None,
+               started=None) -> list[Stopped]:
+    """Monitor `units` in `count` shards on the joined Ray cluster until their data end or `stop` is
+    set; each shard's Stopped (of its last start). `source` holds open_bus's keywords; `started`,
+    when given, is called with the actors once they run (to watch or kill them)."""
+    with Store(location, password=password) as store:  # every unit's run made or checked here, once
+        Monitor(model, store, open_bus(model=model, tags=tags, units=units, **source), spec=spec, options=options,
+                tags=tags, units=units, new_run=new_run)
+    actor = ray.remote(max_restarts=-1, max_task_retries=-1, max_concurrency=3, num_cpus=1)(Shard)
+    actors = [actor.remote(model, location, password, spec, options, tags, part, k, source)
+              for k, part in enumerate(split(units, count))]
+    running = [a.run.remote() for a in actors]
+    if started is not None:
+        started(actors)
+    stop = stop or threading.Event()
+    try:
+        waiting = list(running)
+        while waiting and not stop.is_set():
+            ready, waiting = ray.wait(waiting, num_returns=1, timeout=0.2)
+            _unwrapped(ray, ready)  # a shard that fails stops the fleet
+    finally:
+        stopping = [a.stop.remote() for a in actors]  # each commits what it handled, then ends
+        ray.wait(running + stopping, num_returns=len(actors) * 2, timeout=STOPPING)
+    try:
+        return _unwrapped(ray, running)
+    finally:
+        for a in actors:
+            ray.kill(a, no_restart=True)
+
+
+def _unwrapped(ray, refs) -> list:
+    """ray.get, with a shard's own error (a jmlgdsl error: a refused password, a store that fails)
+    raised as itself rather than wrapped in Ray's."""
+    try:
+        return ray.get(refs)
+    except ray.exceptions.RayTaskError as exc:
+        if isinstance(exc.cause, JmlgError):
+            raise exc.cause from None
+        raise

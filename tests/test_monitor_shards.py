@@ -1,0 +1,116 @@
+"""A fleet's monitor spread over a local Ray cluster (`jmlgdsl monitor --units ... --cluster auto`),
+every Ray server bound to 127.0.0.1: the units split into shards; a shard's process killed with
+SIGKILL while its units' files grow is started again by Ray and resumes from its last commit, and
+every unit's exported table equals the uninterrupted `jmlgdsl run` of its file, with no row lost or
+stored twice. Also the refusals of the options that go with a cluster."""
+
+import os
+import signal
+import subprocess
+import threading
+import time
+
+import pytest
+from conftest import jmlgdsl_command
+from monitor_servers import LINES, SPEC, WAIT, query, stop, until
+
+from jmlgdsl.cli import main
+from jmlgdsl.monitor.shards import split
+
+pytest.importorskip("ray", reason="Ray is not installed (pip install '.[cluster]')")
+
+UNITS = ["p1", "p2", "p3", "p4"]
+
+
+def test_units_are_split_into_contiguous_shards_of_nearly_equal_size():
+    assert split(UNITS, 1) == [UNITS]
+    assert split(UNITS, 3) == [["p1", "p2"], ["p3"], ["p4"]]
+    assert split([f"u{i}" for i in range(10)], 4) == [["u0", "u1", "u2"], ["u3", "u4", "u5"], ["u6", "u7"],
+                                                       ["u8", "u9"]]
+
+
+def shard_processes() -> list[int]:
+    """The processes of Ray actors running a shard (Ray names them after the class and its method)."""
+    found = []
+    for pid in filter(str.isdigit, os.listdir("/proc")):
+        try:
+            with open(f"/proc/{pid}/cmdline", "rb") as cmdline:
+                if cmdline.read().startswith(b"ray::Shard"):
+                    found.append(int(pid))
+        except OSError:
+            continue
+    return found
+
+
+def rows_of(store, unit):
+    return query(store, f"SELECT count(*) FROM result r JOIN run ON run.id = r.run WHERE run.unit = '{unit}'") or 0
+
+
+def test_a_killed_shard_is_restarted_and_every_unit_table_equals_the_uninterrupted_run(tmp_path):
+    files = {unit: tmp_path / f"{unit}.csv" for unit in UNITS}
+    starts = {"p1": 0, "p2": 100, "p3": 200, "p4": 300}  # each unit its own stretch of the recording, 600 rows
+    records = {unit: [LINES[0]] + LINES[1 + s:601 + s] for unit, s in starts.items()}
+    for unit, path in files.items():
+        path.write_text("".join(records[unit][:101]))
+    store = str(tmp_path / "fleet.db")
+    killed, done = threading.Event(), threading.Event()
+
+    def grow():  # the plants' loggers: ten rows a unit every 10 ms, going on through the kill
+        for start in range(101, 601, 10):
+            if start == 301:
+                killed.wait(WAIT)
+            for unit, path in files.items():
+                with open(path, "a") as out:
+                    out.writelines(records[unit][start:start + 10])
+            if done.wait(0.01):
+                return
+
+    command = [*jmlgdsl_command(), "monitor", SPEC, "--units", "p1..p4", "--source", str(tmp_path / "{unit}.csv"),
+               "--store", store, "--cluster", "auto", "--shards", "2"]
+    monitor = subprocess.Popen(command, stderr=subprocess.PIPE, text=True)
+    writer = threading.Thread(target=grow)
+    try:
+        until(lambda: all(rows_of(store, u) >= 100 for u in UNITS), "every unit's first 100 rows", monitor)
+        writer.start()
+        until(lambda: rows_of(store, "p1") >= 200, "unit p1's 200th row", monitor)
+        before = shard_processes()
+        assert len(before) == 2
+        victim = before[0]
+        os.kill(victim, signal.SIGKILL)
+        assert rows_of(store, "p1") < 600  # mid-stream
+        killed.set()
+        until(lambda: all(rows_of(store, u) == 600 for u in UNITS), "every unit's 600 rows", monitor)
+        after = shard_processes()
+        assert len(after) == 2 and victim not in after  # Ray started the killed shard again
+        err = stop(monitor)
+        writer.join(WAIT)
+    finally:
+        killed.set()
+        done.set()
+        if monitor.poll() is None:
+            monitor.kill()
+    assert "4 units in 2 shards on the Ray cluster auto" in err
+    for unit in UNITS:
+        assert query(store, f"SELECT count(DISTINCT r.t) || ',' || min(r.t) || ',' || max(r.t) FROM result r "
+                            f"JOIN run ON run.id = r.run WHERE run.unit = '{unit}'") == "600,1,600"
+        assert main(["export", store, "--unit", unit, "-o", str(tmp_path / f"{unit}-store.csv")]) == 0
+        assert main(["run", SPEC, str(files[unit]), "-o", str(tmp_path / f"{unit}-run.csv")]) == 0
+        assert (tmp_path / f"{unit}-store.csv").read_text() == (tmp_path / f"{unit}-run.csv").read_text()
+    # the killed shard's units were resumed, once each; the others ran on
+    resumed = query(store, "SELECT group_concat(run.unit) FROM event JOIN run ON run.id = event.run "
+                           "WHERE kind = 'resume'")
+    assert resumed in ("p1,p2", "p2,p1", "p3,p4", "p4,p3")
+
+
+@pytest.mark.parametrize("options, message", [
+    (["--cluster", "auto"], "--cluster spreads the units of a fleet: give --units"),
+    (["--shards", "2"], "--shards spreads the units of a fleet: give --units"),
+    (["--units", "a,b", "--shards", "2"], "--shards needs --cluster"),
+    (["--units", "a,b", "--cluster", "127.0.0.1:1"], "--cluster 127.0.0.1:1: nothing answers there"),
+])
+def test_the_options_of_a_cluster_are_refused_where_they_do_not_apply(tmp_path, capsys, options, message):
+    source = str(tmp_path / ("{unit}.csv" if "--units" in options else "data.csv"))
+    start = time.monotonic()
+    assert main(["monitor", SPEC, "--source", source, "--store", str(tmp_path / "s.db"), *options]) == 2
+    assert message in capsys.readouterr().err
+    assert time.monotonic() - start < 10  # refused at once, not after Ray's own minutes of retrying
