@@ -103,8 +103,10 @@ def mode_terms(predictive: Predictive, K: int) -> tuple[np.ndarray, np.ndarray]:
     without hypotheses has log prior -inf and NaN terms."""
     terms = chain_terms(predictive.residual, predictive.Linv)
     m = terms.shape[1]
-    prior, out = np.full(K, -np.inf), np.full((K, m), np.nan)
     weighed = np.isfinite(predictive.log_weight)
+    if len(predictive.mode) == K and (predictive.mode == np.arange(K)).all():  # a Gaussian per mode (imm)
+        return np.where(weighed, predictive.log_weight, -np.inf), np.where(weighed[:, None], terms, np.nan)
+    prior, out = np.full(K, -np.inf), np.full((K, m), np.nan)
     for k in np.unique(predictive.mode[weighed]):
         mine = weighed & (predictive.mode == k)
         a = predictive.log_weight[mine]

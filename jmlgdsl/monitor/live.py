@@ -78,6 +78,7 @@ class Monitor:
         self.fleet = units is not None
         self.units = [self._unit(spec, new_run, name) for name in (units if self.fleet else [None])]
         self.tokens = []
+        self.waiting = self.finished = 0  # rows diagnosed, and rows finished, since the last commit
         self.committed = clock.monotonic()
         self.counts = {}
         self.started_rows = self.stored
@@ -157,9 +158,8 @@ class Monitor:
                     self.commit()
                     continue
                 ended = self._handle(unit, item)
-                waiting = sum(len(watch.samples) for watch in self.units)
-                if waiting >= BATCH or len(self.tokens) >= BATCH or items.empty() and (
-                        any(watch.results for watch in self.units) or clock.monotonic() - self.committed >= GROUP):
+                if self.waiting >= BATCH or len(self.tokens) >= BATCH or items.empty() and (
+                        self.finished or clock.monotonic() - self.committed >= GROUP):
                     self.commit()
             if ended:
                 for watch in self.units:
@@ -209,6 +209,7 @@ class Monitor:
         self.store.save([watch.commit() for watch in dirty])
         for watch in dirty:
             watch.samples, watch.results, watch.events, watch.dirty = [], [], [], False
+        self.waiting = self.finished = 0
         self.committed = clock.monotonic()
         tokens, self.tokens = self.tokens, []
         self.source.acknowledge(tokens)
@@ -237,6 +238,7 @@ class Watch:
     def feed(self, row):
         self.rows += 1
         self.samples.append((self.rows, row))
+        self.monitor.waiting += 1
         self.diagnosis.feed(row)
         self.dirty = True
 
@@ -247,6 +249,7 @@ class Watch:
         sd = (self.nan_sd if last is None else
               predictive_sd(self.monitor.model, last.mode_posterior, last.state_mean, last.state_cov, done.row.u))
         self.results.append((done, sd))
+        self.monitor.finished += 1
         self.previous = done.step
 
     def event(self, event: Event):
