@@ -114,3 +114,17 @@ def test_the_options_of_a_cluster_are_refused_where_they_do_not_apply(tmp_path, 
     assert main(["monitor", SPEC, "--source", source, "--store", str(tmp_path / "s.db"), *options]) == 2
     assert message in capsys.readouterr().err
     assert time.monotonic() - start < 10  # refused at once, not after Ray's own minutes of retrying
+
+
+def test_a_shard_never_makes_a_store_of_its_own(tmp_path):
+    # on another machine of a cluster an SQLite path names no file: a shard would make a second store
+    # there and diagnose into it; it refuses and says what a cluster of machines needs
+    import jmlgdsl
+    from jmlgdsl.monitor import StoreError, monitor_options
+    from jmlgdsl.monitor.shards import Shard
+
+    missing = tmp_path / "elsewhere.db"
+    with pytest.raises(StoreError, match=r"is not on the machine of shard 1 .*share a PostgreSQL store"):
+        Shard(jmlgdsl.load(SPEC), str(missing), None, None, monitor_options(), {}, ["p1"], 1,
+              {"url": str(tmp_path / "{unit}.csv"), "follow": False})
+    assert not missing.exists()

@@ -17,12 +17,14 @@ ever resumes; `stop` ends every shard with a last commit.
 from __future__ import annotations
 
 import os
+import socket
 import threading
 from urllib.parse import urlsplit
 
 from ..errors import JmlgError
 from .live import Monitor, Stopped
 from .sources import open_bus
+from .databases import StoreError, is_url
 from .store import Store
 
 STOPPING = 30.0  # seconds the shards have to commit and end once stopped
@@ -47,7 +49,10 @@ class Shard:
         recipe = dict(source)
         if urlsplit(recipe["url"]).scheme in ("mqtt", "mqtts"):  # a persistent session of its own
             recipe["client_id"] = f"{recipe.get('client_id') or 'jmlgdsl-' + model.name}-{index}"
-        self.store = Store(location, password=password)
+        if not is_url(location) and not os.path.exists(location):
+            raise StoreError(f"the store {location} is not on the machine of shard {index} ({socket.gethostname()}): "
+                             "the shards of a cluster of machines share a PostgreSQL store (postgresql://...)")
+        self.store = Store(location, password=password, create=False)  # made by the driver: never another here
         self.monitor = Monitor(model, self.store, open_bus(model=model, tags=tags, units=units, **recipe), spec=spec,
                                options=options, tags=tags, units=units)
         self.stopping = threading.Event()
