@@ -1,5 +1,5 @@
 """A fleet's monitor spread over a local Ray cluster (`jmlgdsl monitor --units ... --cluster auto`),
-every Ray server bound to 127.0.0.1: the units split into shards; a shard's process killed with
+every Ray server bound to 127.0.0.1 (checked against the machine's listening sockets): the units split into shards; a shard's process killed with
 SIGKILL while its units' files grow is started again by Ray and resumes from its last commit, and
 every unit's exported table equals the uninterrupted `jmlgdsl run` of its file, with no row lost or
 stored twice. Also the refusals of the options that go with a cluster."""
@@ -42,6 +42,21 @@ def shard_processes() -> list[int]:
     return found
 
 
+def listening() -> set[tuple[str, str]]:
+    """(address, port) of every TCP socket listening on this machine, as /proc/net shows them (hex)."""
+    found = set()
+    for table in ("/proc/net/tcp", "/proc/net/tcp6"):
+        with open(table) as lines:
+            for line in list(lines)[1:]:
+                fields = line.split()
+                if fields[3] == "0A":  # LISTEN
+                    found.add(tuple(fields[1].split(":")))
+    return found
+
+
+LOOPBACK = {"0100007F", "00000000000000000000000001000000", "0000000000000000FFFF00000100007F"}
+
+
 def rows_of(store, unit):
     return query(store, f"SELECT count(*) FROM result r JOIN run ON run.id = r.run WHERE run.unit = '{unit}'") or 0
 
@@ -67,15 +82,18 @@ def test_a_killed_shard_is_restarted_and_every_unit_table_equals_the_uninterrupt
 
     command = [*jmlgdsl_command(), "monitor", SPEC, "--units", "p1..p4", "--source", str(tmp_path / "{unit}.csv"),
                "--store", store, "--cluster", "auto", "--shards", "2"]
+    before = listening()
     monitor = subprocess.Popen(command, stderr=subprocess.PIPE, text=True)
     writer = threading.Thread(target=grow)
     try:
         until(lambda: all(rows_of(store, u) >= 100 for u in UNITS), "every unit's first 100 rows", monitor)
+        opened = listening() - before
+        assert opened and {address for address, _ in opened} <= LOOPBACK, opened  # Ray's servers: 127.0.0.1 only
         writer.start()
         until(lambda: rows_of(store, "p1") >= 200, "unit p1's 200th row", monitor)
-        before = shard_processes()
-        assert len(before) == 2
-        victim = before[0]
+        shards = shard_processes()
+        assert len(shards) == 2
+        victim = shards[0]
         os.kill(victim, signal.SIGKILL)
         assert rows_of(store, "p1") < 600  # mid-stream
         killed.set()
