@@ -24,7 +24,8 @@ FIELDS = ("mode_posterior", "state_mean", "state_cov", "y_pred", "residuals", "l
 def fleet_data(model, units, T, seed=0):
     """Simulated records of `units` units, each spoilt its own way: a gap in the first output, a row
     with nothing measured and an absurd reading, a burst beyond the gate, every 7th reading of the
-    second output missing, and lengths that differ."""
+    second output missing, and lengths that differ. Every other unit moves its inputs a little a
+    quarter of the way in, so the fleet's inputs agree at first (offsets shared) and then do not."""
     ys, us = [], []
     for s in range(units):
         sim = simulate(model, T + 7 * s, seed=seed + s)
@@ -39,8 +40,11 @@ def fleet_data(model, units, T, seed=0):
             y[T // 2:T // 2 + 4, 0] += 40.0
         elif kind == 4 and model.ny > 1:
             y[::7, 1] = np.nan
+        u = sim.u.copy()
+        if s % 2:
+            u[T // 4:] += 0.05 * s
         ys.append(y)
-        us.append(sim.u)
+        us.append(u)
     return ys, us
 
 
