@@ -19,6 +19,7 @@ from __future__ import annotations
 import ipaddress
 import os
 import socket
+import sys
 
 from .errors import JmlgError
 
@@ -34,18 +35,24 @@ def connect(address: str):
     """This process joined to the Ray cluster at `address` ('auto': a new local one on the loopback);
     returns the ray module. A process joins one cluster: a second call returns the same."""
     os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
-    os.environ.setdefault("RAY_AUTH_MODE", "token")  # as `ray start` sets up: the token in ~/.ray/auth_token
+    if "ray" not in sys.modules:  # Ray reads its authentication mode once, when it is imported
+        os.environ.setdefault("RAY_AUTH_MODE", "token")  # as `ray start` sets up: the token in ~/.ray/auth_token
     if address != LOCAL:
         host = _reachable(address)
-    if address == LOCAL or ipaddress.ip_address(socket.gethostbyname(host)).is_loopback:
+    loopback = address == LOCAL or ipaddress.ip_address(socket.gethostbyname(host)).is_loopback
+    if loopback:
         # Ray takes this machine's address from its outgoing interface, even for a cluster on the loopback,
-        # unless told before it is imported that it is not part of a cluster of machines; then its node
-        # address, and every server's, is the loopback.
+        # unless told that it is not part of a cluster of machines; then its node address, and every
+        # server's, is the loopback. The processes it starts read this from the environment; this one
+        # read it when it imported Ray, which may have been before this call.
         os.environ["RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER"] = "0"
     try:
         import ray
+        from ray._private import ray_constants
     except ImportError:
         raise ClusterError("--cluster needs Ray: pip install 'jmlgdsl[cluster]'") from None
+    if loopback:
+        ray_constants.ENABLE_RAY_CLUSTER = False
     if ray.is_initialized():
         return ray
     options = dict(include_dashboard=False, log_to_driver=False, configure_logging=False)

@@ -1,7 +1,8 @@
 """A monitor's store in PostgreSQL, against a real server these tests start on 127.0.0.1 (Debian's
 postgresql, which .ci/run installs; they skip without one): the exported table equals `jmlgdsl run
 -o`, a monitor killed with SIGKILL mid-file and started again loses and repeats no row, the page's
-API reads and acts on the store, monitors in schemas of their own write one database at once, and a
+API reads and acts on the store, monitors in schemas of their own write one database at once, as do
+the Ray shards of a fleet's monitor, and a
 wrong password, or one in the URL, is refused with a message that names the store and not the
 password."""
 
@@ -265,3 +266,19 @@ def test_a_wrong_password_is_refused_by_name_without_showing_it(server, monkeypa
     with pytest.raises(Exception, match="an SQLite store takes no password"):
         Store(tmp_path / "dryer.db", password=PASSWORD)
     assert query(server, url, "SELECT count(*) FROM pg_tables WHERE schemaname = 'public'") == [(0,)]
+
+
+def test_the_shards_of_a_fleet_on_ray_write_one_store(server, password, tmp_path):
+    # four units in two Ray shards (two processes, each with its own connection) write one database
+    pytest.importorskip("ray", reason="Ray is not installed (pip install '.[cluster]')")
+    url = server.database()
+    lines = DATA.read_text().splitlines(keepends=True)
+    for k, unit in enumerate(("u1", "u2", "u3", "u4")):
+        (tmp_path / f"{unit}.csv").write_text("".join([lines[0], *lines[1 + 50 * k:301 + 50 * k]]))
+    assert main(["monitor", SPEC, "--units", "u1..u4", "--source", str(tmp_path / "{unit}.csv"), "--no-follow",
+                 "--store", url, *password, "--cluster", "auto", "--shards", "2"]) == 0
+    assert query(server, url, "SELECT unit, count(*) FROM result JOIN run ON run.id = result.run GROUP BY unit "
+                              "ORDER BY unit") == [(unit, 300) for unit in ("u1", "u2", "u3", "u4")]
+    for unit in ("u1", "u2", "u3", "u4"):
+        assert (table("export", url, *password, "--unit", unit, tmp_path=tmp_path)
+                == table("run", SPEC, str(tmp_path / f"{unit}.csv"), tmp_path=tmp_path, name="run.csv"))

@@ -141,7 +141,7 @@ def _sharded(args, model, password, options, tags, units, recipe, stop):
     ray = connect(args.cluster)
     stop = stopped_by_signals(stop)  # Ray puts its own handlers in when it starts
     try:
-        count = args.shards or max(1, min(len(units), int(ray.cluster_resources().get("CPU", 1))))
+        count = min(len(units), args.shards or max(1, int(ray.cluster_resources().get("CPU", 1))))
         print(f"monitor: {plural(len(units), 'unit')} in {plural(count, 'shard')} on the Ray cluster "
               f"{args.cluster}", file=sys.stderr, flush=True)
         return run_shards(ray, model, args.store, password, spec=_text(args.spec), options=options, tags=tags,

@@ -44,7 +44,7 @@ def unit_names(text: str) -> list[str]:
                 raise FleetError(f"--units {item}: the range runs backwards")
             width = len(first) if first.startswith("0") or len(first) == len(last) else 0
             names += [f"{found['stem']}{n:0{width}d}" for n in range(int(first), int(last) + 1)]
-        elif NAME.match(item):
+        elif NAME.match(item) and ".." not in item:
             names.append(item)
         else:
             raise FleetError(f"--units {text}: {item!r} is not a unit name (letters, digits, _ . -) nor a range "

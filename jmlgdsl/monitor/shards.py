@@ -82,7 +82,7 @@ def run_shards(ray, model, location: str, password: str | None, *, spec: str | N
                 tags=tags, units=units, new_run=new_run)
     actor = ray.remote(max_restarts=-1, max_task_retries=-1, max_concurrency=3, num_cpus=1)(Shard)
     actors = [actor.remote(model, location, password, spec, options, tags, part, k, source)
-              for k, part in enumerate(split(units, count))]
+              for k, part in enumerate(split(units, min(count, len(units))))]
     running = [a.run.remote() for a in actors]
     if started is not None:
         started(actors)
