@@ -40,6 +40,13 @@ def register(subparsers):
                    help="draw the mode posterior over time, the MAP and true modes, and measured vs "
                         "predicted outputs with residuals")
     add_alarm_options(p)
+    p.add_argument("--cluster", metavar="auto|HOST:PORT",
+                   help="with several data files: diagnose them on a Ray cluster, the files split into as many "
+                        "chunks as the cluster has CPUs, each chunk a task that steps its units together; the "
+                        "tables are the same as without it (auto: a Ray on this machine for this command, "
+                        "reachable from 127.0.0.1 only; HOST:PORT: a cluster started with ray start --head, "
+                        "whose machines all see the data files at the same paths). Needs pip install "
+                        "'jmlgdsl[cluster]'")
     when = p.add_mutually_exclusive_group()
     when.add_argument("--lag", type=int, metavar="L",
                       help="fixed-lag smoothing: report each row once L more rows have arrived, with "
@@ -91,6 +98,8 @@ def main(args) -> int:
         if args.detect or args.name:
             raise JmlgError(f"--detect and --name take one data file, not {len(args.data)}")
         return fleet(args)
+    if args.cluster:
+        raise JmlgError("--cluster spreads several data files over a Ray cluster; with one file, leave it out")
     args.data = args.data[0]
     streaming = args.data == "-"
     if streaming and args.output is None:
@@ -144,17 +153,19 @@ def main(args) -> int:
 
 def fleet(args) -> int:
     """`run` on several data files, one unit of the plant each: a table per unit in the folder -o
-    (none unless every unit is diagnosed) and a line per unit on standard output."""
-    import io
+    (none unless every unit is diagnosed) and a line per unit on standard output; with --cluster,
+    chunks of the files in Ray tasks (jmlgdsl.diagnosis.fleet.diagnose_files)."""
+    import contextlib
     from pathlib import Path
 
     import jmlgdsl
 
-    from ..data import iter_rows, open_source, open_target
-    from ..diagnosis import AlarmRule, TableSink
-    from ..diagnosis.fleet import Fleet
+    from ..cluster import connect, disconnect
+    from ..data import open_target
+    from ..diagnosis import AlarmRule
+    from ..diagnosis.fleet import diagnose_files
     from ..diagnosis.prefilter import parse
-    from ..errors import DataError, JmlgError
+    from ..errors import JmlgError
     from ..output import check_folder
     from ..names import plural
 
@@ -174,35 +185,31 @@ def fleet(args) -> int:
     window = parse(args.prefilter)
     model = jmlgdsl.load(args.spec)
     check_particles(args, model)
-    records = []
-    for path in args.data:
-        with open_source(path) as source:
-            records.append(list(iter_rows(source, model, source.name)))
-        if not records[-1]:
-            raise DataError(f"{path}: no data rows")
-    tables = [io.StringIO() for _ in args.data]
-    lag = None if args.smooth else args.lag or 0
-    sinks = [[TableSink(table, model, lag)] if args.output is not None else [] for table in tables]
-    run = Fleet(model, len(args.data), sinks=sinks, algorithm=args.filter, particles=args.particles,
-                seed=args.seed, resampling=args.resampling, ess_threshold=args.ess_threshold, lag=lag,
-                prefilter=window, rule=AlarmRule(tuple(healthy_modes(args) or model.modes[:1]), args.threshold,
-                                                 args.persistence)).run(records)
+    with contextlib.ExitStack() as joined:
+        if args.cluster:
+            connect(args.cluster)  # refused here, before any work, when no cluster answers
+            joined.callback(disconnect)
+        history = diagnose_files(
+            model, args.data, tables=args.output is not None, cluster=args.cluster,
+            progress=sys.stderr if sys.stderr.isatty() else None, algorithm=args.filter, particles=args.particles,
+            seed=args.seed, resampling=args.resampling, ess_threshold=args.ess_threshold,
+            lag=None if args.smooth else args.lag or 0, prefilter=window,
+            rule=AlarmRule(tuple(healthy_modes(args) or model.modes[:1]), args.threshold, args.persistence))
     if args.output is not None:
         Path(args.output).mkdir(parents=True, exist_ok=True)
-        for name, table in zip(names, tables):
+        for name, unit in zip(names, history.units):
             with open_target(Path(args.output) / name) as out:
-                out.write(table.getvalue())
-    for path, unit in zip(args.data, run.units):
-        summary = unit.summary
-        line = (f"{path}: {plural(summary.T, 'step')}, last mode {model.modes[summary.current]}, "
-                f"{plural(unit.alarms.raised, 'alarm')} raised")
-        if summary.labelled:
-            line += f", diagnosis error {summary.diagnosis_error:.2f} %"
+                out.write(unit.table)
+    for unit in history.units:
+        line = (f"{unit.path}: {plural(unit.steps, 'step')}, last mode {unit.last_mode}, "
+                f"{plural(unit.alarms, 'alarm')} raised")
+        if unit.error is not None:
+            line += f", diagnosis error {unit.error:.2f} %"
         print(line)
-    steps = sum(unit.summary.T for unit in run.units)
-    how = "one filter for every unit" if run.filter is not None else "a filter per unit"
-    print(f"{model.name}: {plural(len(run.units), 'unit')}, filter {args.filter} ({how}), "
-          f"{1e6 * run.seconds / max(steps, 1):.2f} us per unit-step")
+    steps = sum(unit.steps for unit in history.units)
+    how = "one filter for every unit" if history.batched else "a filter per unit"
+    print(f"{model.name}: {plural(len(history.units), 'unit')}, filter {args.filter} ({how}), "
+          f"{1e6 * history.seconds / max(steps, 1):.2f} us per unit-step")
     if args.output is not None:
         print(f"tables: {args.output}")
     return 0

@@ -3,7 +3,12 @@
 Every unit has its own `Diagnosis` (pre-filter, alarm rule, summary, truth scoring, scale check and
 sinks), so each unit's finished rows are those of diagnosing it alone. Their filters run as one
 vectorised `Units` filter where there is one (imm, without a lag); otherwise each unit's Diagnosis
-filters its own rows. `jmlgdsl run SPEC a.csv b.csv ... -o OUTDIR/` is a fleet with a table per unit.
+filters its own rows.
+
+`diagnose_files` is `jmlgdsl run SPEC a.csv b.csv ... -o OUTDIR/`: each file a unit, its table and
+summary; with `cluster` the files are split into chunks, one per CPU of a Ray cluster, each chunk a
+Fleet in a Ray task. Every unit's rows are those of diagnosing it alone, so the tables are the same
+bytes however the files are chunked.
 
     >>> import jmlgdsl
     >>> from jmlgdsl.data import iter_rows, open_source
@@ -14,15 +19,27 @@ filters its own rows. `jmlgdsl run SPEC a.csv b.csv ... -o OUTDIR/` is a fleet w
     >>> fleet = Fleet(model, 2).run([rows, rows[:500]])     # one unit's record is cut short
     >>> [(d.summary.T, model.modes[d.summary.current], d.alarms.raised) for d in fleet.units]
     [(1000, 'fan', 3), (500, 'normal', 2)]
+    >>> history = diagnose_files(model, ["examples/dryer_seq1.csv"])
+    >>> unit = history.units[0]
+    >>> (unit.steps, unit.last_mode, unit.alarms, unit.table.split(",")[:4])
+    (1000, 'fan', 3, ['t', 'time', 'map_mode', 'p_normal'])
 """
 
 from __future__ import annotations
 
+import io
+import os
+from dataclasses import dataclass
+
 import numpy as np
 
+from ..data import iter_rows, open_source
+from ..errors import DataError, JmlgError
 from ..infer.units import Units
 from ..model import Model
+from ..progress import Progress
 from .pipeline import Diagnosis
+from .sinks import TableSink
 
 
 class Fleet:
@@ -71,3 +88,92 @@ class Fleet:
     def seconds(self) -> float:
         """Time spent filtering, every unit together."""
         return self.filter.seconds if self.filter is not None else sum(u.filter.seconds for u in self.units)
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """One data file diagnosed as a unit of a fleet: what its summary line says, and its table (the
+    CSV text `jmlgdsl run -o` writes; None when no table was asked for)."""
+
+    path: str
+    steps: int
+    last_mode: str
+    alarms: int  # alarms raised
+    error: float | None  # diagnosis error %, where the data carry the true mode
+    table: str | None
+
+
+@dataclass(frozen=True)
+class History:
+    """Many data files diagnosed: an Outcome per file in the order given, whether one vectorised filter
+    stepped the units together (`Fleet.filter`), and the seconds spent filtering, every unit together."""
+
+    units: list[Outcome]
+    batched: bool
+    seconds: float
+
+
+def diagnose_files(model: Model, paths, *, tables: bool = True, cluster: str | None = None, progress=None,
+                   **options) -> History:
+    """Diagnose every data file in `paths` as a unit of a fleet (the options are a Diagnosis's), with
+    its table when `tables`; a file without data rows, or with a bad one, is a DataError naming it.
+
+    With `cluster` (an address as `jmlgdsl.cluster.connect` takes it: 'auto' or HOST:PORT) the files
+    are split into as many contiguous chunks as the cluster has CPUs (at most one per file), each chunk
+    a Fleet in a Ray task, and `progress` (a stream, or None) counts the files as their chunks finish.
+    The process stays joined to the cluster (`jmlgdsl.cluster.disconnect()` leaves it). The tasks read
+    the files where they run, by their absolute paths here: a cluster of machines needs them in a folder
+    every machine sees at the same path. A chunk that fails stops the others and raises its own error."""
+    if cluster is None:
+        return _diagnose_chunk(model, list(paths), "", tables, options)
+    from ..cluster import connect
+
+    ray = connect(cluster)
+    count = max(1, min(len(paths), int(ray.cluster_resources().get("CPU", 1))))
+    chunks = [[paths[i] for i in part] for part in np.array_split(np.arange(len(paths)), count)]
+    task = ray.remote(num_cpus=1)(_diagnose_chunk)
+    refs = [task.remote(model, chunk, os.getcwd(), tables, options) for chunk in chunks]
+    bar = Progress(len(paths), progress, "files")
+    parts = [None] * len(refs)
+    for i, part in completed(ray, refs):
+        parts[i] = part
+        bar.update(len(part.units))
+    return History([unit for part in parts for unit in part.units], parts[0].batched,
+                   sum(part.seconds for part in parts))
+
+
+def _diagnose_chunk(model: Model, paths: list, folder: str, tables: bool, options: dict) -> History:
+    """Some files diagnosed as one Fleet: in this process, or in a Ray task on a cluster, whose working
+    folder is not the driver's; a relative path is from `folder` ('': this process's own)."""
+    records = []
+    for path in paths:
+        with open_source(os.path.join(folder, path)) as source:
+            records.append(list(iter_rows(source, model, path)))
+        if not records[-1]:
+            raise DataError(f"{path}: no data rows")
+    texts = [io.StringIO() if tables else None for _ in paths]
+    sinks = [[TableSink(text, model, options.get("lag", 0))] if tables else [] for text in texts]
+    run = Fleet(model, len(paths), sinks=sinks, **options).run(records)
+    units = [Outcome(path, unit.summary.T, model.modes[unit.summary.current], unit.alarms.raised,
+                     unit.summary.diagnosis_error if unit.summary.labelled else None,
+                     text.getvalue() if tables else None)
+             for path, unit, text in zip(paths, run.units, texts)]
+    return History(units, run.filter is not None, run.seconds)
+
+
+def completed(ray, refs):
+    """(index, result) of each Ray task in `refs` as it finishes. A task's jmlgdsl error is raised as
+    itself, not wrapped in Ray's traceback (its message is the one a user gets without a cluster), and
+    the tasks still running are cancelled."""
+    index = {ref: i for i, ref in enumerate(refs)}
+    waiting = list(refs)
+    while waiting:
+        ready, waiting = ray.wait(waiting, num_returns=1)
+        try:
+            yield index[ready[0]], ray.get(ready[0])
+        except ray.exceptions.RayTaskError as exc:
+            for ref in waiting:
+                ray.cancel(ref)
+            if isinstance(exc.cause, JmlgError):
+                raise exc.cause from None
+            raise
