@@ -1,4 +1,5 @@
-"""Filter sweeps: seeds, the unit of work, summaries and tables, the process pool, Dask and the CLI."""
+"""Filter sweeps: seeds, the unit of work, summaries and tables, the process pool, a local Ray cluster
+(bound to 127.0.0.1) and the CLI."""
 
 import csv
 import io
@@ -10,6 +11,7 @@ from infer_models import dryer
 import jmlgdsl
 from jmlgdsl.studies import sweep
 from jmlgdsl.cli import main
+from jmlgdsl.cluster import ClusterError, disconnect
 from jmlgdsl.data import write_columns
 from jmlgdsl.errors import DataError
 from jmlgdsl.progress import Progress
@@ -102,12 +104,28 @@ def test_sweeps_repeat_exactly_and_the_pool_matches_serial_runs(model, sequence)
     assert _without_time(other) != _without_time(serial)
 
 
-def test_the_sweep_runs_on_a_dask_cluster_with_the_same_results(model, sequence):
-    distributed = pytest.importorskip("distributed")
-    args = (model, [sequence], ("la-rbpf",), (2,), 2, 3)
-    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, dashboard_address=None) as cluster:
-        remote = sweep.sweep(*args, scheduler=cluster.scheduler_address)
+def test_the_sweep_runs_on_a_local_ray_cluster_with_the_same_results(model, sequence, files, tmp_path, capsys):
+    """Each run a Ray task: the library's records, and the command's runs.csv, are the serial run's
+    (the time per step apart); a failing run's error is the one without a cluster; the command stops
+    the Ray it started."""
+    ray = pytest.importorskip("ray", reason="Ray is not installed (pip install '.[cluster]')")
+    args = (model, [sequence], ("la-rbpf", "imm"), (2,), 2, 3)
+    bad = sweep.Sequence("bad", sequence.y[:, :0], sequence.u, sequence.modes)  # no output column
+    try:
+        remote = sweep.sweep(*args, cluster="auto")
+        with pytest.raises(DataError, match=r"^y must have shape"):
+            sweep.sweep(model, [bad], ("imm",), (1,), runs=3, cluster="auto")
+    finally:
+        disconnect()
     assert _without_time(remote) == _without_time(sweep.sweep(*args, workers=1))
+    spec, data = files
+    common = ["bench", str(spec), str(data), "--runs", "2", "--particles", "2", "--filters", "rbpf,imm", "--no-figures"]
+    assert main([*common, "--workers", "1", "-o", str(tmp_path / "serial")]) == 0
+    assert main([*common, "--cluster", "auto", "-o", str(tmp_path / "ray")]) == 0
+    assert not ray.is_initialized()
+    assert "4/4 runs" in capsys.readouterr().err
+    assert (_without_time(read_records(tmp_path / "ray" / "runs.csv"))
+            == _without_time(read_records(tmp_path / "serial" / "runs.csv")))
 
 
 def test_bad_sweeps_are_user_errors(model, sequence):
@@ -130,12 +148,14 @@ def test_a_failing_run_stops_the_pool_with_its_error(model, sequence):
         sweep.sweep(model, [bad], ("imm",), (1,), runs=3, workers=2)
 
 
-def test_an_unreachable_dask_scheduler_is_a_user_error(model, sequence):
-    dask = pytest.importorskip("dask")
-    pytest.importorskip("distributed")
-    with dask.config.set({"distributed.comm.timeouts.connect": "1s"}):
-        with pytest.raises(DataError, match="cannot reach the Dask scheduler at tcp://127.0.0.1:9"):
-            sweep.sweep(model, [sequence], ("imm",), (1,), runs=1, scheduler="tcp://127.0.0.1:9")
+def test_an_unreachable_cluster_is_a_user_error(model, sequence, files, capsys):
+    with pytest.raises(ClusterError, match="--cluster 127.0.0.1:9: nothing answers there"):
+        sweep.sweep(model, [sequence], ("imm",), (1,), runs=1, cluster="127.0.0.1:9")
+    with pytest.raises(DataError, match="give one or the other"):
+        sweep.sweep(model, [sequence], ("imm",), (1,), runs=1, workers=2, cluster="127.0.0.1:9")
+    spec, data = files
+    assert main(["bench", str(spec), str(data), "--runs", "1", "--cluster", "127.0.0.1:9"]) == 2
+    assert "is the cluster's head started (ray start --head)?" in capsys.readouterr().err
 
 
 RECORDS = [

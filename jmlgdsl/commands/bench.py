@@ -67,8 +67,13 @@ def register(subparsers):
     p.add_argument("--healthy", metavar="MODE[,MODE...]",
                    help="the modes that raise no alarm, as in run (default: the first mode of the spec); "
                         "the others are the faults to name")
-    p.add_argument("--workers", type=int, help="processes (default: every core; 1 runs in this process)")
-    p.add_argument("--scheduler", metavar="ADDRESS", help="run on this Dask scheduler (needs the dask extra)")
+    where = p.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=int, help="processes (default: every core; 1 runs in this process)")
+    where.add_argument("--cluster", metavar="auto|HOST:PORT",
+                       help="instead of --workers: every run a Ray task on a cluster, the same records as on this "
+                            "machine (auto: a Ray on this machine for this command, reachable from 127.0.0.1 "
+                            "only; HOST:PORT: a cluster started with ray start --head). Needs pip install "
+                            "'jmlgdsl[cluster]'")
     p.add_argument("-o", "--output", default="bench", help="folder for tables and figures (default ./bench)")
     p.add_argument("--no-figures", action="store_true", help="write the tables only")
     p.set_defaults(func=main)
@@ -76,10 +81,12 @@ def register(subparsers):
 
 def main(args) -> int:
     """Run the command on parsed arguments; returns the exit status."""
+    import contextlib
     from pathlib import Path
 
     import jmlgdsl
 
+    from ..cluster import connect, disconnect
     from ..diagnosis.prefilter import parse
     from ..output import check_folder
     from ..studies.study import sources, study
@@ -91,9 +98,13 @@ def main(args) -> int:
     model = jmlgdsl.load(args.spec)
     window = parse(args.prefilter)
     data = sources(model, args.data, args.simulate, args.modes, args.spec if args.nonlinear else None)
-    done = study(model, data, args.runs, filters=args.filters, particles=args.particles, seed=args.seed,
-                 prefilter=window, workers=args.workers, scheduler=args.scheduler, progress=sys.stderr,
-                 lags=args.lag, healthy=healthy_modes(args))
+    with contextlib.ExitStack() as joined:
+        if args.cluster:
+            connect(args.cluster)  # refused here, before any run, when no cluster answers
+            joined.callback(disconnect)
+        done = study(model, data, args.runs, filters=args.filters, particles=args.particles, seed=args.seed,
+                     prefilter=window, workers=args.workers, cluster=args.cluster, progress=sys.stderr,
+                     lags=args.lag, healthy=healthy_modes(args))
     print(done.report())
     written = done.write(args.output, figures_too=not args.no_figures)
     print("wrote " + ", ".join(str(p) for p in written))

@@ -1,8 +1,9 @@
 """Diagnosis-error studies: every filter at every particle count over independent runs.
 
 The unit of work is `run_job(job) -> record`, a plain top-level function of picklable arguments, so a
-sweep runs the same in a local process pool or on a Dask cluster. Seeds come from one root seed
-through `numpy.random.SeedSequence.spawn`, so a sweep reproduces bit for bit wherever it runs.
+sweep runs the same in a local process pool or as Ray tasks on a cluster (`jmlgdsl bench --cluster`).
+Seeds come from one root seed through `numpy.random.SeedSequence.spawn`, so a sweep reproduces bit
+for bit wherever it runs.
 Diagnosis error = percentage of steps whose most probable (MAP) mode differs from the true mode.
 Naming = percentage of the faulty rows (true mode not healthy) named right: while a row's alarm is up
 it is named by its most probable non-healthy mode, as `run --name` names rows; the counts of a
@@ -22,6 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..diagnosis.alarms import AlarmRule
+from ..diagnosis.fleet import completed
 from ..errors import DataError
 from ..infer import ALGORITHMS, filter as run_filter, particle_bytes, smooth
 from ..diagnosis.metrics import NamingCounts, naming_counts, switch_delays
@@ -202,54 +204,52 @@ def make_jobs(model, sources, filters=DEFAULT_FILTERS, particles=DEFAULT_PARTICL
     return jobs
 
 
-def execute(jobs, workers=None, scheduler=None, progress=None) -> list[dict]:
+def execute(jobs, workers=None, cluster=None, progress=None) -> list[dict]:
     """Run every job (in order of the list): serially for workers=1, in a process pool over
-    `workers` processes (default: every core), or on the Dask scheduler at address `scheduler`."""
+    `workers` processes (default: every core), or each job a Ray task on the cluster at `cluster`
+    ('auto' or HOST:PORT, as `jmlgdsl.cluster.connect` takes it; the process stays joined).
+    A failed run stops the sweep with its error."""
     if workers is not None and workers < 1:
         raise DataError(f"the number of worker processes must be at least 1, got {workers}")
+    if workers is not None and cluster is not None:
+        raise DataError("--workers counts processes on this machine and --cluster runs on the cluster's CPUs: "
+                        "give one or the other")
     bar = Progress(len(jobs), progress) if progress is not None else None
     records = [None] * len(jobs)
 
-    def collect(futures, as_completed):
-        """Store each result at its job's place as it arrives (a failed run raises here)."""
-        index = {f: i for i, f in enumerate(futures)}
-        for future in as_completed(futures):
-            records[index[future]] = future.result()
+    def collect(done):
+        """Store each (index, record) at its job's place as it arrives."""
+        for i, record in done:
+            records[i] = record
             if bar:
                 bar.update()
 
-    if scheduler is not None:
-        try:
-            from distributed import Client, as_completed
-        except ImportError:
-            raise DataError("--scheduler needs Dask: pip install 'jmlgdsl[dask]'") from None
-        try:
-            client = Client(scheduler)  # waits distributed.comm.timeouts.connect (30 s by default)
-        except OSError as exc:
-            raise DataError(f"cannot reach the Dask scheduler at {scheduler}: {exc}") from None
-        with client:
-            collect(client.map(run_job, jobs, pure=False), as_completed)
+    if cluster is not None:
+        from ..cluster import connect
+
+        ray = connect(cluster)
+        task = ray.remote(num_cpus=1)(run_job)
+        collect(completed(ray, [task.remote(job) for job in jobs]))
     elif (workers or os.cpu_count() or 1) == 1:
-        for i, job in enumerate(jobs):
-            records[i] = run_job(job)
-            if bar:
-                bar.update()
+        collect(enumerate(map(run_job, jobs)))
     else:
         from concurrent.futures import ProcessPoolExecutor, as_completed
 
         pool = ProcessPoolExecutor(max_workers=workers)
         try:
-            collect([pool.submit(run_job, job) for job in jobs], as_completed)
+            index = {pool.submit(run_job, job): i for i, job in enumerate(jobs)}
+            collect((index[future], future.result()) for future in as_completed(index))
         finally:
             pool.shutdown(cancel_futures=True)  # a failed run stops the sweep without waiting for the rest
     return records
 
 
 def sweep(model, sources, filters=DEFAULT_FILTERS, particles=DEFAULT_PARTICLES, runs=25, seed=0,
-          prefilter=None, workers=None, scheduler=None, progress=None, lags=(0,), healthy=None) -> list[dict]:
-    """Per-run records (see RECORD_FIELDS) of every filter at every particle count and lag on every source."""
+          prefilter=None, workers=None, cluster=None, progress=None, lags=(0,), healthy=None) -> list[dict]:
+    """Per-run records (see RECORD_FIELDS) of every filter at every particle count and lag on every
+    source; `workers` and `cluster` as `execute` takes them."""
     jobs = make_jobs(model, sources, filters, particles, runs, seed, prefilter, lags, healthy)
-    return execute(jobs, workers, scheduler, progress)
+    return execute(jobs, workers, cluster, progress)
 
 
 def summarise(records) -> list[dict]:
