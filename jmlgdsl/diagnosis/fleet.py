@@ -120,12 +120,15 @@ def diagnose_files(model: Model, paths, *, tables: bool = True, cluster: str | N
 
     With `cluster` (an address as `jmlgdsl.cluster.connect` takes it: 'auto' or HOST:PORT) the files
     are split into as many contiguous chunks as the cluster has CPUs (at most one per file), each chunk
-    a Fleet in a Ray task, and `progress` (a stream, or None) counts the files as their chunks finish.
-    The process stays joined to the cluster (`jmlgdsl.cluster.disconnect()` leaves it). The tasks read
-    the files where they run, by their absolute paths here: a cluster of machines needs them in a folder
-    every machine sees at the same path. A chunk that fails stops the others and raises its own error."""
+    a Fleet in a Ray task: every CPU busy, and each chunk's units as many as can share one vectorised
+    filter. `progress` (a stream, or None) counts the files as their chunks finish. The process stays
+    joined to the cluster (`jmlgdsl.cluster.disconnect()` leaves it). The tasks read the files where
+    they run, a relative path taken from this process's working folder: a cluster of machines needs
+    them in a folder every machine sees at the same path. A chunk that fails stops the others and
+    raises its own error."""
+    paths = list(paths)
     if cluster is None:
-        return _diagnose_chunk(model, list(paths), "", tables, options)
+        return _diagnose_chunk(model, paths, "", tables, options)
     from ..cluster import connect
 
     ray = connect(cluster)
