@@ -89,15 +89,20 @@ def test_the_wide_fleet_goes_through_every_path_of_the_step(wide, monkeypatch):
 @pytest.mark.parametrize("algorithm, particles", [("pf", 30), ("rbpf", 10), ("la-rbpf", 5), ("fc-rbpf", 3)])
 def test_every_particle_filter_over_units_equals_each_unit_alone(dryer, algorithm, particles):
     ys, us = fleet_data(dryer, 4, 80, seed=3)
-    for batched, y, u in zip(filter_units(dryer, ys, us, algorithm=algorithm, particles=particles, seed=7), ys, us):
+    results = filter_units(dryer, ys, us, algorithm=algorithm, particles=particles, seed=7)
+    for batched, y, u in zip(results, ys, us):
         assert_same(batched, jmlgdsl.filter(dryer, y, u, algorithm=algorithm, particles=particles, seed=7))
+    assert results[2].rejected.any() and results[3].rejected.any()
 
 
 def test_exact_over_units_equals_each_unit_alone(dryer):
-    ys, us = fleet_data(dryer, 3, 6)
-    ys, us = [y[:6 + i] for i, y in enumerate(ys)], [u[:6 + i] for i, u in enumerate(us)]  # 4^8 histories at most
-    for batched, y, u in zip(filter_units(dryer, ys, us, algorithm="exact"), ys, us):
+    ys, us = fleet_data(dryer, 4, 6)
+    ys, us = [y[:5 + i] for i, y in enumerate(ys)], [u[:5 + i] for i, u in enumerate(us)]  # 4^8 histories at most
+    ys[0][2], ys[3][3:5] = 1e9, ys[3][3:5] + 40.0  # an absurd reading, a burst beyond the gate
+    results = filter_units(dryer, ys, us, algorithm="exact")
+    for batched, y, u in zip(results, ys, us):
         assert_same(batched, jmlgdsl.filter(dryer, y, u, algorithm="exact"))
+    assert results[0].rejected[2].all() and results[3].rejected[3].all()
 
 
 def test_units_left_out_of_a_step_stay_where_they_are(dryer):

@@ -137,9 +137,9 @@ class BatchIMM:
     def _group(self, units, y, mask, u, prior, enforce) -> Batch:
         """`step` for units that share one mask (ny,); prior holds their mixing and predictions."""
         log_pred, covs, mu_p, y_pred = prior
-        m = int(mask.sum())
-        reusable = self.sure[units] & (self._mask[units] == mask).all(axis=-1)
-        if reusable.any():
+        m = np.count_nonzero(mask)
+        reusable = self.sure[units]
+        if reusable.any() and (reusable := reusable & (self._mask[units] == mask).all(axis=-1)).any():
             kept = (self._base[units], tuple(np.ascontiguousarray(p) for p in (
                 self._Linv[units][..., :m, :m], self._logdet[units], self._gain[units][..., :m, :], self._Sig[units])),
                 self._tol[units])
@@ -270,13 +270,13 @@ class Units:
     def _batched(self, index, t, y, mask, u) -> UnitSteps:
         counts = self._flagged[index]
         b = self._engine.step(y, mask, u, counts < MAX_REJECTIONS, index)
-        bad = ~(np.isfinite(b.loglik) & np.isfinite(b.cov).all(axis=(-2, -1)))
-        if bad.any():
-            i = int(np.flatnonzero(bad)[0])
+        if not (np.isfinite(b.loglik).all() and np.isfinite(b.cov).all()):  # the unit is looked for only then
+            i = int(np.flatnonzero(~(np.isfinite(b.loglik) & np.isfinite(b.cov).all(axis=(-2, -1))))[0])
             raise _unit_error(index, i, _overflow(int(t[i]), Estimate(b.post[i], b.mean[i], b.cov[i], b.y_pred[i],
                                                                        float(b.loglik[i]), np.nan)))
-        # `Filter._count_flagged`, unit by unit: a count only goes on while its output stays beyond the gate
-        self._flagged[index] = np.where(b.flagged, counts + 1, 0)
+        if b.flagged.any() or counts.any():
+            # `Filter._count_flagged`, unit by unit: a count only goes on while its output stays beyond the gate
+            self._flagged[index] = np.where(b.flagged, counts + 1, 0)
         return UnitSteps(t, b.post, b.mean, b.cov, b.y_pred, y - b.y_pred, b.loglik, np.full(len(t), np.nan),
                          b.rejected)
 
