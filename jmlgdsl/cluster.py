@@ -16,6 +16,7 @@ statistics, which Ray would otherwise offer to send, stay off.
 
 from __future__ import annotations
 
+import contextlib
 import ipaddress
 import os
 import socket
@@ -25,6 +26,7 @@ from .errors import JmlgError
 
 LOCAL = "auto"
 REACH = 5.0  # seconds a cluster's head has to answer
+POLL = 0.2  # seconds between looks at a stop event while tasks run
 
 
 class ClusterError(JmlgError):
@@ -78,7 +80,40 @@ def _reachable(address: str) -> str:
 
 def disconnect():
     """Leave the cluster (and stop a local one this process started)."""
-    import ray
-
-    if ray.is_initialized():
+    ray = sys.modules.get("ray")
+    if ray is not None and ray.is_initialized():
         ray.shutdown()
+
+
+@contextlib.contextmanager
+def joined(address: str | None):
+    """`connect(address)` for the block, then `disconnect()`; the ray module, or None (and nothing
+    joined) for address None."""
+    if address is None:
+        yield None
+        return
+    ray = connect(address)
+    try:
+        yield ray
+    finally:
+        disconnect()
+
+
+def completed(ray, refs, stop=None):
+    """(index, result) of each Ray task in `refs` as it finishes, until all have, or until `stop` (a
+    threading.Event) is set. A task's jmlgdsl error is raised as itself, not wrapped in Ray's
+    traceback (its message is the one a user gets without a cluster), and the tasks still running
+    are cancelled."""
+    index = {ref: i for i, ref in enumerate(refs)}
+    waiting = list(refs)
+    while waiting and not (stop is not None and stop.is_set()):
+        ready, waiting = ray.wait(waiting, num_returns=1, timeout=None if stop is None else POLL)
+        for ref in ready:
+            try:
+                yield index[ref], ray.get(ref)
+            except ray.exceptions.RayTaskError as exc:
+                for other in waiting:
+                    ray.cancel(other)
+                if isinstance(exc.cause, JmlgError):
+                    raise exc.cause from None
+                raise

@@ -16,8 +16,8 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]  # the checkout: its specs/ and examples/ are the tests' data
 # The environment the suite started with: a test's subprocess that must compute exactly as this process
-# does gets it back (Dask sets OPENBLAS_NUM_THREADS=1 and the like in os.environ when it starts a
-# cluster, and BLAS sums a long product in another order with another number of threads).
+# does gets it back (a library that starts worker processes may set OPENBLAS_NUM_THREADS=1 and the like
+# in os.environ, and BLAS sums a long product in another order with another number of threads).
 STARTUP_ENV = dict(os.environ)
 SOURCE = os.environ.get("JMLGDSL_TEST_SOURCE") == "1"
 if SOURCE:

@@ -81,12 +81,11 @@ def register(subparsers):
 
 def main(args) -> int:
     """Run the command on parsed arguments; returns the exit status."""
-    import contextlib
     from pathlib import Path
 
     import jmlgdsl
 
-    from ..cluster import connect, disconnect
+    from ..cluster import joined
     from ..diagnosis.prefilter import parse
     from ..output import check_folder
     from ..studies.study import sources, study
@@ -98,10 +97,7 @@ def main(args) -> int:
     model = jmlgdsl.load(args.spec)
     window = parse(args.prefilter)
     data = sources(model, args.data, args.simulate, args.modes, args.spec if args.nonlinear else None)
-    with contextlib.ExitStack() as joined:
-        if args.cluster:
-            connect(args.cluster)  # refused here, before any run, when no cluster answers
-            joined.callback(disconnect)
+    with joined(args.cluster):  # refused here, before any run, when no cluster answers
         done = study(model, data, args.runs, filters=args.filters, particles=args.particles, seed=args.seed,
                      prefilter=window, workers=args.workers, cluster=args.cluster, progress=sys.stderr,
                      lags=args.lag, healthy=healthy_modes(args))

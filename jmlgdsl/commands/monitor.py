@@ -134,20 +134,17 @@ def main(args) -> int:
 
 def _sharded(args, model, password, options, tags, units, recipe, stop):
     """The fleet's units in shards on a Ray cluster: each shard's Stopped."""
-    from ..cluster import connect, disconnect
+    from ..cluster import joined
     from ..monitor.shards import run_shards
     from ..names import plural
 
-    ray = connect(args.cluster)
-    stop = stopped_by_signals(stop)  # Ray puts its own handlers in when it starts
-    try:
+    with joined(args.cluster) as ray:
+        stop = stopped_by_signals(stop)  # Ray puts its own handlers in when it starts
         count = min(len(units), args.shards or max(1, int(ray.cluster_resources().get("CPU", 1))))
         print(f"monitor: {plural(len(units), 'unit')} in {plural(count, 'shard')} on the Ray cluster "
               f"{args.cluster}", file=sys.stderr, flush=True)
         return run_shards(ray, model, args.store, password, spec=_text(args.spec), options=options, tags=tags,
                           units=units, count=count, source=recipe, new_run=args.new_run, stop=stop)
-    finally:
-        disconnect()
 
 
 def stopped_by_signals(stop=None):

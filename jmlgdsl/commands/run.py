@@ -155,12 +155,11 @@ def fleet(args) -> int:
     """`run` on several data files, one unit of the plant each: a table per unit in the folder -o
     (none unless every unit is diagnosed) and a line per unit on standard output; with --cluster,
     chunks of the files in Ray tasks (jmlgdsl.diagnosis.fleet.diagnose_files)."""
-    import contextlib
     from pathlib import Path
 
     import jmlgdsl
 
-    from ..cluster import connect, disconnect
+    from ..cluster import joined
     from ..data import open_target
     from ..diagnosis import AlarmRule
     from ..diagnosis.fleet import diagnose_files
@@ -185,10 +184,7 @@ def fleet(args) -> int:
     window = parse(args.prefilter)
     model = jmlgdsl.load(args.spec)
     check_particles(args, model)
-    with contextlib.ExitStack() as joined:
-        if args.cluster:
-            connect(args.cluster)  # refused here, before any work, when no cluster answers
-            joined.callback(disconnect)
+    with joined(args.cluster):  # refused here, before any work, when no cluster answers
         history = diagnose_files(
             model, args.data, tables=args.output is not None, cluster=args.cluster,
             progress=sys.stderr if sys.stderr.isatty() else None, algorithm=args.filter, particles=args.particles,

@@ -34,7 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..data import iter_rows, open_source
-from ..errors import DataError, JmlgError
+from ..errors import DataError
 from ..infer.units import Units
 from ..model import Model
 from ..progress import Progress
@@ -129,7 +129,7 @@ def diagnose_files(model: Model, paths, *, tables: bool = True, cluster: str | N
     paths = list(paths)
     if cluster is None:
         return _diagnose_chunk(model, paths, "", tables, options)
-    from ..cluster import connect
+    from ..cluster import completed, connect
 
     ray = connect(cluster)
     count = max(1, min(len(paths), int(ray.cluster_resources().get("CPU", 1))))
@@ -163,20 +163,3 @@ def _diagnose_chunk(model: Model, paths: list, folder: str, tables: bool, option
              for path, unit, text in zip(paths, run.units, texts)]
     return History(units, run.filter is not None, run.seconds)
 
-
-def completed(ray, refs):
-    """(index, result) of each Ray task in `refs` as it finishes. A task's jmlgdsl error is raised as
-    itself, not wrapped in Ray's traceback (its message is the one a user gets without a cluster), and
-    the tasks still running are cancelled."""
-    index = {ref: i for i, ref in enumerate(refs)}
-    waiting = list(refs)
-    while waiting:
-        ready, waiting = ray.wait(waiting, num_returns=1)
-        try:
-            yield index[ready[0]], ray.get(ready[0])
-        except ray.exceptions.RayTaskError as exc:
-            for ref in waiting:
-                ray.cancel(ref)
-            if isinstance(exc.cause, JmlgError):
-                raise exc.cause from None
-            raise

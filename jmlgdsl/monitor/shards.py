@@ -21,7 +21,7 @@ import socket
 import threading
 from urllib.parse import urlsplit
 
-from ..errors import JmlgError
+from ..cluster import completed
 from .live import Monitor, Stopped
 from .sources import open_bus
 from .databases import StoreError, is_url
@@ -86,28 +86,15 @@ def run_shards(ray, model, location: str, password: str | None, *, spec: str | N
     running = [a.run.remote() for a in actors]
     if started is not None:
         started(actors)
-    stop = stop or threading.Event()
     try:
-        waiting = list(running)
-        while waiting and not stop.is_set():
-            ready, waiting = ray.wait(waiting, num_returns=1, timeout=0.2)
-            _unwrapped(ray, ready)  # a shard that fails stops the fleet
+        for _ in completed(ray, running, stop or threading.Event()):
+            pass  # a shard that fails (a refused password, a store that fails) stops the fleet with its error
     finally:
         stopping = [a.stop.remote() for a in actors]  # each commits what it handled, then ends
         ray.wait(running + stopping, num_returns=len(actors) * 2, timeout=STOPPING)
     try:
-        return _unwrapped(ray, running)
+        ended = dict(completed(ray, running))
+        return [ended[k] for k in range(len(running))]
     finally:
         for a in actors:
             ray.kill(a, no_restart=True)
-
-
-def _unwrapped(ray, refs) -> list:
-    """ray.get, with a shard's own error (a jmlgdsl error: a refused password, a store that fails)
-    raised as itself rather than wrapped in Ray's."""
-    try:
-        return ray.get(refs)
-    except ray.exceptions.RayTaskError as exc:
-        if isinstance(exc.cause, JmlgError):
-            raise exc.cause from None
-        raise

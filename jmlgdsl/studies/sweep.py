@@ -23,7 +23,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..diagnosis.alarms import AlarmRule
-from ..diagnosis.fleet import completed
 from ..errors import DataError
 from ..infer import ALGORITHMS, filter as run_filter, particle_bytes, smooth
 from ..diagnosis.metrics import NamingCounts, naming_counts, switch_delays
@@ -225,7 +224,7 @@ def execute(jobs, workers=None, cluster=None, progress=None) -> list[dict]:
                 bar.update()
 
     if cluster is not None:
-        from ..cluster import connect
+        from ..cluster import completed, connect
 
         ray = connect(cluster)
         task = ray.remote(num_cpus=1)(run_job)
