@@ -85,7 +85,7 @@ def main(args) -> int:
 
     import jmlgdsl
 
-    from ..cluster import joined
+    from ..cluster import disconnect
     from ..diagnosis.prefilter import parse
     from ..output import check_folder
     from ..studies.study import sources, study
@@ -97,10 +97,12 @@ def main(args) -> int:
     model = jmlgdsl.load(args.spec)
     window = parse(args.prefilter)
     data = sources(model, args.data, args.simulate, args.modes, args.spec if args.nonlinear else None)
-    with joined(args.cluster):  # refused here, before any run, when no cluster answers
+    try:  # the sweep joins the cluster once its settings are checked, before any run
         done = study(model, data, args.runs, filters=args.filters, particles=args.particles, seed=args.seed,
                      prefilter=window, workers=args.workers, cluster=args.cluster, progress=sys.stderr,
                      lags=args.lag, healthy=healthy_modes(args))
+    finally:
+        disconnect()
     print(done.report())
     written = done.write(args.output, figures_too=not args.no_figures)
     print("wrote " + ", ".join(str(p) for p in written))
