@@ -198,3 +198,31 @@ def test_the_report_lists_the_fewest_sensors_that_carry_the_total_largest_first(
     assert evidence_report(model, raised)[1:] == [
         "  t 2 (time 0.2): drift against ok, 6.50: y1 6.00 (92 %), y3 1.50 (23 %), 1 other output -1.00",
         "  \u2026 1 more alarm (see the evidence columns of the output CSV)"]
+
+
+@pytest.mark.parametrize("spec", ["dryer", "cstr10"])
+def test_the_evidence_of_many_units_at_once_is_each_unit_s_own_bit_for_bit(spec):
+    from jmlgdsl.diagnosis import AlarmRule
+    from jmlgdsl.diagnosis.prediction import predictive_sd
+
+    model = jmlgdsl.load(str(ROOT / "specs" / f"{spec}.jmlg"))
+    faulty = AlarmRule((model.modes[0],)).faulty_modes(model.modes)
+    predictives, steps, inputs = [], [], []
+    for seed in range(5):
+        sim = jmlgdsl.simulate(model, 40, seed=seed)
+        f = Filter(model, "imm")
+        for t in range(39):
+            step = f.step(sim.y[t], sim.u[t])
+        steps.append(step)
+        inputs.append(sim.u[39])
+        predictives.append(f.engine.predictive)
+    stacked = Predictive(predictives[0].mode, *(np.array([getattr(p, name) for p in predictives])
+                                                 for name in ("log_weight", "residual", "Linv")), predictives[0].mask)
+    for alone, together in zip((Evidence.of(p, faulty) for p in predictives), Evidence.of_units(stacked, faulty)):
+        assert (alone.mode, alone.healthy, alone.total) == (together.mode, together.healthy, together.total)
+        np.testing.assert_array_equal(alone.terms, together.terms)
+    # the predictive band of many units at once: each unit's, to rounding (stacked products sum in another order)
+    each = np.array([predictive_sd(model, s.mode_posterior, s.state_mean, s.state_cov, u) for s, u in zip(steps, inputs)])
+    many = predictive_sd(model, np.array([s.mode_posterior for s in steps]), np.array([s.state_mean for s in steps]),
+                         np.array([s.state_cov for s in steps]), np.array(inputs))
+    np.testing.assert_allclose(many, each, rtol=1e-12, atol=0)

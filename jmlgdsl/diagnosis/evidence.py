@@ -70,6 +70,27 @@ class Evidence:
         evidence[predictive.mask] = terms[mode] - terms[healthy]
         return cls(mode, healthy, evidence, float(np.nansum(evidence)))
 
+    @classmethod
+    def of_units(cls, predictive: Predictive, faulty) -> "list[Evidence | None]":
+        """`of` for n units of an imm filter at once, units that measured the same outputs: each mode
+        one Gaussian, `predictive` holding arrays with a leading unit axis (log_weight (n, K),
+        residual (n, K, m), Linv (n, K, m, m); mode and mask shared). The same numbers as `of` unit
+        by unit."""
+        faulty = np.asarray(faulty, dtype=bool)
+        terms = chain_terms(predictive.residual, predictive.Linv)  # (n, K, m)
+        known = np.isfinite(predictive.log_weight)
+        terms = np.where(known[..., None], terms, np.nan)
+        loglik = terms.sum(axis=-1)
+        valid = (known & faulty).any(axis=1) & (known & ~faulty).any(axis=1)
+        mode = np.argmax(np.where(known & faulty, predictive.log_weight + loglik, -np.inf), axis=1)
+        healthy = np.argmax(np.where(known & ~faulty, loglik, -np.inf), axis=1)
+        rows = np.arange(len(mode))
+        evidence = np.full((len(mode), len(predictive.mask)), np.nan)
+        evidence[:, predictive.mask] = terms[rows, mode] - terms[rows, healthy]
+        totals = np.nansum(evidence, axis=1)
+        return [cls(int(mode[i]), int(healthy[i]), evidence[i], float(totals[i])) if valid[i] else None
+                for i in rows]
+
     def carriers(self, most: int = 5) -> list[tuple[int, float]]:
         """(output index, evidence) of the outputs that carry the total, largest first: the fewest
         whose evidence reaches the total (at least one, at most `most`)."""

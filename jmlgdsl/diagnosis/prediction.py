@@ -27,10 +27,10 @@ from ..infer.engine import offsets
 def predictive_sd(model, posterior, mean, cov, u) -> np.ndarray:
     """(ny,) standard deviation of the one-step prediction of each output of the row with inputs u,
     from the estimate after the row before it (mode posterior (K,), state mean (nx,), covariance
-    (nx, nx))."""
-    w = posterior @ model.P
-    b, c = offsets(model, u)
-    S, _ = kalman.innovation_cov(kalman.predict_cov(cov, model.A, model.Q), model.C, model.R)
-    means = (model.C @ (model.A @ mean + b)[:, :, None])[:, :, 0] + c
-    spread = (means - w @ means) ** 2
-    return np.sqrt(w @ (np.diagonal(S, axis1=1, axis2=2) + spread))
+    (nx, nx)); for many units at once, (n, ny) from (n, K), (n, nx), (n, nx, nx) and (n, nu)."""
+    w = posterior @ model.P  # (..., K)
+    b, c = offsets(model, u)  # (..., K, nx), (..., K, ny)
+    S, _ = kalman.innovation_cov(kalman.predict_cov(cov[..., None, :, :], model.A, model.Q), model.C, model.R)
+    means = (model.C @ (model.A @ mean[..., None, :, None])[..., 0][..., None] + b[..., None])[..., 0] + c
+    spread = (means - (w[..., None, :] @ means)) ** 2
+    return np.sqrt((w[..., None, :] @ (np.diagonal(S, axis1=-2, axis2=-1) + spread))[..., 0, :])
