@@ -1,9 +1,9 @@
 """`Fleet`: the diagnosis of many units of one plant, each with its own data, side by side.
 
-Every unit has its own `Diagnosis` (pre-filter, alarm rule, summary, truth scoring, scale check and
-sinks), so each unit's finished rows are those of diagnosing it alone. Their filters run as one
-vectorised `Units` filter where there is one (imm, without a lag); otherwise each unit's Diagnosis
-filters its own rows.
+Every unit has its own `Diagnosis` (pre-filter, alarm rule, summary, truth scoring, scale check,
+evidence and sinks), so each unit's finished rows are those of diagnosing it alone. Their filters
+run as one vectorised `Units` filter where there is one (imm, without a lag), the evidence per
+sensor of every unit in one call too; otherwise each unit's Diagnosis filters its own rows.
 
 `diagnose_files` is `jmlgdsl run SPEC a.csv b.csv ... -o OUTDIR/`: each file a unit, its table and
 summary; with `cluster` the files are split into chunks, one per CPU of a Ray cluster, each chunk a
@@ -38,6 +38,7 @@ from ..errors import DataError
 from ..infer.units import Units
 from ..model import Model
 from ..progress import Progress
+from .evidence import Evidence
 from .pipeline import Diagnosis
 from .sinks import TableSink
 
@@ -45,14 +46,16 @@ from .sinks import TableSink
 class Fleet:
     """Diagnose `count` units of one model: `feed(rows)` with one data row per unit (None for a unit
     whose data have ended), `finish()` at the end. The options are a Diagnosis's; `sinks` gives each
-    unit its own list of sinks."""
+    unit its own list of sinks. `units` takes the units' Diagnoses as they are instead (of one
+    model and the same options; resumed ones with `Units.restore` of their filters' states)."""
 
-    def __init__(self, model: Model, count: int, *, sinks=None, **options):
+    def __init__(self, model: Model, count: int | None = None, *, sinks=None, units=None, **options):
         self.model = model
-        self.units = [Diagnosis(model, sinks=() if sinks is None else sinks[i], **options) for i in range(count)]
-        first = self.units[0].filter
-        batched = first.algorithm == "imm" and first.lag == 0 and not self.units[0].explain
-        self.filter = Units(model, count, first.algorithm) if batched else None
+        self.units = list(units) if units is not None else [
+            Diagnosis(model, sinks=() if sinks is None else sinks[i], **options) for i in range(count)]
+        first = self.units[0]
+        batched = first.filter.algorithm == "imm" and first.filter.lag == 0
+        self.filter = Units(model, len(self.units), first.filter.algorithm) if batched else None
 
     def feed(self, rows):
         """Diagnose one data row of each unit (rows[i] for unit i; None: unit i has no row)."""
@@ -69,6 +72,11 @@ class Fleet:
         steps = self.filter.step(np.array(ys).reshape(len(on), self.model.ny),
                                  np.array([rows[i].u for i in on]).reshape(len(on), self.model.nu),
                                  None if len(on) == len(rows) else on)
+        if self.units[0].explain:
+            faulty = self.units[0].alarms.faulty
+            for positions, predictive in self.filter.predictives:
+                for j, evidence in zip(positions, Evidence.of_units(predictive, faulty)):
+                    self.units[on[j]]._evidence.append(evidence)
         for j, i in enumerate(on):
             self.units[i]._finished(steps.record(j))
 

@@ -5,8 +5,19 @@ A step of one small plant is mostly the cost of numpy calls on arrays of a few n
 steps every unit at once, with a leading unit axis on every array, so a call does the work of the
 whole fleet. `imm` runs vectorised through the same arithmetic as `IMM` (jmlgdsl.infer.imm), matrix
 by matrix, and each unit's results are those of a `Filter` on its data alone, bit for bit (its
-mode posteriors, state moments, predictions, log-likelihoods and rejected readings). The other
-algorithms run one engine per unit, one after the other: the same results, without the speed-up.
+mode posteriors, state moments, predictions, log-likelihoods and rejected readings).
+
+The other algorithms run one engine per unit, one after the other: the same results, without the
+speed-up. None of them holds a bank of fixed size that a unit axis could carry. `exact` keeps every
+mode history of positive probability: its bank grows K-fold at every step and drops the histories
+whose weight underflows, so units differ in their counts after a few steps (and it is meant for
+records short enough that the histories, not the calls, are the cost). Each unit of a particle
+filter draws from its own Generator as much as its own data ask (a step that the gate redoes
+without a reading draws again); the Rao-Blackwellised ones also merge identical particles into
+copies, so a unit's particle count changes from step to step, and keep their Kalman covariances in
+a graph of their own. Doing them over a unit axis bit for bit needs ragged particle sets and a
+stream per unit; until then they loop, and every unit given the same seed gets what a Filter with
+that seed gets.
 
     >>> import jmlgdsl
     >>> from jmlgdsl.infer.units import Units
@@ -34,7 +45,7 @@ from .algorithms import DEFAULT_ALGORITHM
 from .engine import Estimate, FilterError, Gate, screen
 from .imm import SURE, mix, moments, predict, refresh, whitened
 from .online import MAX_REJECTIONS, Filter, _arrays, _overflow, _readings
-from .result import Result, Step
+from .result import Predictive, Result, Step
 
 ALL = slice(None)  # every unit, as an index that takes views, not copies
 
@@ -87,7 +98,11 @@ class Batch(NamedTuple):
 class BatchIMM:
     """IMM over `count` units: mode log-probabilities (U, K), per-mode moments (U, K, nx[, nx]) and,
     for the units whose last posterior was sure of its mode, `refresh`'s kept pieces (each unit's
-    own: its covariances follow its own data), stored in arrays padded to every output."""
+    own: its covariances follow its own data), stored in arrays padded to every output. After a
+    step, `predictives` holds its one-step predictives as (rows of the step, Predictive with a unit
+    axis) for the units that used the same readings, as `IMM.predictive` holds one unit's."""
+
+    STATE = ("log_mu", "means", "covs", "sure", "_mask", "_base", "_tol", "_Sig", "_Linv", "_logdet", "_gain")
 
     def __init__(self, model: Model, count: int):
         K, nx, ny = model.K, model.nx, model.ny
@@ -117,16 +132,17 @@ class BatchIMM:
         mu_p, y_pred = predict(model, self._C, mixed, u[:1] if (u == u[0]).all() else u)
         prior = log_pred, covs, mu_p, y_pred
         if (mask == mask[0]).all():
-            batch = self._group(_index(units, ALL), y, mask[0], u, prior, enforce)
+            batch, self.predictives = self._group(_index(units, ALL), y, mask[0], u, prior, enforce)
         else:
             patterns, which = np.unique(mask, axis=0, return_inverse=True)
-            batch = None
+            batch, self.predictives = None, []
             for g, pattern in enumerate(patterns):
                 rows = np.flatnonzero(which.ravel() == g)
-                part = self._group(_index(units, rows), y[rows], pattern, u[rows], tuple(p[rows] for p in prior),
-                                   None if enforce is None else enforce[rows])
+                part, heard = self._group(_index(units, rows), y[rows], pattern, u[rows],
+                                          tuple(p[rows] for p in prior), None if enforce is None else enforce[rows])
                 batch = Batch.empty(part, len(y)) if batch is None else batch
                 batch.put(rows, part)
+                self.predictives += [(rows[positions], predictive) for positions, predictive in heard]
         for name in ("log_mu", "means", "covs", "sure"):
             if units is ALL:
                 setattr(self, name, getattr(batch, name))
@@ -134,8 +150,10 @@ class BatchIMM:
                 getattr(self, name)[units] = getattr(batch, name)
         return batch
 
-    def _group(self, units, y, mask, u, prior, enforce) -> Batch:
-        """`step` for units that share one mask (ny,); prior holds their mixing and predictions."""
+    def _group(self, units, y, mask, u, prior, enforce) -> tuple[Batch, list]:
+        """`step` for units that share one mask (ny,); prior holds their mixing and predictions. With the
+        batch, its predictives as [(positions in the group, Predictive)]: one for the units that used
+        every reading, one for each unit whose gate left readings out."""
         log_pred, covs, mu_p, y_pred = prior
         m = np.count_nonzero(mask)
         reusable = self.sure[units]
@@ -148,6 +166,7 @@ class BatchIMM:
             pieces = kalman.covariance_step(covs, self.model.A, self.model.Q, self._C, self.model.R, mask)
             (Linv, logdet, gain_t, covs), kept = pieces, (covs, pieces, None)
         r, quad = whitened(y, mask, y_pred, Linv)
+        heard = Predictive(np.arange(log_pred.shape[-1]), log_pred, r, Linv, mask)
         means = mu_p + (r[..., None, :] @ gain_t)[..., 0, :]
         post, loglik = normalize_rows(log_pred + kalman.log_density(quad, logdet, m))
         log_mu = np.log(post, out=np.full_like(post, -np.inf), where=post > 0)
@@ -157,6 +176,7 @@ class BatchIMM:
         flags = np.zeros(y.shape, dtype=bool)
         batch = Batch(post, mean, cov, y_mix, loglik, flags.copy(), flags, log_mu, means, covs, sure)
         screened = np.zeros(len(y), dtype=bool)
+        redone = []
         if enforce is not None and self._bound < np.inf:
             for j in np.flatnonzero(row_extreme(np.minimum, quad) > self._bound):  # a closer look, unit by unit
                 unit = _Unit(self, _index(units, [j]), tuple(p[[j]] for p in prior))
@@ -167,11 +187,16 @@ class BatchIMM:
                 if found is not None:
                     screened[j] = True
                     batch.put([j], unit.batch._replace(rejected=found.rejected[None], flagged=batch.flagged[[j]]))
+                    redone.append((np.array([j]), unit.predictive))
         keep = np.flatnonzero(sure & ~screened)
         if len(keep):
             self._keep(_index(units, keep), mask, tuple(None if a is None else a[keep]
                                                            for a in (kept[0], *kept[1], kept[2])))
-        return batch
+        if redone:
+            whole = np.flatnonzero(~screened)
+            heard = heard._replace(log_weight=log_pred[whole], residual=r[whole], Linv=Linv[whole])
+            return batch, [(whole, heard)] + redone
+        return batch, [(np.arange(len(y)), heard)]
 
     def _keep(self, units, mask, kept):
         """Store refresh's kept pieces for units whose posterior is sure (padded to every output)."""
@@ -192,7 +217,8 @@ class _Unit:
         self.model, self._batch, self._unit, self._prior = batch.model, batch, unit, prior
 
     def step(self, y, mask, u, gate=None) -> Estimate:
-        self.batch = b = self._batch._group(self._unit, y[None], mask, u[None], self._prior, None)
+        self.batch, [(_, self.predictive)] = self._batch._group(self._unit, y[None], mask, u[None], self._prior, None)
+        b = self.batch
         return Estimate(b.post[0], b.mean[0], b.cov[0], b.y_pred[0], float(b.loglik[0]), np.nan)
 
 
@@ -266,6 +292,24 @@ class Units:
         self.loglik[index] += steps.loglik
         self.seconds += time.perf_counter() - start
         return steps
+
+    @property
+    def predictives(self) -> list:
+        """The last step's one-step predictives (imm): [(rows of the step, Predictive with a unit axis)],
+        the units in each having used the same readings; jmlgdsl.diagnosis.evidence reads them."""
+        return self._engine.predictives
+
+    def state(self, i: int) -> dict:
+        """Unit i's part of the filter (imm): its moments, kept pieces, step count, log-likelihood and
+        gate counts, as copies; `restore` puts them back, so a saved fleet goes on bit for bit."""
+        return {"t": int(self.t[i]), "loglik": float(self.loglik[i]), "flagged": self._flagged[i].copy(),
+                **{name: getattr(self._engine, name)[i].copy() for name in BatchIMM.STATE}}
+
+    def restore(self, i: int, state: dict):
+        """Unit i's part of the filter, as `state` gave it."""
+        self.t[i], self.loglik[i], self._flagged[i] = state["t"], state["loglik"], state["flagged"]
+        for name in BatchIMM.STATE:
+            getattr(self._engine, name)[i] = state[name]
 
     def _batched(self, index, t, y, mask, u) -> UnitSteps:
         counts = self._flagged[index]

@@ -7,6 +7,7 @@ last commit: no row lost, none diagnosed twice, and no new prior (so no burst of
 
 from __future__ import annotations
 
+import collections
 import dataclasses
 import json
 import pickle
@@ -18,6 +19,7 @@ import numpy as np
 
 from ..diagnosis.alarms import AlarmRule
 from ..diagnosis import Diagnosis, fingerprint
+from ..diagnosis.fleet import Fleet
 from ..diagnosis.prediction import predictive_sd
 from ..infer import DEFAULT_ALGORITHM
 from ..errors import JmlgError
@@ -67,7 +69,9 @@ class Monitor:
     `units` names the units of a fleet (jmlgdsl.monitor.fleet): each has its run in the store, its
     own diagnosis, assembler and source position, and every commit holds every unit's rows and
     state. The source then hands over (unit index, item) pairs (None: an item for every unit); a
-    source of one plant hands over items."""
+    source of one plant hands over items. With imm and no lag the units' filters are one vectorised
+    filter (jmlgdsl.diagnosis.fleet.Fleet): the rows that arrived since the last step, a row per
+    unit at a time, are stepped together when the input pauses and before every commit."""
 
     def __init__(self, model, store: Store, source, *, spec: str | None, options: dict, tags: dict,
                  units=None, new_run: bool = False, log=None):
@@ -75,18 +79,25 @@ class Monitor:
         self.options = dict(options, healthy=list(options["healthy"] or model.modes[:1]), source=source.name,
                             tags={name: dataclasses.asdict(tag) for name, tag in tags.items()})
         self.tags = tags
-        self.fleet = units is not None
-        self.units = [self._unit(spec, new_run, name) for name in (units if self.fleet else [None])]
+        self.named = units is not None
+        self.units = [self._unit(spec, new_run, name, i) for i, name in enumerate(units if self.named else [None])]
+        self.fleet = None  # the units' diagnoses as one Fleet, when their filters step together
+        if self.named and options["algorithm"] == "imm" and not options["lag"]:
+            self.fleet = Fleet(model, units=[watch.diagnosis for watch in self.units])
+            for i, watch in enumerate(self.units):
+                if watch.filter_state is not None:
+                    self.fleet.filter.restore(i, watch.filter_state)
+        self.unstepped = 0  # rows handed to the fleet's filter and not yet stepped
         self.tokens = []
         self.waiting = self.finished = 0  # rows diagnosed, and rows finished, since the last commit
         self.committed = clock.monotonic()
         self.counts = {}
         self.started_rows = self.stored
 
-    def _unit(self, spec, new_run, name) -> "Watch":
+    def _unit(self, spec, new_run, name, index) -> "Watch":
         """A unit's part of the monitor: its run (found again, or begun), resumed from its saved state."""
         run = self._run(spec, new_run, name)
-        watch = Watch(self, name, run)
+        watch = Watch(self, name, run, index)
         saved = self.store.saved(run.id)
         if saved is None:
             options = self.options
@@ -101,6 +112,7 @@ class Monitor:
             # saved by this version with the checkpoint (Diagnosis.resume refuses another version's)
             state = pickle.loads(saved.monitor)
             watch.assembler, watch.previous = state["assembler"], state["previous"]
+            watch.filter_state = state.get("filter")
             watch.rows, watch.position = saved.rows, saved.position
         watch.resumed = saved is not None
         return watch
@@ -108,12 +120,13 @@ class Monitor:
     def _run(self, spec, new_run, unit):
         run = self.store.run(unit=unit)
         model_sha = fingerprint(self.model)
+        kind = run if run is not None or unit is None else self.store.run()  # a unit's first run: the store's kind
+        if kind is not None and not new_run and (kind.unit is None) != (unit is None):
+            raise MonitorError(f"the store {self.store.path} holds the runs of "
+                               f"{'a fleet' if unit is None else 'one plant'}, not of "
+                               f"{'a fleet' if unit is not None else 'one plant'}; give another store, or "
+                               "--new-run to start a new run in the store")
         if run is not None and not new_run:
-            if (run.unit is None) != (unit is None):
-                raise MonitorError(f"the store {self.store.path} holds the runs of "
-                                   f"{'a fleet' if unit is None else 'one plant'}, not of "
-                                   f"{'a fleet' if unit is not None else 'one plant'}; give another store, or "
-                                   "--new-run to start a new run in the store")
             whose = "" if unit is None else f" of unit {unit}"
             if run.model_sha256 != model_sha:
                 raise MonitorError(f"the store {self.store.path} holds a run{whose} of another model (plant "
@@ -138,7 +151,7 @@ class Monitor:
         """Diagnose until the data end or `stop` is set; every handled item is committed on return."""
         stop = stop or threading.Event()
         items = queue.Queue(maxsize=QUEUE)
-        if self.fleet:
+        if self.named:
             self.source.start(items.put, [watch.position for watch in self.units])
         else:
             self.source.start(lambda item: items.put((0, item)), self.units[0].position)
@@ -158,10 +171,13 @@ class Monitor:
                     self.commit()
                     continue
                 ended = self._handle(unit, item)
+                if self.unstepped and (items.empty() or self.unstepped >= BATCH):
+                    self.step()
                 if self.waiting >= BATCH or len(self.tokens) >= BATCH or items.empty() and (
                         self.finished or clock.monotonic() - self.committed >= GROUP):
                     self.commit()
             if ended:
+                self.step()
                 for watch in self.units:
                     watch.diagnosis.finish()
                     watch.dirty = True
@@ -200,9 +216,26 @@ class Monitor:
             raise MonitorError(item[1])
         return kind == "end"
 
+    def step(self):
+        """Step the fleet's filter over the rows handed to it: a row of each unit that has one at a time."""
+        model = self.model
+        while self.unstepped:
+            rows = [watch.pending.popleft() if watch.pending else None for watch in self.units]
+            self.unstepped -= sum(row is not None for row in rows)
+            banded = [i for i, row in enumerate(rows) if row is not None and self.units[i].previous is not None]
+            if banded:  # every unit's predictive band in one call, from its last estimate
+                last = [self.units[i].previous for i in banded]
+                sd = predictive_sd(model, np.array([s.mode_posterior for s in last]),
+                                   np.array([s.state_mean for s in last]), np.array([s.state_cov for s in last]),
+                                   np.array([rows[i].u for i in banded]).reshape(len(banded), model.nu))
+                for i, band in zip(banded, sd):
+                    self.units[i].band = band
+            self.fleet.feed(rows)
+
     def commit(self):
         """Store what was handled since the last commit with the state after it, every unit's in one
         transaction; then acknowledge it to the source."""
+        self.step()
         dirty = [watch for watch in self.units if watch.dirty]
         if not dirty and not self.tokens:
             return
@@ -220,9 +253,12 @@ class Watch:
     assembler, last estimate, rows and source position, and what waits for the next commit. It is
     its diagnosis's sink."""
 
-    def __init__(self, monitor: Monitor, name: str | None, run):
-        self.monitor, self.name, self.run = monitor, name, run
+    def __init__(self, monitor: Monitor, name: str | None, run, index: int):
+        self.monitor, self.name, self.run, self.index = monitor, name, run, index
         self.diagnosis = self.assembler = None
+        self.filter_state = None  # saved with a fleet's filter: this unit's part of it
+        self.band = None  # the next row's predictive sd, when the fleet's step computed it
+        self.pending = collections.deque()  # rows for the fleet's filter
         self.previous = None  # the last finished row's estimate, for the next row's predictive band
         self.rows, self.position, self.resumed = 0, None, False
         self.samples, self.results, self.events = [], [], []
@@ -239,15 +275,20 @@ class Watch:
         self.rows += 1
         self.samples.append((self.rows, row))
         self.monitor.waiting += 1
-        self.diagnosis.feed(row)
+        if self.monitor.fleet is None:
+            self.diagnosis.feed(row)
+        else:
+            self.pending.append(row)
+            self.monitor.unstepped += 1
         self.dirty = True
 
     def collect(self, done):
         """The diagnosis's sink: a finished row, stored with the next commit with the spread of its
         one-step prediction (from the row before it)."""
-        last = self.previous
-        sd = (self.nan_sd if last is None else
-              predictive_sd(self.monitor.model, last.mode_posterior, last.state_mean, last.state_cov, done.row.u))
+        last, sd, self.band = self.previous, self.band, None
+        if sd is None:
+            sd = (self.nan_sd if last is None else
+                  predictive_sd(self.monitor.model, last.mode_posterior, last.state_mean, last.state_cov, done.row.u))
         self.results.append((done, sd))
         self.monitor.finished += 1
         self.previous = done.step
@@ -262,8 +303,12 @@ class Watch:
 
     def commit(self) -> Commit:
         """This unit's part of the next commit: its rows, results and events, and its state after them."""
+        fleet = self.monitor.fleet
+        state = {"assembler": self.assembler, "previous": self.previous}
+        if fleet is not None:
+            state["filter"] = fleet.filter.state(self.index)
         return Commit(self.run.id, self.samples, self.results, self.events, self.rows, self.diagnosis.checkpoint(),
-                      pickle.dumps({"assembler": self.assembler, "previous": self.previous}), self.position)
+                      pickle.dumps(state), self.position)
 
 
 def _plain(value):

@@ -1,0 +1,72 @@
+"""A fleet's diagnosis with one vectorised filter (jmlgdsl.diagnosis.fleet.Fleet): each unit's evidence
+per sensor is, bit for bit, what diagnosing it alone gives, through missing readings, gross errors the
+gate leaves out and units that stop early; and a fleet's filter saved unit by unit (Units.state) and
+put back into a new one (Units.restore) goes on as if it had never stopped."""
+
+import pickle
+
+import numpy as np
+import pytest
+from infer_models import random_model
+from test_units_batched import fleet_data
+
+import jmlgdsl
+from jmlgdsl.data import Row
+from jmlgdsl.diagnosis import Diagnosis
+from jmlgdsl.diagnosis.fleet import Fleet
+from jmlgdsl.infer.units import Units
+
+
+def rows_of(y, u):
+    return [Row(t + 1, float(t), y[t], u[t], None) for t in range(len(y))]
+
+
+@pytest.mark.parametrize("spec", ["dryer", "wide"])
+def test_the_evidence_of_every_unit_is_its_own_bit_for_bit(spec):
+    model = (jmlgdsl.load("specs/dryer.jmlg") if spec == "dryer"
+             else random_model(np.random.default_rng(8), K=3, nx=3, ny=6, stay=0.98))
+    ys, us = fleet_data(model, 6, 150)
+    records = [rows_of(y, u) for y, u in zip(ys, us)]
+    fleet = Fleet(model, len(records), explain=True, scored=False)
+    assert fleet.filter is not None  # one filter for every unit
+    kept = [[] for _ in records]
+    for unit, found in zip(fleet.units, kept):
+        unit.sinks.append(type("Sink", (), {"collect": lambda self, done, found=found: found.append(done)})())
+    fleet.run(records)
+    screened = 0
+    for rows, found in zip(records, kept):
+        alone = []
+        Diagnosis(model, explain=True, scored=False,
+                  sinks=[type("Sink", (), {"collect": lambda self, done: alone.append(done)})()]).run(rows)
+        assert len(found) == len(alone) == len(rows)
+        for a, b in zip(found, alone):
+            screened += b.step.rejected is not None
+            assert (a.evidence is None) == (b.evidence is None)
+            if a.evidence is not None:
+                assert (a.evidence.mode, a.evidence.healthy, a.evidence.total) == \
+                       (b.evidence.mode, b.evidence.healthy, b.evidence.total)
+                np.testing.assert_array_equal(a.evidence.terms, b.evidence.terms)
+            np.testing.assert_array_equal(a.step.mode_posterior, b.step.mode_posterior)
+    assert screened  # the gate left readings out somewhere, and those rows' evidence is the redone step's
+
+
+def test_a_fleet_filter_saved_unit_by_unit_goes_on_bit_for_bit():
+    model = random_model(np.random.default_rng(8), K=3, nx=3, ny=6, stay=0.98)
+    ys, us = fleet_data(model, 5, 120)
+    T = min(len(y) for y in ys)
+
+    def steps(units, span):
+        return [units.step(np.array([y[t] for y in ys]), np.array([u[t] for u in us])) for t in span]
+
+    whole = Units(model, 5, "imm")
+    uninterrupted = steps(whole, range(T))
+    first = Units(model, 5, "imm")
+    steps(first, range(60))
+    saved = pickle.dumps([first.state(i) for i in range(5)])  # as a monitor's store keeps them
+    second = Units(model, 5, "imm")
+    for i, state in enumerate(pickle.loads(saved)):
+        second.restore(i, state)
+    for a, b in zip(steps(second, range(60, T)), uninterrupted[60:]):
+        for field in a._fields:
+            assert np.array_equal(getattr(a, field), getattr(b, field), equal_nan=True), field
+    assert np.array_equal(second.loglik, whole.loglik) and np.array_equal(second.t, whole.t)
