@@ -32,6 +32,9 @@ BATCH = 1_000  # rows (or acknowledgements held back) before a commit even while
 # Seconds a handled reading or event may wait for the commit that acknowledges it while no finished
 # row waits: a row is committed as soon as the input pauses, the readings between rows in groups.
 GROUP = 0.05
+# Seconds a fleet's row may wait for the other units' rows of its sample, so that their filters step
+# together (a commit steps every row first).
+GATHER = 0.02
 
 
 class MonitorError(JmlgError):
@@ -87,7 +90,9 @@ class Monitor:
             for i, watch in enumerate(self.units):
                 if watch.filter_state is not None:
                     self.fleet.filter.restore(i, watch.filter_state)
-        self.unstepped = 0  # rows handed to the fleet's filter and not yet stepped
+        # rows handed to the fleet's filter and not yet stepped; units with such rows, the first since `waited`
+        self.unstepped = self.ready = 0
+        self.waited = clock.monotonic()
         self.tokens = []
         self.waiting = self.finished = 0  # rows diagnosed, and rows finished, since the last commit
         self.committed = clock.monotonic()
@@ -171,8 +176,13 @@ class Monitor:
                     self.commit()
                     continue
                 ended = self._handle(unit, item)
-                if self.unstepped and (items.empty() or self.unstepped >= BATCH):
+                if self.ready == len(self.units):
+                    self.step(len(self.units))  # the rounds every unit has a row for
+                elif self.unstepped >= BATCH:
                     self.step()
+                elif self.ready and clock.monotonic() - self.waited >= GATHER:
+                    self.step(max(1, self.ready // 2))  # rounds of many units; the rows of the others wait on
+                    self.waited = clock.monotonic()
                 if self.waiting >= BATCH or len(self.tokens) >= BATCH or items.empty() and (
                         self.finished or clock.monotonic() - self.committed >= GROUP):
                     self.commit()
@@ -216,12 +226,14 @@ class Monitor:
             raise MonitorError(item[1])
         return kind == "end"
 
-    def step(self):
-        """Step the fleet's filter over the rows handed to it: a row of each unit that has one at a time."""
+    def step(self, least: int = 1):
+        """Step the fleet's filter over the rows handed to it, a row of each unit that has one at a time,
+        for as long as at least `least` units have one."""
         model = self.model
-        while self.unstepped:
+        while self.ready >= least:
             rows = [watch.pending.popleft() if watch.pending else None for watch in self.units]
             self.unstepped -= sum(row is not None for row in rows)
+            self.ready -= sum(row is not None and not watch.pending for row, watch in zip(rows, self.units))
             banded = [i for i, row in enumerate(rows) if row is not None and self.units[i].previous is not None]
             if banded:  # every unit's predictive band in one call, from its last estimate
                 last = [self.units[i].previous for i in banded]
@@ -278,8 +290,13 @@ class Watch:
         if self.monitor.fleet is None:
             self.diagnosis.feed(row)
         else:
+            monitor = self.monitor
+            if not monitor.ready:
+                monitor.waited = clock.monotonic()
+            if not self.pending:
+                monitor.ready += 1
             self.pending.append(row)
-            self.monitor.unstepped += 1
+            monitor.unstepped += 1
         self.dirty = True
 
     def collect(self, done):
