@@ -14,6 +14,7 @@ tracemalloc sees it at the largest count, divided by the count. Tables are print
 from __future__ import annotations
 
 import argparse
+import os
 import platform
 import time
 import tracemalloc
@@ -88,7 +89,7 @@ def main():
     p.add_argument("--seconds", type=float, default=1.0, help="work per figure")
     p.add_argument("--repeats", type=int, default=3)
     args = p.parse_args()
-    print(f"{platform.machine()}, Python {platform.python_version()}, numpy {np.__version__}\n")
+    print(f"{platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}, numpy {np.__version__}\n")
     for plant in args.plants:
         model = jmlgdsl.load(SPECS / f"{plant}.jmlg")
         y, u = records(model, 400)
