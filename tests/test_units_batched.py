@@ -66,7 +66,13 @@ def wide():
     return random_model(np.random.default_rng(8), K=3, nx=3, ny=6, stay=0.98)
 
 
-@pytest.mark.parametrize("spec", ["dryer", "cstr10", "wide"])
+@pytest.fixture(scope="module")
+def many():
+    """Nine modes (more than the 8 numbers numpy sums one after the other) and four states."""
+    return random_model(np.random.default_rng(3), K=9, nx=4, ny=2, stay=0.9)
+
+
+@pytest.mark.parametrize("spec", ["dryer", "cstr10", "wide", "many"])
 def test_batched_imm_equals_each_unit_alone_bit_for_bit(spec, request):
     model = request.getfixturevalue(spec) if spec != "cstr10" else jmlgdsl.load("specs/cstr10.jmlg")
     ys, us = fleet_data(model, 6, 150)
