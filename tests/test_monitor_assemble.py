@@ -125,3 +125,35 @@ def test_tag_file(tmp_path):
         with pytest.raises(TagError) as info:
             read_tags(path, MODEL)
         assert message in str(info.value)
+
+
+def test_a_monitor_logs_the_first_late_message_of_a_batch_and_counts_the_rest(tmp_path):
+    # a broker delivering again what a killed monitor had not acknowledged: every late message is an
+    # event in the store, but the log has one line for the first and one line counting the others
+    from jmlgdsl.monitor import Monitor, Store, monitor_options
+
+    class Redelivered:
+        rows, name = False, "test://redelivered"
+
+        def start(self, put, position):
+            for t in range(1, 4):
+                put(("readings", [("temp", 50.0, float(t)), ("current", 15.0, float(t))], 0.0, t))
+            for k in range(40):  # the first row's readings again, after it was diagnosed
+                put(("readings", [("temp", 50.0, 1.0)], 0.0, 100 + k))
+            put(("end",))
+
+        def acknowledge(self, tokens):
+            pass
+
+        def stop(self):
+            pass
+
+    logged = []
+    with Store(tmp_path / "s.db") as store:
+        monitor = Monitor(MODEL, store, Redelivered(), spec=None, options=monitor_options(), tags=read_tags(None, MODEL),
+                          log=logged.append)
+        stopped = monitor.run()
+        assert stopped.events["late"] == 40 and store.counts(stopped.runs[0])["late"] == 40
+    late = [line for line in logged if line.startswith("late:")]
+    assert late == ["late: temp: a reading for 1 s came after its row was diagnosed",
+                    "late: 39 more messages came after their rows were diagnosed (each an event in the store)"]

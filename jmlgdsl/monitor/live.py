@@ -94,6 +94,7 @@ class Monitor:
         self.unstepped = self.ready = 0
         self.waited = clock.monotonic()
         self.tokens = []
+        self.late_unlogged = None  # late events since the first one logged in this batch (None: none logged)
         self.waiting = self.finished = 0  # rows diagnosed, and rows finished, since the last commit
         self.committed = clock.monotonic()
         self.counts = {}
@@ -255,6 +256,10 @@ class Monitor:
         for watch in dirty:
             watch.samples, watch.results, watch.events, watch.dirty = [], [], [], False
         self.waiting = self.finished = 0
+        if self.late_unlogged:
+            self.log(f"late: {self.late_unlogged} more messages came after their rows were diagnosed (each an event "
+                     "in the store)")
+        self.late_unlogged = None
         self.committed = clock.monotonic()
         tokens, self.tokens = self.tokens, []
         self.source.acknowledge(tokens)
@@ -311,10 +316,16 @@ class Watch:
         self.previous = done.step
 
     def event(self, event: Event):
+        """Keep an event for the next commit, and log it: of the late ones between two commits (a broker
+        delivering again what a killed monitor had not acknowledged: up to a batch), only the first."""
         monitor = self.monitor
         self.events.append(event)
         self.dirty = True
         monitor.counts[event.kind] = monitor.counts.get(event.kind, 0) + 1
+        if event.kind == "late" and monitor.late_unlogged is not None:
+            monitor.late_unlogged += 1
+            return
+        monitor.late_unlogged = 0 if event.kind == "late" else monitor.late_unlogged
         monitor.log(f"{self.name + ': ' if self.name else ''}{event.kind}: {event.tag + ': ' if event.tag else ''}"
                     f"{event.detail}")
 
