@@ -179,12 +179,12 @@ class Monitor:
                 ended = self._handle(unit, item)
                 if self.ready == len(self.units):
                     self.step(len(self.units))  # the rounds every unit has a row for
-                elif self.unstepped >= BATCH:
+                elif self.unstepped >= 4 * BATCH:
                     self.step()
                 elif self.ready and clock.monotonic() - self.waited >= GATHER:
                     self.step(max(1, self.ready // 2))  # rounds of many units; the rows of the others wait on
                     self.waited = clock.monotonic()
-                if self.waiting >= BATCH or len(self.tokens) >= BATCH or items.empty() and (
+                if self.finished >= BATCH or len(self.tokens) >= BATCH or items.empty() and (
                         self.finished or clock.monotonic() - self.committed >= GROUP):
                     self.commit()
             if ended:
