@@ -289,13 +289,14 @@ class Watch:
             self.feed(row)
 
     def feed(self, row):
+        """A row of this unit: diagnosed now, or handed to the fleet's filter for its next step."""
+        monitor = self.monitor
         self.rows += 1
         self.samples.append((self.rows, row))
-        self.monitor.waiting += 1
-        if self.monitor.fleet is None:
+        monitor.waiting += 1
+        if monitor.fleet is None:
             self.diagnosis.feed(row)
         else:
-            monitor = self.monitor
             if not monitor.ready:
                 monitor.waited = clock.monotonic()
             if not self.pending:
