@@ -159,6 +159,15 @@ class Brokers:
         process.wait(WAIT)
 
 
+@pytest.fixture
+def broker(tmp_path):
+    """A test's mosquittos (Brokers), every one stopped after it."""
+    brokers = Brokers(tmp_path)
+    yield brokers
+    for port in list(brokers.running):
+        brokers.stop(port)
+
+
 def samples():
     """The recording as one JSON object per sample, every number as the file writes it."""
     with open(DATA) as stream:

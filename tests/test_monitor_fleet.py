@@ -39,7 +39,8 @@ from pathlib import Path
 
 import pytest
 from conftest import jmlgdsl_command
-from monitor_servers import LINES, MOSQUITTO, NO_MOSQUITTO, SPEC, WAIT, Brokers, free_port, publish, query
+from monitor_servers import (LINES, MOSQUITTO, NO_MOSQUITTO, SPEC, WAIT, broker, free_port,  # noqa: F401
+                             publish, query)  # (broker: a fixture)
 
 from jmlgdsl.cli import main
 from jmlgdsl.monitor.fleet import FleetError, unit_names
@@ -259,14 +260,6 @@ def test_killed_mid_file_and_restarted_loses_and_repeats_no_row(tmp_path):
 
 
 # ---------------------------------------------------------------------------------------------- MQTT
-@pytest.fixture
-def broker(tmp_path):
-    brokers = Brokers(tmp_path)
-    yield brokers
-    for port in list(brokers.running):
-        brokers.stop(port)
-
-
 def readings(unit, lines, kind):
     """A unit's rows as MQTT messages: `names`, {"t", "v"} on plant/UNIT/current and plant/UNIT/temp
     for each row; `objects`, one {"t", "temp", "current"} on plant/UNIT a row (a missing temp as null)."""

@@ -16,20 +16,12 @@ import subprocess
 
 import pytest
 from conftest import jmlgdsl_command
-from monitor_servers import (MOSQUITTO, NO_MOSQUITTO, SPEC, WAIT, Brokers, exported, expected_table, free_port,
-                             publish, query, samples, stop, until)
+from monitor_servers import (MOSQUITTO, NO_MOSQUITTO, SPEC, WAIT, broker, exported, expected_table,  # noqa: F401
+                             free_port, publish, query, samples, stop, until)  # (broker: a fixture)
 
 
 paho = pytest.importorskip("paho.mqtt.client")
 pytestmark = pytest.mark.skipif(MOSQUITTO is None, reason=NO_MOSQUITTO)
-
-
-@pytest.fixture
-def broker(tmp_path):
-    brokers = Brokers(tmp_path)
-    yield brokers
-    for port in list(brokers.running):
-        brokers.stop(port)
 
 
 def monitor(port, store, *extra, env=None):
