@@ -19,7 +19,8 @@ def register(subparsers):
                     "store (SQLite, or PostgreSQL for many monitors), committed with the diagnosis's state, so "
                     "the monitor killed at any moment and started again with the same command resumes where it "
                     "was. It runs until stopped (SIGTERM, Ctrl-C), or to the end of standard input or of an "
-                    "unfollowed file. "
+                    "unfollowed file. The units of a fleet of one design are watched by one monitor (--units), "
+                    "or by shards of it on a Ray cluster (--cluster). "
                     "'jmlgdsl export STORE' writes the result table.")
     p.add_argument("spec", help="plant spec (.jmlg) or compiled model (.json/.npz)")
     p.add_argument("--source", required=True, metavar="URL",
