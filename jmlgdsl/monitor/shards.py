@@ -66,26 +66,20 @@ class Shard:
     def stop(self):
         self.stopping.set()
 
-    def pid(self) -> int:
-        """The actor's process (to watch it, or kill it in a test of restarts)."""
-        return os.getpid()
-
 
 def run_shards(ray, model, location: str, password: str | None, *, spec: str | None, options: dict, tags: dict,
-               units: list, count: int, source: dict, new_run: bool = False, stop: threading.Event | None = None,
-               started=None) -> list[Stopped]:
+               units: list, count: int, source: dict, new_run: bool = False,
+               stop: threading.Event | None = None) -> list[Stopped]:
     """Monitor `units` in `count` shards on the joined Ray cluster until their data end or `stop` is
-    set; each shard's Stopped (of its last start). `source` holds open_bus's keywords; `started`,
-    when given, is called with the actors once they run (to watch or kill them)."""
+    set; each shard's Stopped (of its last start). `source` holds open_bus's keywords."""
     with Store(location, password=password) as store:  # every unit's run made or checked here, once
         Monitor(model, store, open_bus(model=model, tags=tags, units=units, **source), spec=spec, options=options,
                 tags=tags, units=units, new_run=new_run)
-    actor = ray.remote(max_restarts=-1, max_task_retries=-1, max_concurrency=3, num_cpus=1)(Shard)
+    # started again whenever its process dies, its run() made again there; stop() is taken while run() runs
+    actor = ray.remote(max_restarts=-1, max_task_retries=-1, max_concurrency=2, num_cpus=1)(Shard)
     actors = [actor.remote(model, location, password, spec, options, tags, part, k, source)
               for k, part in enumerate(split(units, min(count, len(units))))]
     running = [a.run.remote() for a in actors]
-    if started is not None:
-        started(actors)
     try:
         for _ in completed(ray, running, stop or threading.Event()):
             pass  # a shard that fails (a refused password, a store that fails) stops the fleet with its error
