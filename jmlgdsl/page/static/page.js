@@ -57,7 +57,8 @@ async function start() {
     units.hidden = false;
     units.addEventListener("change", () => { location.search = `?unit=${encodeURIComponent(units.value)}`; });
   }
-  $("source").textContent = `${run.source || ""} · filter ${run.filter}${run.lag ? ", lag " + run.lag : ""}`;
+  const source = run.unit ? (run.source || "").replaceAll("{unit}", run.unit) : run.source || "";  // the unit's own
+  $("source").textContent = `${source} · filter ${run.filter}${run.lag ? ", lag " + run.lag : ""}`;
   document.title = `${run.plant}: jmlgdsl monitor`;
   $("tokenbox").hidden = !run.token_required;
   $("who").value = localStorage.getItem("jmlgdsl-who") || "";
