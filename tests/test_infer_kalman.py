@@ -141,3 +141,18 @@ def test_settled_holds_each_entry_to_its_own_scale():
     assert not kalman.settled(Sig, Sig + np.array([[0.0, 0.0], [0.0, 1e-3]]))
     assert not kalman.settled(Sig, Sig + np.array([[0.0, 1e-3], [1e-3, 0.0]]))
     assert list(kalman.settled(np.stack([Sig, Sig]), np.stack([Sig, 2 * Sig]))) == [True, False]
+
+
+@pytest.mark.parametrize("n", [2, 3, 4, 5, 7])
+def test_a_triangular_factor_inverts_alike_alone_and_in_a_stack(n):
+    from jmlgdsl.infer.kalman import triangular_inverse
+
+    rng = np.random.default_rng(n)
+    A = rng.normal(size=(50, n, n))
+    L = np.linalg.cholesky(A @ np.swapaxes(A, -1, -2) + n * np.eye(n))
+    stacked = triangular_inverse(L)
+    np.testing.assert_allclose(stacked @ L, np.broadcast_to(np.eye(n), L.shape), atol=1e-13)
+    np.testing.assert_allclose(stacked, np.linalg.inv(L), rtol=1e-12, atol=1e-14)
+    assert np.all(np.triu(stacked, 1) == 0)
+    for one, alone in zip(L, stacked):  # a fleet's units get what each would alone, bit for bit
+        assert np.array_equal(triangular_inverse(one), alone)
