@@ -79,11 +79,11 @@ class Monitor:
     def __init__(self, model, store: Store, source, *, spec: str | None, options: dict, tags: dict,
                  units=None, new_run: bool = False, log=None):
         self.model, self.store, self.source, self.log = model, store, source, log or (lambda text: None)
-        self.options = dict(options, healthy=list(options["healthy"] or model.modes[:1]), source=source.name,
-                            tags={name: dataclasses.asdict(tag) for name, tag in tags.items()})
+        self.options = recorded_options(model, options, source.name, tags)
         self.tags = tags
         self.named = units is not None
-        self.units = [self._unit(spec, new_run, name, i) for i, name in enumerate(units if self.named else [None])]
+        runs = open_runs(store, model, spec, self.options, units, new_run)
+        self.units = [self._unit(run, i) for i, run in enumerate(runs)]
         self.fleet = None  # the units' diagnoses as one Fleet, when their filters step together
         if self.named and options["algorithm"] == "imm" and not options["lag"]:
             self.fleet = Fleet(model, units=[watch.diagnosis for watch in self.units])
@@ -100,10 +100,9 @@ class Monitor:
         self.counts = {}
         self.started_rows = self.stored
 
-    def _unit(self, spec, new_run, name, index) -> "Watch":
-        """A unit's part of the monitor: its run (found again, or begun), resumed from its saved state."""
-        run = self._run(spec, new_run, name)
-        watch = Watch(self, name, run, index)
+    def _unit(self, run, index) -> "Watch":
+        """A unit's part of the monitor for its run, resumed from the run's saved state."""
+        watch = Watch(self, run.unit, run, index)
         saved = self.store.saved(run.id)
         if saved is None:
             options = self.options
@@ -122,30 +121,6 @@ class Monitor:
             watch.rows, watch.position = saved.rows, saved.position
         watch.resumed = saved is not None
         return watch
-
-    def _run(self, spec, new_run, unit):
-        run = self.store.run(unit=unit)
-        model_sha = fingerprint(self.model)
-        kind = run if run is not None or unit is None else self.store.run()  # a unit's first run: the store's kind
-        if kind is not None and not new_run and (kind.unit is None) != (unit is None):
-            raise MonitorError(f"the store {self.store.path} holds the runs of "
-                               f"{'a fleet' if unit is None else 'one plant'}, not of "
-                               f"{'a fleet' if unit is not None else 'one plant'}; give another store, or "
-                               "--new-run to start a new run in the store")
-        if run is not None and not new_run:
-            whose = "" if unit is None else f" of unit {unit}"
-            if run.model_sha256 != model_sha:
-                raise MonitorError(f"the store {self.store.path} holds a run{whose} of another model (plant "
-                                   f"{run.plant!r}, fingerprint {run.model_sha256[:12]}) than this spec (plant "
-                                   f"{self.model.name!r}, fingerprint {model_sha[:12]}); give the spec it was "
-                                   f"started with, or --new-run to start a new run in the store")
-            for key in sorted(set(run.options) | set(self.options)):
-                if run.options.get(key) != _plain(self.options.get(key)):
-                    raise MonitorError(f"the store {self.store.path} holds a run{whose} started with {key} "
-                                       f"{run.options.get(key)!r}, not {self.options.get(key)!r}; restart it with "
-                                       f"the same options, or --new-run to start a new run in the store")
-            return run
-        return self.store.begin_run(spec, self.model, model_sha, self.options, unit)
 
     @property
     def stored(self) -> int:
@@ -338,6 +313,46 @@ class Watch:
             state["filter"] = fleet.filter.state(self.index)
         return Commit(self.run.id, self.samples, self.results, self.events, self.rows, self.diagnosis.checkpoint(),
                       pickle.dumps(state), self.position)
+
+
+def recorded_options(model, options: dict, source: str, tags: dict) -> dict:
+    """What a run records of its monitor's options (monitor_options), its source's name and its tags;
+    a restart with others is refused."""
+    return dict(options, healthy=list(options["healthy"] or model.modes[:1]), source=source,
+                tags={name: dataclasses.asdict(tag) for name, tag in tags.items()})
+
+
+def open_runs(store, model, spec, options: dict, units=None, new_run: bool = False) -> list:
+    """The run of each of a fleet's `units` (None: the one run of one plant), found again or begun;
+    `options` as recorded_options gives them."""
+    return [_open_run(store, model, spec, options, unit, new_run) for unit in ([None] if units is None else units)]
+
+
+def _open_run(store, model, spec, options, unit, new_run):
+    """A unit's run (None: one plant's): the latest, checked against this model and these options, or
+    a new one; a store of the other kind (a fleet's, one plant's) is refused unless `new_run`."""
+    run = store.run(unit=unit)
+    model_sha = fingerprint(model)
+    kind = run if run is not None or unit is None else store.run()  # a unit's first run: the store's kind
+    if kind is not None and not new_run and (kind.unit is None) != (unit is None):
+        raise MonitorError(f"the store {store.path} holds the runs of "
+                           f"{'a fleet' if unit is None else 'one plant'}, not of "
+                           f"{'a fleet' if unit is not None else 'one plant'}; give another store, or "
+                           "--new-run to start a new run in the store")
+    if run is not None and not new_run:
+        whose = "" if unit is None else f" of unit {unit}"
+        if run.model_sha256 != model_sha:
+            raise MonitorError(f"the store {store.path} holds a run{whose} of another model (plant "
+                               f"{run.plant!r}, fingerprint {run.model_sha256[:12]}) than this spec (plant "
+                               f"{model.name!r}, fingerprint {model_sha[:12]}); give the spec it was "
+                               f"started with, or --new-run to start a new run in the store")
+        for key in sorted(set(run.options) | set(options)):
+            if run.options.get(key) != _plain(options.get(key)):
+                raise MonitorError(f"the store {store.path} holds a run{whose} started with {key} "
+                                   f"{run.options.get(key)!r}, not {options.get(key)!r}; restart it with "
+                                   f"the same options, or --new-run to start a new run in the store")
+        return run
+    return store.begin_run(spec, model, model_sha, options, unit)
 
 
 def _plain(value):

@@ -41,9 +41,9 @@ class MqttSource:
         self.names = list(model.outputs) + list(model.inputs)
         self.units = units
         self.topics = {}  # topic -> (unit index or None, spec name or None: an object of several names)
+        template = prefix if PLACEHOLDER in prefix else "/".join(filter(None, (prefix, PLACEHOLDER)))  # PREFIX/{unit}
         for i, unit in enumerate([None] if units is None else units):
-            where = (prefix if unit is None else for_unit(prefix, unit) if PLACEHOLDER in prefix
-                     else "/".join(filter(None, (prefix, unit))))
+            where = prefix if unit is None else for_unit(template, unit)
             for name, tag in (tags if unit is None else unit_tags(tags, unit)).items():
                 self.topics[tag.topic or (f"{where}/{name}" if where else name)] = (i, name)
             if where:

@@ -22,7 +22,7 @@ import threading
 from urllib.parse import urlsplit
 
 from ..cluster import completed
-from .live import Monitor, Stopped
+from .live import Monitor, Stopped, open_runs, recorded_options
 from .sources import open_bus
 from .databases import StoreError, is_url
 from .store import Store
@@ -73,8 +73,8 @@ def run_shards(ray, model, location: str, password: str | None, *, spec: str | N
     """Monitor `units` in `count` shards on the joined Ray cluster until their data end or `stop` is
     set; each shard's Stopped (of its last start). `source` holds open_bus's keywords."""
     with Store(location, password=password) as store:  # every unit's run made or checked here, once
-        Monitor(model, store, open_bus(model=model, tags=tags, units=units, **source), spec=spec, options=options,
-                tags=tags, units=units, new_run=new_run)
+        name = open_bus(model=model, tags=tags, units=units, **source).name
+        open_runs(store, model, spec, recorded_options(model, options, name, tags), units, new_run)
     # started again whenever its process dies, its run() made again there; stop() is taken while run() runs
     actor = ray.remote(max_restarts=-1, max_task_retries=-1, max_concurrency=2, num_cpus=1)(Shard)
     actors = [actor.remote(model, location, password, spec, options, tags, part, k, source)
