@@ -58,17 +58,8 @@ class Evidence:
             >>> model.modes[e.mode], model.modes[e.healthy], round(e.total, 2)
             ('fan', 'normal', 2745.88)
         """
-        faulty = np.asarray(faulty, dtype=bool)
         prior, terms = mode_terms(predictive, len(faulty))
-        loglik = terms.sum(axis=1)  # log p(y_t | z_t = k, y_1:t-1)
-        known = np.isfinite(prior)
-        if not (known & faulty).any() or not (known & ~faulty).any():
-            return None
-        mode = int(np.argmax(np.where(known & faulty, prior + loglik, -np.inf)))
-        healthy = int(np.argmax(np.where(known & ~faulty, loglik, -np.inf)))
-        evidence = np.full(len(predictive.mask), np.nan)
-        evidence[predictive.mask] = terms[mode] - terms[healthy]
-        return cls(mode, healthy, evidence, float(np.nansum(evidence)))
+        return _chosen(prior[None], terms[None], predictive.mask, faulty)[0]
 
     @classmethod
     def of_units(cls, predictive: Predictive, faulty) -> "list[Evidence | None]":
@@ -76,20 +67,7 @@ class Evidence:
         one Gaussian, `predictive` holding arrays with a leading unit axis (log_weight (n, K),
         residual (n, K, m), Linv (n, K, m, m); mode and mask shared). The same numbers as `of` unit
         by unit."""
-        faulty = np.asarray(faulty, dtype=bool)
-        terms = chain_terms(predictive.residual, predictive.Linv)  # (n, K, m)
-        known = np.isfinite(predictive.log_weight)
-        terms = np.where(known[..., None], terms, np.nan)
-        loglik = terms.sum(axis=-1)
-        valid = (known & faulty).any(axis=1) & (known & ~faulty).any(axis=1)
-        mode = np.argmax(np.where(known & faulty, predictive.log_weight + loglik, -np.inf), axis=1)
-        healthy = np.argmax(np.where(known & ~faulty, loglik, -np.inf), axis=1)
-        rows = np.arange(len(mode))
-        evidence = np.full((len(mode), len(predictive.mask)), np.nan)
-        evidence[:, predictive.mask] = terms[rows, mode] - terms[rows, healthy]
-        totals = np.nansum(evidence, axis=1)
-        return [cls(int(mode[i]), int(healthy[i]), evidence[i], float(totals[i])) if valid[i] else None
-                for i in rows]
+        return _chosen(*mode_terms(predictive, len(faulty)), predictive.mask, faulty)
 
     def carriers(self, most: int = 5) -> list[tuple[int, float]]:
         """(output index, evidence) of the outputs that carry the total, largest first: the fewest
@@ -102,6 +80,24 @@ class Evidence:
             chosen.append((int(i), float(self.terms[i])))
             carried += self.terms[i]
         return chosen
+
+
+def _chosen(prior, terms, mask, faulty) -> list[Evidence | None]:
+    """The Evidence of each of n rows from its modes' log priors (n, K) and chain-rule terms (n, K, m),
+    m the readings measured where mask (ny,) is True: the most probable faulty mode against the
+    healthy mode that predicted the readings best (None where either kind has no hypothesis)."""
+    faulty = np.asarray(faulty, dtype=bool)
+    known = np.isfinite(prior)
+    loglik = terms.sum(axis=-1)  # log p(y_t | z_t = k, y_1:t-1)
+    valid = (known & faulty).any(axis=1) & (known & ~faulty).any(axis=1)
+    mode = np.argmax(np.where(known & faulty, prior + loglik, -np.inf), axis=1)
+    healthy = np.argmax(np.where(known & ~faulty, loglik, -np.inf), axis=1)
+    rows = np.arange(len(mode))
+    evidence = np.full((len(mode), len(mask)), np.nan)
+    evidence[:, mask] = terms[rows, mode] - terms[rows, healthy]
+    totals = np.nansum(evidence, axis=1)
+    return [Evidence(int(mode[i]), int(healthy[i]), evidence[i], float(totals[i])) if valid[i] else None
+            for i in rows]
 
 
 def chain_terms(residual, Linv) -> np.ndarray:
@@ -121,12 +117,13 @@ def mode_terms(predictive: Predictive, K: int) -> tuple[np.ndarray, np.ndarray]:
     by all modes, and the chain-rule terms log p(y_i | y_1..i-1, z_t = k, y_1:t-1) of the m readings
     measured. A mode's hypotheses form a mixture: its log-density of the first i readings is the
     log of the weighted sum of theirs, and term i is the step from i - 1 readings to i. A mode
-    without hypotheses has log prior -inf and NaN terms."""
+    without hypotheses has log prior -inf and NaN terms. An imm filter's predictive (a Gaussian per
+    mode) may carry a leading unit axis: then (n, K) and (n, K, m)."""
     terms = chain_terms(predictive.residual, predictive.Linv)
-    m = terms.shape[1]
+    m = terms.shape[-1]
     weighed = np.isfinite(predictive.log_weight)
     if len(predictive.mode) == K and (predictive.mode == np.arange(K)).all():  # a Gaussian per mode (imm)
-        return np.where(weighed, predictive.log_weight, -np.inf), np.where(weighed[:, None], terms, np.nan)
+        return np.where(weighed, predictive.log_weight, -np.inf), np.where(weighed[..., None], terms, np.nan)
     prior, out = np.full(K, -np.inf), np.full((K, m), np.nan)
     for k in np.unique(predictive.mode[weighed]):
         mine = weighed & (predictive.mode == k)
