@@ -121,6 +121,7 @@ class BatchIMM:
         self._base, self._tol, self._Sig = (np.zeros((count, K, nx, nx)) for _ in range(3))
         self._Linv, self._logdet, self._gain = (np.zeros((count, K, ny, ny)), np.zeros((count, K)),
                                                 np.zeros((count, K, ny, nx)))
+        self.predictives = []  # none before the first step
 
     def step(self, y, mask, u, enforce, units=ALL) -> Batch:
         """Condition the units `units` (all, or an index array) on readings y (n, ny), measured where
