@@ -31,17 +31,25 @@ def mix(log_mu, logP, means, covs):
     """The mixing of one step, from mode log-probabilities log_mu (..., K) and per-mode moments means
     (..., K, nx) and covs (..., K, nx, nx): (log_pred, mixed means, mixed covariances), where
     log_pred[j] = log p(z_t = j | y_1:t-1) and mode j starts from sum_i p(z_t-1 = i | z_t = j) N_i."""
-    joint = log_mu[..., :, None] + logP
-    log_pred = np.logaddexp.reduce(joint, axis=-2)
-    # mix[i, j] = p(z_t-1 = i | z_t = j, y_1:t-1); a mode that cannot be reached (log_pred = -inf)
-    # mixes nothing: -inf less a finite floor is -inf
-    mix_t = np.swapaxes(np.exp(joint - np.maximum(log_pred, LOG_FLOOR)[..., None, :]), -1, -2)
+    joint = log_mu[..., :, None] + logP  # (i, j): log p(z_t-1 = i, z_t = j | y_1:t-1)
+    # the log-sum over i, shifted by the largest term: a mode that cannot be reached (every term
+    # -inf) has its shift floored to a finite number, so its terms are 0, their total 0 and log_pred
+    # -inf, and it mixes nothing. Every reachable total is at least 1 (its largest term).
+    top = np.maximum.reduce(joint, axis=-2, initial=LOG_FLOOR)
+    w = np.exp(joint - top[..., None, :])
+    total = np.add.reduce(w, axis=-2)  # along i, one term after the other (not the innermost axis)
+    with np.errstate(divide="ignore"):
+        log_pred = top + np.log(total)
+    # mix[j, i] = p(z_t-1 = i | z_t = j, y_1:t-1)
+    mix_t = np.swapaxes(w / np.maximum(total, 1.0)[..., None, :], -1, -2)
     mixed = mix_t @ means
-    d = means[..., None, :, :] - mixed[..., :, None, :]  # (j, i, nx)
+    # deviations d[j, :, i] of each mode's mean from mode j's mixed mean, the previous mode innermost
+    # (a broadcast with an inner axis of nx runs 3 times slower at nx = 3)
+    d = np.ascontiguousarray(np.swapaxes(means, -1, -2))[..., None, :, :] - mixed[..., :, :, None]
     K, nx = means.shape[-2:]
-    # sum_i mix[i, j] (covs[i] + d[j, i] d[j, i]'), as matrix products (a three-operand einsum
+    # sum_i mix[j, i] (covs[i] + d[j, :, i] d[j, :, i]'), as matrix products (a three-operand einsum
     # loops in C without BLAS: most of a step with 50 states)
-    spread = np.swapaxes(d * mix_t[..., None], -1, -2) @ d
+    spread = (d * mix_t[..., None, :]) @ np.swapaxes(d, -1, -2)
     lead = covs.shape[:-3]
     covs = (mix_t @ covs.reshape(lead + (K, nx * nx))).reshape(lead + (K, nx, nx)) + spread
     return log_pred, mixed, covs
