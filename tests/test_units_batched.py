@@ -175,18 +175,25 @@ def unit_files(tmp_path_factory):
 
 
 @pytest.mark.parametrize("options", [[], ["--filter", "la-rbpf", "--seed", "3", "--persistence", "3"],
-                                     ["--lag", "5"], ["--prefilter", "ma:3", "--healthy", "normal,grill"]])
+                                     ["--lag", "5"], ["--prefilter", "ma:3", "--healthy", "normal,grill"],
+                                     ["--explain"], ["--explain", "--filter", "la-rbpf", "--seed", "3"]])
 def test_run_on_several_files_writes_each_units_table_as_alone(unit_files, tmp_path, capsys, options):
     assert main(["run", "specs/dryer.jmlg", *map(str, unit_files), "-o", str(tmp_path / "out"), *options]) == 0
     printed = capsys.readouterr().out
-    for path in unit_files:
+    blocks = re.split(r"^(?=\S+\.csv: )", printed, flags=re.M)[1:]  # a unit's line and the lines under it
+    assert len(blocks) == len(unit_files) and "3 units" in blocks[-1]
+    for path, block in zip(unit_files, blocks):
         alone = tmp_path / f"alone_{path.name}"
         assert main(["run", "specs/dryer.jmlg", str(path), "-o", str(alone), *options]) == 0
         said = capsys.readouterr().out
         assert (tmp_path / "out" / path.name).read_bytes() == alone.read_bytes()
         error = re.search(r"diagnosis error: (\S+) %", said).group(1)
-        assert f"{path}: " in printed and f"diagnosis error {error} %" in printed
-    assert "3 units" in printed
+        assert block.startswith(f"{path}: ") and f"diagnosis error {error} %" in block
+        evidence = said[said.index("evidence behind"):].splitlines() if "--explain" in options else []
+        assert [line[2:] for line in block.splitlines()[1:] if line.startswith("  ")] == evidence
+    if "--explain" in options:
+        assert "evidence_temp" in (tmp_path / "out" / unit_files[0].name).read_text().splitlines()[0]
+        assert re.search(r"^    t \d+ \(time \d+\): \w+ against normal, ", printed, flags=re.M)
 
 
 def test_run_on_several_files_refuses_what_it_cannot_do_before_any_work(unit_files, tmp_path, capsys):

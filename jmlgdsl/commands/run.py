@@ -60,8 +60,8 @@ def register(subparsers):
     p.add_argument("--explain", action="store_true",
                    help="the evidence per sensor: after the summary, for each alarm raised, the mode it points "
                         "at and the outputs that carry it (their share of the log-likelihood ratio of that mode "
-                        "against the healthy ones, in nats); with -o the table gains the columns evidence_mode "
-                        "and evidence_<output>")
+                        "against the healthy ones, in nats; with several data files, under each unit's line); with -o "
+                        "the table gains the columns evidence_mode and evidence_<output>")
     split = p.add_argument_group("detect, then name (one data file; the table holds the detector's columns)")
     split.add_argument("--detect", metavar="MODE,MODE[,...]", type=mode_list,
                        help="the alarm from these modes alone (the healthy ones and a catch-all, e.g. "
@@ -168,9 +168,8 @@ def fleet(args) -> int:
     from ..output import check_folder
     from ..names import plural
 
-    for given, option in ((args.plot, "--plot"), (args.explain or None, "--explain")):
-        if given is not None:
-            raise JmlgError(f"{option} takes one data file, not {len(args.data)}")
+    if args.plot is not None:
+        raise JmlgError(f"--plot takes one data file, not {len(args.data)}")
     if "-" in args.data:
         raise JmlgError("standard input (-) cannot be one of several data files")
     names = [Path(path).stem + ".csv" for path in args.data]
@@ -189,7 +188,7 @@ def fleet(args) -> int:
             model, args.data, tables=args.output is not None, cluster=args.cluster,
             progress=sys.stderr if sys.stderr.isatty() else None, algorithm=args.filter, particles=args.particles,
             seed=args.seed, resampling=args.resampling, ess_threshold=args.ess_threshold,
-            lag=None if args.smooth else args.lag or 0, prefilter=window,
+            lag=None if args.smooth else args.lag or 0, prefilter=window, explain=args.explain,
             rule=AlarmRule(tuple(healthy_modes(args) or model.modes[:1]), args.threshold, args.persistence))
     if args.output is not None:
         Path(args.output).mkdir(parents=True, exist_ok=True)
@@ -202,6 +201,8 @@ def fleet(args) -> int:
         if unit.error is not None:
             line += f", diagnosis error {unit.error:.2f} %"
         print(line)
+        for evidence in unit.evidence or ():
+            print("  " + evidence)
     steps = sum(unit.steps for unit in history.units)
     how = "one filter for every unit" if history.batched else "a filter per unit"
     print(f"{model.name}: {plural(len(history.units), 'unit')}, filter {args.filter} ({how}), "

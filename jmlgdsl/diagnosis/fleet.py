@@ -40,7 +40,8 @@ from ..model import Model
 from ..progress import Progress
 from .evidence import Evidence
 from .pipeline import Diagnosis
-from .sinks import TableSink
+from .report import evidence_report
+from .sinks import Raised, TableSink
 
 
 class Fleet:
@@ -100,8 +101,9 @@ class Fleet:
 
 @dataclass(frozen=True)
 class Outcome:
-    """One data file diagnosed as a unit of a fleet: what its summary line says, and its table (the
-    CSV text `jmlgdsl run -o` writes; None when no table was asked for)."""
+    """One data file diagnosed as a unit of a fleet: what its summary line says, its table (the CSV
+    text `jmlgdsl run -o` writes; None when no table was asked for) and, when the diagnosis explains,
+    the lines on the evidence behind its alarms (`report.evidence_report`; else None)."""
 
     path: str
     steps: int
@@ -109,6 +111,7 @@ class Outcome:
     alarms: int  # alarms raised
     error: float | None  # diagnosis error %, where the data carry the true mode
     table: str | None
+    evidence: tuple[str, ...] | None = None
 
 
 @dataclass(frozen=True)
@@ -162,12 +165,16 @@ def _diagnose_chunk(model: Model, paths: list, folder: str, tables: bool, option
             records.append(list(iter_rows(source, model, path)))
         if not records[-1]:
             raise DataError(f"{path}: no data rows")
+    explain = options.get("explain", False)
     texts = [io.StringIO() if tables else None for _ in paths]
-    sinks = [[TableSink(text, model, options.get("lag", 0))] if tables else [] for text in texts]
+    raised = [Raised() if explain else None for _ in paths]
+    sinks = [([TableSink(text, model, options.get("lag", 0), explain=explain)] if tables else [])
+             + ([alarms] if explain else []) for text, alarms in zip(texts, raised)]
     run = Fleet(model, len(paths), sinks=sinks, **options).run(records)
     units = [Outcome(path, unit.summary.T, model.modes[unit.summary.current], unit.alarms.raised,
                      unit.summary.diagnosis_error if unit.summary.labelled else None,
-                     text.getvalue() if tables else None)
-             for path, unit, text in zip(paths, run.units, texts)]
+                     text.getvalue() if tables else None,
+                     tuple(evidence_report(model, alarms)) if explain else None)
+             for path, unit, text, alarms in zip(paths, run.units, texts, raised)]
     return History(units, run.filter is not None, run.seconds)
 
