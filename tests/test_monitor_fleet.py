@@ -10,6 +10,8 @@
 - Following growing files, the monitor killed with SIGKILL mid-file and started again with the same
   command loses and repeats no row of any unit: each run's rows are t = 1..N once each, and each
   unit's table is the uninterrupted `jmlgdsl run` table (--lag 0: nothing held back).
+- Stopped while each unit's file holds more rows than its queue, the monitor returns, every unit's
+  reader thread ends, and started again it diagnoses every unit's rows once each.
 - Over MQTT (a mosquitto started here on 127.0.0.1), topics PREFIX/UNIT/NAME and JSON objects of
   several names on PREFIX/UNIT land in each unit's run; killed mid-stream, the persistent session
   delivers what was not acknowledged to the restarted monitor, and each unit's table is the one
@@ -273,6 +275,45 @@ def readings(unit, lines, kind):
         else:
             messages.append([(f"plant/{unit}", json.dumps({"t": t, "temp": temp, "current": current}))])
     return messages
+
+
+def test_stopped_while_its_files_run_far_ahead_it_lets_their_readers_go_and_resumes(tmp_path):
+    """Stopped while each unit's file holds far more rows than the monitor's queue, the monitor
+    returns, every unit's reader thread ends (none left waiting to hand over rows no one takes), and
+    the same monitor started again diagnoses every unit's rows t = 1..N once each."""
+    import jmlgdsl
+    from jmlgdsl.monitor import Monitor, Store, monitor_options
+    from jmlgdsl.monitor.live import QUEUE
+    from jmlgdsl.monitor.sources import open_bus
+
+    rows = QUEUE  # per unit: three units' rows are three queues' worth
+    folder = tmp_path / "units"
+    folder.mkdir()
+    for unit in UNITS:
+        (folder / f"{unit}.csv").write_text("time,current,temp\n" + "".join(f"{t},15,50.5\n" for t in range(1, rows + 1)))
+    model = jmlgdsl.load(SPEC)
+
+    def monitor(stop=None):
+        source = open_bus(url=str(folder / "{unit}.csv"), model=model, tags={}, units=UNITS, follow=False)
+        with Store(str(tmp_path / "fleet.db")) as store:
+            stopped = Monitor(model, store, source, spec=SPEC, options=monitor_options(), tags={},
+                              units=UNITS).run(stop)
+        return stopped, source
+
+    stop = threading.Event()
+    threading.Timer(1.0, stop.set).start()
+    stopped, source = monitor(stop)
+    assert not stopped.ended and 0 < stopped.rows < len(UNITS) * rows
+    for reader in source.sources:
+        reader._thread.join(WAIT)
+        assert not reader._thread.is_alive()
+    stopped, _ = monitor()
+    assert stopped.ended and stopped.stored == len(UNITS) * rows
+    with sqlite3.connect(tmp_path / "fleet.db") as db:
+        for unit in UNITS:
+            ts = [t for t, in db.execute("SELECT t FROM result JOIN run ON run.id = result.run WHERE run.unit = ? "
+                                         "ORDER BY t", (unit,))]
+            assert ts == list(range(1, rows + 1))
 
 
 @pytest.mark.skipif(MOSQUITTO is None, reason=NO_MOSQUITTO)

@@ -122,6 +122,8 @@ class CsvSource:
             while not self._stop.is_set():
                 try:
                     for row in iter_rows(lines, self.model, self.name):
+                        if self._stop.is_set():
+                            return
                         put(("row", row, {"offset": lines.offset, "line": lines.line}))
                     break
                 except DataError as exc:
