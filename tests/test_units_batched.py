@@ -12,7 +12,9 @@ import pytest
 import jmlgdsl
 from jmlgdsl.cli import main
 from jmlgdsl.errors import DataError
-from jmlgdsl.infer import FilterError, kalman
+from jmlgdsl.infer import Filter, FilterError, kalman
+from jmlgdsl.infer import units as units_module
+from jmlgdsl.infer.rbpf import Exact
 from jmlgdsl.infer.units import Units, _groups, filter_units
 from jmlgdsl.simulate import simulate
 
@@ -92,13 +94,47 @@ def test_the_wide_fleet_goes_through_every_path_of_the_step(wide, monkeypatch):
     assert results[2].rejected.any() and results[3].rejected.any()
 
 
-@pytest.mark.parametrize("algorithm, particles", [("pf", 30), ("rbpf", 10), ("la-rbpf", 5), ("fc-rbpf", 3)])
-def test_every_particle_filter_over_units_equals_each_unit_alone(dryer, algorithm, particles):
+@pytest.mark.parametrize("algorithm, particles, options", [
+    ("pf", 30, {}), ("rbpf", 10, {}), ("la-rbpf", 5, {}), ("fc-rbpf", 3, {}),
+    ("la-rbpf", 5, {"resampling": "stratified"}), ("la-rbpf", 8, {"ess_threshold": 0.6}),
+    ("rbpf", 10, {"ess_threshold": 0.6})])
+def test_every_particle_filter_over_units_equals_each_unit_alone(dryer, algorithm, particles, options):
+    """The Rao-Blackwellised engines of units holding as many particles step together (one
+    `step_together`, la-rbpf's systematic selection too), the others one by one; a unit whose
+    gate redoes its step leaves the rest of its group as they were."""
     ys, us = fleet_data(dryer, 4, 80, seed=3)
-    results = filter_units(dryer, ys, us, algorithm=algorithm, particles=particles, seed=7)
+    results = filter_units(dryer, ys, us, algorithm=algorithm, particles=particles, seed=7, **options)
     for batched, y, u in zip(results, ys, us):
-        assert_same(batched, jmlgdsl.filter(dryer, y, u, algorithm=algorithm, particles=particles, seed=7))
+        assert_same(batched, jmlgdsl.filter(dryer, y, u, algorithm=algorithm, particles=particles, seed=7, **options))
     assert results[2].rejected.any() and results[3].rejected.any()
+
+
+def test_rao_blackwellised_units_step_together(dryer, monkeypatch):
+    ys, us = fleet_data(dryer, 6, 60)
+    groups = []
+    together = units_module.step_together
+    monkeypatch.setattr(units_module, "step_together",
+                        lambda engines, *a: groups.append(len(engines)) or together(engines, *a))
+    filter_units(dryer, ys, us, algorithm="la-rbpf", particles=10, seed=2)
+    assert sum(groups) > 0.5 * sum(len(y) for y in ys)  # most unit-steps in groups of two or more
+
+
+def test_an_exact_fleet_past_its_bank_limit_names_the_unit_that_got_there_first(dryer, monkeypatch):
+    """Each unit's bank grows with its own readings: the fleet stops at the first step at which a unit's
+    would outgrow the limit, naming that unit (the first such, in order) with the message it gets alone."""
+    monkeypatch.setattr(Exact, "max_gaussians", 20)
+    ys, us = fleet_data(dryer, 3, 6)
+    when = []
+    for y, u in zip(ys, us):
+        f = Filter(dryer, "exact")
+        with pytest.raises(FilterError) as alone:
+            for row, inputs in zip(y, u):
+                f.step(row, inputs)
+        when.append((f.t, str(alone.value)))
+    first = min(range(len(ys)), key=lambda i: when[i][0])
+    with pytest.raises(FilterError) as fleet:
+        filter_units(dryer, ys, us, algorithm="exact")
+    assert str(fleet.value) == f"unit {first}: {when[first][1]}"
 
 
 def test_exact_over_units_equals_each_unit_alone(dryer):

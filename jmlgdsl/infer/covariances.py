@@ -62,10 +62,14 @@ class _Rows:
         """(Linv, logdet, gain_t, Sig_f) at `at`: an array of nodes (every mode of each node in turn)
         or a (nodes, modes) pair of arrays (one entry per pair)."""
         rows = self.packed.buffer[at]
-        rows = rows.reshape(-1, rows.shape[-1])
+        return self.unpack(rows.reshape(-1, rows.shape[-1]))
+
+    def unpack(self, rows):
+        """(Linv, logdet, gain_t, Sig_f) of packed rows (..., J, width), as views."""
         (m, nx), (b1, b2, b3) = self.shapes[2], self.bounds[1:4]
-        J = len(rows)
-        return rows[:, :b1].reshape(J, m, m), rows[:, b1], rows[:, b2:b3].reshape(J, m, nx), rows[:, b3:].reshape(J, nx, nx)
+        lead = rows.shape[:-1]
+        return (rows[..., :b1].reshape(lead + (m, m)), rows[..., b1], rows[..., b2:b3].reshape(lead + (m, nx)),
+                rows[..., b3:].reshape(lead + (nx, nx)))
 
     def Sig_f(self, node, mode):
         """Filtered covariances at (node, mode) pairs."""

@@ -173,12 +173,16 @@ class Resampler:
         self.scheme, self.n, self.rng, self.threshold = scheme, n, rng, threshold
         self.uniform = np.full(n, -np.log(n))  # the log-weights after resampling (never written to)
 
+    def resamples(self, size, copies) -> bool:
+        """Whether particles of this ESS and copy counts are resampled."""
+        return self.threshold >= 1.0 or size < self.threshold * self.n or copies.sum() != self.n
+
     def __call__(self, w, copies=None):
         """(ancestor indices, their new log-weights, ESS) for normalised weights w."""
         if copies is None:
             copies = np.ones(len(w), dtype=np.int64)
         size = ess(w, copies)
-        if self.threshold >= 1.0 or size < self.threshold * self.n or copies.sum() != self.n:
+        if self.resamples(size, copies):
             return self.scheme(w, self.n, self.rng), self.uniform, size
         ancestors = np.repeat(np.arange(len(w)), copies)
         with np.errstate(divide="ignore"):

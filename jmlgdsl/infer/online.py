@@ -99,8 +99,14 @@ class Filter:
     def _advance(self, y, mask, u) -> Step | None:
         """`step` on checked readings y (ny,), measured where mask (ny,) is True, and inputs u (nu,)."""
         start = time.perf_counter()
+        record = self._take(self.engine.step(y, mask, u, self._gate), y, u)
+        self.seconds += time.perf_counter() - start
+        return record
+
+    def _take(self, est, y, u) -> Step | None:
+        """The record of the step whose engine, under this filter's gate, made `est` of readings y and
+        inputs u (as `_advance` gives it; jmlgdsl.infer.units steps many engines at once)."""
         t = self.t + 1
-        est = self.engine.step(y, mask, u, self._gate)
         if not (math.isfinite(est.loglik) and np.isfinite(est.state_cov).all()):
             raise _overflow(t, est)
         if est.flagged is not None or self._watching:
@@ -109,10 +115,7 @@ class Filter:
         self.loglik += est.loglik
         record = Step(t, est.mode_posterior, est.state_mean, est.state_cov, est.y_pred, y - est.y_pred,
                       est.loglik, est.ess, est.rejected)
-        if self._smoother is not None:
-            record = self._hold(record, u)
-        self.seconds += time.perf_counter() - start
-        return record
+        return record if self._smoother is None else self._hold(record, u)
 
     def _hold(self, record, u):
         """Keep the new record back; give out the oldest one, smoothed, once `lag` rows follow it."""

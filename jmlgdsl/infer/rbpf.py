@@ -22,7 +22,7 @@ import numpy as np
 from .covariances import CovarianceGraph
 from . import kalman
 from .engine import OPEN, Estimate, FilterError, Genealogy, Resampler, mixture_moments, offsets, sample_rows, screen
-from .resample import ess, fearnhead_clifford, normalize
+from .resample import ess, fearnhead_clifford, normalize, normalize_rows, systematic, systematic_points
 from .result import Predictive
 
 
@@ -74,6 +74,31 @@ class RaoBlackwellised:
         A candidate chosen several times becomes one particle with that many copies."""
         raise NotImplementedError
 
+    @staticmethod
+    def select_together(engines, q) -> list:
+        """`select` of engines of this algorithm side by side, from their weights q (g, J): (chosen,
+        log-weights, ESS) for each engine it serves, None for each that selects on its own (all, here)."""
+        return [None] * len(engines)
+
+    def advance(self, rows, parent, mode, pairs, log_prior, r, Linv, q, mu_f, mask, selected=None) -> float:
+        """Select the next particles from this step's candidates (candidate j: particle parent[j] into
+        mode[j], weight q[j], filtered mean mu_f[j]; `pairs`: they are every (particle, mode) pair in
+        order; `selected`: what `select` gives, if made already), the step's predictive and genealogy
+        kept; the ESS."""
+        n = len(self.z)
+        self.predictive = Predictive(mode, log_prior, r, Linv, mask)
+        chosen, logw, size = self.select(q, parent, mode) if selected is None else selected
+        key = chosen if pairs else parent[chosen] * self.K + mode[chosen]  # (parent, mode) as one number
+        resampled = self.resampler is not None and logw is self.resampler.uniform  # all weights 1 / N
+        chosen, self.logw, self.copies = merge_copies(key, chosen, logw, n * self.K, resampled)
+        self.genealogy = Genealogy(parent, mode, q, chosen)
+        self.z = mode[chosen]
+        self.mu = mu_f[chosen]
+        self.node = self.graph.children(rows, self.node[parent[chosen]], self.z)
+        if self.graph.size > 4 * len(self.node) + self.spare_nodes:
+            self.node = self.graph.compact(self.node)
+        return size
+
     def step(self, y, mask, u, gate=OPEN) -> Estimate:
         model, K, nx, ny = self.model, self.K, self.nx, self.ny
         rows = self.graph.rows(mask)
@@ -94,8 +119,7 @@ class RaoBlackwellised:
         mu_p, y_pred = pred[:, :nx], pred[:, nx:]
         Linv, logdet, gain_t, Sig_f = rows.at(at)
         r = y - y_pred if rows.complete else y[mask] - y_pred[:, mask]
-        z = (Linv @ r[:, :, None])[:, :, 0]
-        quad = kalman.quad_form(z)
+        quad = kalman.quad_form((Linv @ r[:, :, None])[:, :, 0])
         flagged = None
         if gate.closer_look(quad):  # under every mode of every particle
             Linv_every = Linv if log_prop is None else rows.at(self.node)[0]
@@ -103,26 +127,99 @@ class RaoBlackwellised:
                                        kalman.standard_deviations(Linv_every))
             if screened is not None:
                 return screened
-        self.predictive = Predictive(mode, log_prior, r, Linv, mask)
-        ll = kalman.log_density(quad, logdet, r.shape[1])
-        mu_f = mu_p + (r[:, None, :] @ gain_t)[:, 0]
+        q, loglik, mu_f, mean, cov, posterior, yp = weigh(prior, log_prior, mode, K, quad, logdet, r, mu_p, y_pred,
+                                                          gain_t, Sig_f)
+        size = self.advance(rows, parent, mode, log_prop is None, log_prior, r, Linv, q, mu_f, mask)
+        return Estimate(posterior, mean, cov, yp, float(loglik), size, flagged=flagged)
 
-        q, loglik = normalize(log_prior + ll)
-        mean, cov = mixture_moments(q, mu_f, (q @ Sig_f.reshape(len(q), nx * nx)).reshape(nx, nx))
+
+def step_together(engines, y, mask, u, gates) -> list:
+    """`RaoBlackwellised.step` of several engines of one model and algorithm that hold as many particles
+    and weigh as many candidates (units of a fleet): readings y (g, ny) measured where mask (ny,) is
+    True, inputs u (g, nu), a gate each; an Estimate each.
+
+    Their arithmetic runs with a leading axis over the engines, each engine's the same operations on
+    its own arrays as its own step's (a stack of matrix products is one product per matrix, and a
+    row's sum is the sum of that row alone), so each gets, bit for bit, what it would get alone. Each
+    then takes the closer look of its own gate, and selects its particles with its own random numbers."""
+    first = engines[0]
+    model, K, nx, ny = first.model, first.K, first.nx, first.ny
+    n = len(first.z)
+    rows = [e.graph.rows(mask) for e in engines]
+    candidates = [e.candidates() for e in engines]
+    pairs = candidates[0][2] is None  # the candidates are every (particle, mode) pair, the same for all
+
+    def weighed(chosen):
+        """The prior, predictions and Kalman pieces of the candidates of the engines at `chosen`, as
+        views laid out as in each engine's own step (a matrix product's order of sums follows them)."""
+        es, g = [engines[i] for i in chosen], len(chosen)
+        z, mu, logw = (np.stack([getattr(e, name) for e in es]) for name in ("z", "mu", "logw"))
+        offsets = np.stack([e._offsets(u[i]) for i, e in zip(chosen, es)])
+        pred = (mu @ first._map).reshape(g, n, K, nx + ny) + offsets[:, None]
+        if pairs:  # every (particle, mode) pair in order, and rows of every mode of each node
+            cand = pred.reshape(g, n * K, nx + ny)
+            parent, mode, _ = candidates[chosen[0]]
+            packed = np.stack([rows[i].packed.buffer[e.node] for i, e in zip(chosen, es)]).reshape(g, n * K, -1)
+            log_prior = (logw[..., None] + model.logP[z]).reshape(g, n * K)
+            prior = np.exp(log_prior)  # sums to 1: logw is normalised
+        else:  # each engine's own candidates
+            parent, mode, log_prop = (np.stack([candidates[i][k] for i in chosen]) for k in range(3))
+            each = np.arange(g)[:, None]
+            cand = pred[each, parent, mode]
+            packed = np.stack([rows[i].packed.buffer[e.node[p], m] for i, e, p, m in zip(chosen, es, parent, mode)])
+            log_prior = logw[each, parent] + model.logP[z[each, parent], mode] - log_prop
+            prior, _ = normalize_rows(log_prior)
+        Linv, logdet, gain_t, Sig_f = rows[chosen[0]].unpack(packed)
+        y_pred = cand[..., nx:]
+        r = y[chosen][:, None, :] - y_pred if mask.all() else y[chosen][:, None, mask] - y_pred[..., mask]
+        quad = kalman.quad_form((Linv @ r[..., None])[..., 0])
+        return parent, mode, prior, log_prior, quad, logdet, r, cand[..., :nx], y_pred, gain_t, Sig_f, Linv, pred
+
+    kept = list(range(len(engines)))
+    parent, mode, prior, log_prior, quad, logdet, r, mu_p, y_pred, gain_t, Sig_f, Linv, pred = weighed(kept)
+    estimates, flagged = [None] * len(engines), [None] * len(engines)
+    for i, gate in enumerate(gates):
+        if gate.closer_look(quad[i]):  # under every mode of every particle
+            e = engines[i]
+            Linv_every = Linv[i] if pairs else rows[i].at(e.node)[0]
+            every = pred.reshape(len(engines), n * K, nx + ny)[i]
+            estimates[i], flagged[i] = screen(e, y[i], mask, u[i], gate, y[i, mask] - every[:, nx:][:, mask],
+                                              kalman.standard_deviations(Linv_every))
+    if any(est is not None for est in estimates):  # the engines whose step screening redid are done
+        kept = [i for i, est in enumerate(estimates) if est is None]
+        if not kept:
+            return estimates
+        parent, mode, prior, log_prior, quad, logdet, r, mu_p, y_pred, gain_t, Sig_f, Linv, pred = weighed(kept)
+    q, loglik, mu_f, mean, cov, posterior, yp = weigh(prior, log_prior, mode, K, quad, logdet, r, mu_p, y_pred, gain_t,
+                                                      Sig_f)
+    selected = type(first).select_together([engines[i] for i in kept], q)
+    for j, i in enumerate(kept):
+        mine = (parent, mode) if pairs else (parent[j], mode[j])
+        size = engines[i].advance(rows[i], *mine, pairs, log_prior[j], r[j], Linv[j], q[j], mu_f[j], mask,
+                                  selected[j])
+        estimates[i] = Estimate(posterior[j], mean[j], cov[j], yp[j], float(loglik[j]), size, flagged=flagged[i])
+    return estimates
+
+
+def weigh(prior, log_prior, mode, K, quad, logdet, r, mu_p, y_pred, gain_t, Sig_f):
+    """What the readings make of the candidates, over any leading axes (one engine's, or many engines'
+    side by side, each the same operations on its own arrays): (normalised weights q, log-likelihood,
+    filtered means, the mixture's mean and covariance, the mode posterior, the predicted readings),
+    from the candidates' prior weights (normalised and in logs), modes, squared Mahalanobis distances
+    quad, log det S, residuals r and Kalman pieces."""
+    nx = mu_p.shape[-1]
+    ll = kalman.log_density(quad, logdet, r.shape[-1])
+    mu_f = mu_p + (r[..., None, :] @ gain_t)[..., 0, :]
+    q, loglik = normalize_rows(log_prior + ll)
+    lead = q.shape[:-1]
+    weighted = (q[..., None, :] @ Sig_f.reshape(lead + (-1, nx * nx)))[..., 0, :].reshape(lead + (nx, nx))
+    mean, cov = mixture_moments(q, mu_f, weighted)
+    if q.ndim == 1:
         posterior = np.bincount(mode, weights=q, minlength=K)
-        yp = prior @ y_pred
-
-        chosen, logw, size = self.select(q, parent, mode)
-        key = chosen if log_prop is None else parent[chosen] * K + mode[chosen]  # (parent, mode) as one number
-        resampled = self.resampler is not None and logw is self.resampler.uniform  # all weights 1 / N
-        chosen, self.logw, self.copies = merge_copies(key, chosen, logw, n * K, resampled)
-        self.genealogy = Genealogy(parent, mode, q, chosen)
-        self.z = mode[chosen]
-        self.mu = mu_f[chosen]
-        self.node = self.graph.children(rows, self.node[parent[chosen]], self.z)
-        if self.graph.size > 4 * len(self.node) + self.spare_nodes:
-            self.node = self.graph.compact(self.node)
-        return Estimate(posterior, mean, cov, yp, loglik, size, flagged=flagged)
+    else:
+        posterior = np.bincount((np.arange(len(q))[:, None] * K + mode).ravel(), weights=q.ravel(),
+                                minlength=len(q) * K).reshape(len(q), K)
+    return q, loglik, mu_f, mean, cov, posterior, (prior[..., None, :] @ y_pred)[..., 0, :]
 
 
 def merge_copies(key, chosen, logw, size, equal=False):
@@ -177,6 +274,35 @@ class LookAheadRBPF(RaoBlackwellised):
         q = q.reshape(-1, K)
         ancestors, logw, size = self.resampler(q.sum(axis=1), self.copies)
         return ancestors * K + sample_rows(q[ancestors], self.rng), logw, size
+
+    @staticmethod
+    def select_together(engines, q) -> list:
+        """`select` of the engines that resample this step with the systematic scheme, side by side:
+        each draws from its own Generator the numbers it would alone (one for the scheme, then one per
+        particle for its mode: one call), and gets the same particles."""
+        K, g = engines[0].K, len(engines)
+        q = q.reshape(g, -1, K)
+        w = q.sum(axis=-1)
+        copies = np.stack([e.copies for e in engines])
+        size = 1.0 / (w[:, None, :] @ (w / copies)[:, :, None])[:, 0, 0]  # ess(w, copies), row by row
+        out = [None] * g
+        going = [i for i, e in enumerate(engines) if e.resampler.scheme is systematic and e.resampler.resamples(
+            size[i], copies[i])]
+        if not going:
+            return out
+        n = engines[going[0]].resampler.n
+        draws = np.stack([engines[i].rng.random(n + 1) for i in going])
+        cdf = w[going].cumsum(axis=1)
+        cdf[:, -1] = 1.0  # as _inverse_cdf
+        ancestors = (cdf[:, :, None] <= (systematic_points(n) + draws[:, :1] / n)[:, None, :]).sum(axis=1)
+        probs = q[going][np.arange(len(going))[:, None], ancestors]
+        cdf = probs.cumsum(axis=-1)  # sample_rows, row by row
+        u = draws[:, 1:] * cdf[..., -1]
+        cdf[..., -1] = np.inf
+        chosen = ancestors * K + (cdf > u[..., None]).argmax(axis=-1)
+        for j, i in enumerate(going):
+            out[i] = chosen[j], engines[i].resampler.uniform, size[i]
+        return out
 
 
 class FearnheadCliffordRBPF(RaoBlackwellised):

@@ -7,17 +7,15 @@ whole fleet. `imm` runs vectorised through the same arithmetic as `IMM` (jmlgdsl
 by matrix, and each unit's results are those of a `Filter` on its data alone, bit for bit (its
 mode posteriors, state moments, predictions, log-likelihoods and rejected readings).
 
-The other algorithms run one engine per unit, one after the other: the same results, without the
-speed-up. None of them holds a bank of fixed size that a unit axis could carry. `exact` keeps every
-mode history of positive probability: its bank grows K-fold at every step and drops the histories
-whose weight underflows, so units differ in their counts after a few steps (and it is meant for
-records short enough that the histories, not the calls, are the cost). Each unit of a particle
-filter draws from its own Generator as much as its own data ask (a step that the gate redoes
-without a reading draws again); the Rao-Blackwellised ones also merge identical particles into
-copies, so a unit's particle count changes from step to step, and keep their Kalman covariances in
-a graph of their own. Doing them over a unit axis bit for bit needs ragged particle sets and a
-stream per unit; until then they loop, and every unit given the same seed gets what a Filter with
-that seed gets.
+The Rao-Blackwellised filters (`rbpf`, `la-rbpf`, `fc-rbpf`, `exact`) keep one engine per unit, each
+with its particles, its graph of Kalman covariances and its own Generator, because their banks are
+ragged: identical particles merge into copies and `exact` drops the histories whose weight
+underflows, so units differ in their particle counts from step to step. The units that measured
+the same outputs and hold as many particles step together (`rbpf.step_together`): their
+predictions, Kalman pieces, weights and mixture moments in one call with a leading unit axis, and
+la-rbpf's systematic resampling and draw of modes too, each unit with the numbers its own Generator
+gives; each unit then merges its copies and grows its own graph. `pf` runs one engine per unit,
+one after the other. Every unit gets, bit for bit, what a Filter with the same seed gets alone.
 
     >>> import jmlgdsl
     >>> from jmlgdsl.infer.units import Units
@@ -31,8 +29,6 @@ that seed gets.
 
 from __future__ import annotations
 
-import functools
-import math
 import time
 from typing import NamedTuple
 
@@ -45,29 +41,11 @@ from .algorithms import DEFAULT_ALGORITHM
 from .engine import Estimate, FilterError, Gate, screen
 from .imm import SURE, mix, moments, predict, refresh, whitened
 from .online import MAX_REJECTIONS, Filter, _arrays, _overflow, _readings
+from .rbpf import RaoBlackwellised, step_together
+from .resample import normalize_rows, row_extreme
 from .result import Predictive, Result, Step
 
 ALL = slice(None)  # every unit, as an index that takes views, not copies
-
-
-def normalize_rows(logw):
-    """`resample.normalize` row by row: normalised weights (..., J) and the log of each row's sum
-    (...), taken with math.log as there, so a row comes out as normalize gives it."""
-    top = row_extreme(np.maximum, logw)[..., None]
-    w = np.exp(logw - top)
-    # numpy adds fewer than 8 numbers one after the other (its pairwise summation works in blocks
-    # of 8), so a short row is summed column by column to the same bits, 5 times faster
-    J = w.shape[-1]
-    total = (functools.reduce(np.add, (w[..., j] for j in range(J))) if J < 8 else w.sum(axis=-1))[..., None]
-    logs = np.fromiter(map(math.log, total.ravel().tolist()), float, total.size).reshape(total.shape[:-1])
-    return w / total, top[..., 0] + logs
-
-
-def row_extreme(pick, x):
-    """x.max(axis=-1) (pick np.maximum) or x.min(axis=-1) (np.minimum), NaN as there, for a short last
-    axis: one call per column over every row, where numpy's reduction loops row by row (15 times
-    slower at 1,000 rows of 4). A maximum is exact, so the order does not matter."""
-    return functools.reduce(pick, (x[..., j] for j in range(x.shape[-1])))
 
 
 class Batch(NamedTuple):
@@ -275,19 +253,25 @@ class UnitSteps(NamedTuple):
 class Units:
     """On-line filtering of `count` units of one model: `step(y, u)` with one row of readings (and
     inputs) per unit. The options are a Filter's; every unit gets the same seed, as it would alone.
-    `units=` steps only some units (those whose data go on), leaving the others where they are."""
+    `units=` steps only some units (those whose data go on), leaving the others where they are.
+
+    `filters=` steps the units' own Filters instead (not imm, no lag; their count is the count): each
+    goes on as itself, so whatever saves a Filter (a Diagnosis's checkpoint) saves its unit."""
 
     def __init__(self, model: Model, count: int, algorithm: str = DEFAULT_ALGORITHM, particles: int | None = None,
-                 seed=None, resampling: str = "systematic", ess_threshold: float = 1.0):
+                 seed=None, resampling: str = "systematic", ess_threshold: float = 1.0, filters=None):
+        if filters is not None:
+            filters = list(filters)
+            count, algorithm = len(filters), filters[0].algorithm
         if isinstance(count, bool) or not isinstance(count, (int, np.integer)) or count < 1:
             raise FilterError(f"the number of units must be a positive whole number, got {count!r}")
         self.model, self.count, self.algorithm = model, count, algorithm
-        self._filters = [Filter(model, algorithm, particles, seed, resampling, ess_threshold)
-                         for _ in range(1 if algorithm == "imm" else count)]
+        self._filters = filters or [Filter(model, algorithm, particles, seed, resampling, ess_threshold)
+                                    for _ in range(1 if algorithm == "imm" else count)]
         self.particles = self._filters[0].particles
-        self._engine = BatchIMM(model, count) if algorithm == "imm" else None
-        self.t = np.zeros(count, dtype=np.int64)
-        self.loglik = np.zeros(count)
+        self._engine = BatchIMM(model, count) if filters is None and algorithm == "imm" else None
+        self.t = np.array([f.t for f in self._filters] if filters else np.zeros(count), dtype=np.int64)
+        self.loglik = np.array([f.loglik for f in self._filters] if filters else np.zeros(count), dtype=float)
         self.seconds = 0.0  # time spent inside step(), for every unit together
         self._flagged = np.zeros((count, model.ny), dtype=np.int64)  # consecutive steps beyond the gate
 
@@ -317,14 +301,19 @@ class Units:
         the units in each having used the same readings; jmlgdsl.diagnosis.evidence reads them."""
         return self._engine.predictives
 
-    def state(self, i: int) -> dict:
+    def state(self, i: int) -> dict | None:
         """Unit i's part of the filter (imm): its moments, kept pieces, step count, log-likelihood and
-        gate counts, as copies; `restore` puts them back, so a saved fleet goes on bit for bit."""
+        gate counts, as copies; `restore` puts them back, so a saved fleet goes on bit for bit. None
+        where the units' Filters are their own (`filters=`): a unit's Filter is its whole state."""
+        if self._engine is None:
+            return None
         return {"t": int(self.t[i]), "loglik": float(self.loglik[i]), "flagged": self._flagged[i].copy(),
                 **{name: getattr(self._engine, name)[i].copy() for name in BatchIMM.STATE}}
 
-    def restore(self, i: int, state: dict):
+    def restore(self, i: int, state: dict | None):
         """Unit i's part of the filter, as `state` gave it."""
+        if state is None:
+            return
         self.t[i], self.loglik[i], self._flagged[i] = state["t"], state["loglik"], state["flagged"]
         for name in BatchIMM.STATE:
             getattr(self._engine, name)[i] = state[name]
@@ -343,12 +332,32 @@ class Units:
                          b.rejected)
 
     def _each(self, index, t, y, mask, u) -> UnitSteps:
-        """The units one after the other, each through its own Filter."""
+        """The units through their own Filters: the Rao-Blackwellised engines of the units that measured
+        the same outputs and hold as many particles stepped together (`rbpf.step_together`), the
+        others one after the other."""
+        filters = [self._filters[unit] for unit in np.arange(self.count)[index]]
+        estimates = [None] * len(filters)
+        groups = {}
+        if isinstance(filters[0].engine, RaoBlackwellised):
+            for i, f in enumerate(filters):
+                groups.setdefault((mask[i].tobytes(), len(f.engine.z)), []).append(i)
+        for members in groups.values():
+            if len(members) > 1:
+                try:
+                    done = step_together([filters[i].engine for i in members], y[members], mask[members[0]],
+                                         u[members], [filters[i]._gate for i in members])
+                except FilterError as exc:  # refused before any engine moved (exact's bank, as large for all)
+                    done = [exc] * len(members)
+                for i, est in zip(members, done):
+                    estimates[i] = est
         records = []
-        for i, unit in enumerate(np.arange(self.count)[index]):
+        for i, f in enumerate(filters):
             try:
-                records.append(self._filters[unit]._advance(y[i], mask[i], u[i]))
-            except FilterError as exc:
+                est = f.engine.step(y[i], mask[i], u[i], f._gate) if estimates[i] is None else estimates[i]
+                if isinstance(est, FilterError):
+                    raise est
+                records.append(f._take(est, y[i], u[i]))
+            except FilterError as exc:  # named in the order the units would fail one after the other
                 raise _unit_error(index, i, exc) from None
         return UnitSteps(t, *(np.array([getattr(s, f) for s in records]) for f in UnitSteps._fields[1:-1]),
                          np.array([np.zeros(self.model.ny, dtype=bool) if s.rejected is None else s.rejected
