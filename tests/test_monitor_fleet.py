@@ -7,6 +7,8 @@
   reading) every unit has its own run in the store, its `unit` column set, and `jmlgdsl export
   --unit U` writes, byte for byte, the table `jmlgdsl run` writes for U's file; `export` of a fleet's
   store without --unit, or with a unit it does not hold, is refused naming the units.
+- Under la-rbpf (the units' own filters stepped together), a fleet stopped part way and started
+  again gives each unit the table `jmlgdsl run` writes for its file with the same filter and seed.
 - Following growing files, the monitor killed with SIGKILL mid-file and started again with the same
   command loses and repeats no row of any unit: each run's rows are t = 1..N once each, and each
   unit's table is the uninterrupted `jmlgdsl run` table (--lag 0: nothing held back).
@@ -200,6 +202,42 @@ def test_each_unit_exports_as_run_writes_its_file(fleet, tmp_path, capsys):
     assert (f"error: {store}: the store holds no run of unit nosuch; its units: pump01, pump02, pump03"
             in capsys.readouterr().err)
     assert not (tmp_path / "all.csv").exists() and not (tmp_path / "nosuch.csv").exists()
+
+
+def test_a_rao_blackwellised_fleet_stopped_and_resumed_gives_each_unit_its_run_table(tmp_path, capsys):
+    """Under la-rbpf the units' own filters step together (each unit's Diagnosis saves its own): a
+    fleet stopped part way through its files and started again gives each unit, byte for byte, the
+    table `jmlgdsl run` writes for its file with the same filter and seed."""
+    import jmlgdsl
+    from jmlgdsl.monitor import Monitor, Store, monitor_options, read_tags
+    from jmlgdsl.monitor.sources import open_bus
+
+    data, store = tmp_path / "data", str(tmp_path / "fleet.db")
+    source = write_files(data)
+    options = ["--filter", "la-rbpf", "--particles", "5", "--seed", "3"]
+    model = jmlgdsl.load(SPEC)
+    tags = read_tags(None, model)  # as the command reads them
+    stop = threading.Event()
+
+    def watch():  # stop the first monitor once a third of the rows are stored
+        while not stop.is_set() and (query(store, "SELECT count(*) FROM result") or 0) < 700:
+            time.sleep(0.01)
+        stop.set()
+
+    threading.Thread(target=watch, daemon=True).start()
+    with Store(store) as opened:
+        monitor = Monitor(model, opened, open_bus(url=source, model=model, tags=tags, units=UNITS, follow=False),
+                          spec=SPEC, options=monitor_options(algorithm="la-rbpf", particles=5, seed=3), tags=tags,
+                          units=UNITS)
+        assert monitor.fleet is not None and monitor.fleet.filter.algorithm == "la-rbpf"
+        first = monitor.run(stop)
+    assert not first.ended and 0 < first.rows < sum(map(len, ROWS.values()))
+    assert main(["monitor", SPEC, "--source", source, "--units", ",".join(UNITS), "--store", store, "--no-follow",
+                 *options]) == 0
+    for unit in UNITS:
+        exported = table("export", store, "--unit", unit, out=tmp_path / f"{unit}-export.csv")
+        assert exported == table("run", SPEC, str(data / f"{unit}.csv"), *options, out=tmp_path / f"{unit}-run.csv")
+    capsys.readouterr()
 
 
 def test_killed_mid_file_and_restarted_loses_and_repeats_no_row(tmp_path):

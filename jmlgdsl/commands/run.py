@@ -204,7 +204,7 @@ def fleet(args) -> int:
         for evidence in unit.evidence or ():
             print("  " + evidence)
     steps = sum(unit.steps for unit in history.units)
-    how = "one filter for every unit" if history.batched else "a filter per unit"
+    how = "the units stepped together" if history.batched else "unit after unit"
     print(f"{model.name}: {plural(len(history.units), 'unit')}, filter {args.filter} ({how}), "
           f"{1e6 * history.seconds / max(steps, 1):.2f} us per unit-step")
     if args.output is not None:

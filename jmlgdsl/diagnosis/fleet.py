@@ -2,8 +2,9 @@
 
 Every unit has its own `Diagnosis` (pre-filter, alarm rule, summary, truth scoring, scale check,
 evidence and sinks), so each unit's finished rows are those of diagnosing it alone. Their filters
-run as one vectorised `Units` filter where there is one (imm, without a lag), the evidence per
-sensor of every unit in one call too; otherwise each unit's Diagnosis filters its own rows.
+step together in a `Units` filter where they can (without a lag): imm as one vectorised filter, the
+evidence per sensor of every unit in one call too; the Rao-Blackwellised filters as the units' own
+filters stepped together. Otherwise (pf, smoothing) each unit's Diagnosis filters its own rows.
 
 `diagnose_files` is `jmlgdsl run SPEC a.csv b.csv ... -o OUTDIR/`: each file a unit, its table and
 summary; with `cluster` the files are split into chunks, one per CPU of a Ray cluster, each chunk a
@@ -35,6 +36,7 @@ import numpy as np
 
 from ..data import iter_rows, open_source
 from ..errors import DataError
+from ..infer.rbpf import RaoBlackwellised
 from ..infer.units import Units
 from ..model import Model
 from ..progress import Progress
@@ -54,9 +56,12 @@ class Fleet:
         self.model = model
         self.units = list(units) if units is not None else [
             Diagnosis(model, sinks=() if sinks is None else sinks[i], **options) for i in range(count)]
-        first = self.units[0]
-        batched = first.filter.algorithm == "imm" and first.filter.lag == 0
-        self.filter = Units(model, len(self.units), first.filter.algorithm) if batched else None
+        first = self.units[0].filter
+        self.filter = None
+        if stepped_together(first) and first.algorithm == "imm":  # one vectorised filter beside the units'
+            self.filter = Units(model, len(self.units))
+        elif stepped_together(first):  # the units' own filters, stepped together
+            self.filter = Units(model, len(self.units), filters=[unit.filter for unit in self.units])
 
     def feed(self, rows):
         """Diagnose one data row of each unit (rows[i] for unit i; None: unit i has no row)."""
@@ -73,8 +78,14 @@ class Fleet:
         steps = self.filter.step(np.array(ys).reshape(len(on), self.model.ny),
                                  np.array([rows[i].u for i in on]).reshape(len(on), self.model.nu),
                                  None if len(on) == len(rows) else on)
-        if self.units[0].explain:
-            faulty = self.units[0].alarms.faulty
+        faulty = self.units[0].alarms.faulty
+        if self.filter.algorithm != "imm":  # each unit's engine holds its predictive, read as Diagnosis.feed does
+            for i in on:
+                engine = self.units[i].filter.engine
+                if self.units[i].explain:
+                    self.units[i]._evidence.append(Evidence.of(engine.predictive, faulty))
+                engine.predictive = None
+        elif self.units[0].explain:
             for positions, predictive in self.filter.predictives:
                 for j, evidence in zip(positions, Evidence.of_units(predictive, faulty)):
                     self.units[on[j]]._evidence.append(evidence)
@@ -99,6 +110,12 @@ class Fleet:
         return self.filter.seconds if self.filter is not None else sum(u.filter.seconds for u in self.units)
 
 
+def stepped_together(f) -> bool:
+    """Whether a Fleet steps units with filters like Filter f together (imm, or a Rao-Blackwellised
+    filter, without a lag); pf and smoothing filters step unit after unit."""
+    return f.lag == 0 and (f.algorithm == "imm" or isinstance(f.engine, RaoBlackwellised))
+
+
 @dataclass(frozen=True)
 class Outcome:
     """One data file diagnosed as a unit of a fleet: what its summary line says, its table (the CSV
@@ -116,8 +133,8 @@ class Outcome:
 
 @dataclass(frozen=True)
 class History:
-    """Many data files diagnosed: an Outcome per file in the order given, whether one vectorised filter
-    stepped the units together (`Fleet.filter`), and the seconds spent filtering, every unit together."""
+    """Many data files diagnosed: an Outcome per file in the order given, whether the units' filters
+    stepped together (`Fleet.filter`), and the seconds spent filtering, every unit together."""
 
     units: list[Outcome]
     batched: bool

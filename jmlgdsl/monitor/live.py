@@ -19,7 +19,7 @@ import numpy as np
 
 from ..diagnosis.alarms import AlarmRule
 from ..diagnosis import Diagnosis, fingerprint
-from ..diagnosis.fleet import Fleet
+from ..diagnosis.fleet import Fleet, stepped_together
 from ..diagnosis.prediction import predictive_sd
 from ..infer import DEFAULT_ALGORITHM
 from ..errors import JmlgError
@@ -89,7 +89,7 @@ class Monitor:
         runs = open_runs(store, model, spec, self.options, units, new_run)
         self.units = [self._unit(run, i) for i, run in enumerate(runs)]
         self.fleet = None  # the units' diagnoses as one Fleet, when their filters step together
-        if self.named and options["algorithm"] == "imm" and not options["lag"]:
+        if self.named and stepped_together(self.units[0].diagnosis.filter):
             self.fleet = Fleet(model, units=[watch.diagnosis for watch in self.units])
             for i, watch in enumerate(self.units):
                 if watch.filter_state is not None:
