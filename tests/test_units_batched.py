@@ -184,6 +184,8 @@ def test_a_unit_is_named_in_what_goes_wrong(dryer):
     assert str(batched.value) == f"unit 0: {alone.value}"
     with pytest.raises(FilterError, match="number of units"):
         Units(dryer, 0)
+    with pytest.raises(FilterError, match="the units' filters must have no lag"):
+        Units(dryer, 1, filters=[Filter(dryer, "la-rbpf", lag=2)])
 
 
 @pytest.fixture(scope="module")

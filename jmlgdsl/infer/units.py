@@ -255,14 +255,17 @@ class Units:
     inputs) per unit. The options are a Filter's; every unit gets the same seed, as it would alone.
     `units=` steps only some units (those whose data go on), leaving the others where they are.
 
-    `filters=` steps the units' own Filters instead (not imm, no lag; their count is the count): each
-    goes on as itself, so whatever saves a Filter (a Diagnosis's checkpoint) saves its unit."""
+    `filters=` steps the units' own Filters instead (one model and algorithm, no lag; their count is
+    the count, imm's too unit after unit): each goes on as itself, so whatever saves a Filter (a
+    Diagnosis's checkpoint) saves its unit."""
 
     def __init__(self, model: Model, count: int, algorithm: str = DEFAULT_ALGORITHM, particles: int | None = None,
                  seed=None, resampling: str = "systematic", ess_threshold: float = 1.0, filters=None):
         if filters is not None:
             filters = list(filters)
             count, algorithm = len(filters), filters[0].algorithm
+            if any(f.lag != 0 for f in filters):
+                raise FilterError("the units' filters must have no lag: a step gives each unit's record of that row")
         if isinstance(count, bool) or not isinstance(count, (int, np.integer)) or count < 1:
             raise FilterError(f"the number of units must be a positive whole number, got {count!r}")
         self.model, self.count, self.algorithm = model, count, algorithm
@@ -303,8 +306,9 @@ class Units:
 
     def state(self, i: int) -> dict | None:
         """Unit i's part of the filter (imm): its moments, kept pieces, step count, log-likelihood and
-        gate counts, as copies; `restore` puts them back, so a saved fleet goes on bit for bit. None
-        where the units' Filters are their own (`filters=`): a unit's Filter is its whole state."""
+        gate counts, as copies; `restore` puts them back, so a saved fleet goes on bit for bit. None for
+        the other algorithms: each unit's Filter is its whole state (given with `filters=`, its owner
+        saves it)."""
         if self._engine is None:
             return None
         return {"t": int(self.t[i]), "loglik": float(self.loglik[i]), "flagged": self._flagged[i].copy(),
