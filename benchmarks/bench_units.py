@@ -1,7 +1,7 @@
 """Unit-steps per second of many units of one plant in one filter (jmlgdsl.infer.units), against
 the unit count, beside the same units filtered one after the other (BENCHMARKS.md, "Fleets").
 
-    OPENBLAS_NUM_THREADS=1 python benchmarks/bench_units.py                  # dryer and cstr10, imm and la-rbpf
+    OPENBLAS_NUM_THREADS=1 python benchmarks/bench_units.py                  # dryer and cstr10, imm and la-rbpf:10
     OPENBLAS_NUM_THREADS=1 python benchmarks/bench_units.py --counts 1 10 100 --plants dryer
 
 Every unit filters its own simulated record (16 records, simulated once, taken in turn); a figure is
@@ -83,7 +83,8 @@ def memory_per_unit(model, algorithm, particles, y, u, count) -> float:
 def main():
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--plants", nargs="+", default=["dryer", "cstr10"])
-    p.add_argument("--filters", nargs="+", default=["imm", "la-rbpf"])
+    p.add_argument("--filters", nargs="+", default=["imm", "la-rbpf:10"],
+                   help="filters, each NAME or NAME:PARTICLES (la-rbpf:10, pf:20)")
     p.add_argument("--counts", nargs="+", type=int, default=[1, 10, 100, 1000, 10000])
     p.add_argument("--loop-up-to", type=int, default=1000, help="the largest count the loop is timed at")
     p.add_argument("--seconds", type=float, default=1.0, help="work per figure")
@@ -93,8 +94,9 @@ def main():
     for plant in args.plants:
         model = jmlgdsl.load(SPECS / f"{plant}.jmlg")
         y, u = records(model, 400)
-        for algorithm in args.filters:
-            particles = 10 if algorithm == "la-rbpf" else None
+        for given in args.filters:
+            algorithm, _, count = given.partition(":")
+            particles = int(count) if count else None
             name = algorithm + (f", {particles}" if particles else "")
             print(f"### {plant}, {name} (K {model.K}, nx {model.nx}, ny {model.ny})\n")
             print("| units | batched, unit-steps/s | loop, unit-steps/s | speed-up |")

@@ -97,11 +97,11 @@ def test_the_wide_fleet_goes_through_every_path_of_the_step(wide, monkeypatch):
 @pytest.mark.parametrize("algorithm, particles, options", [
     ("pf", 30, {}), ("rbpf", 10, {}), ("la-rbpf", 5, {}), ("fc-rbpf", 3, {}),
     ("la-rbpf", 5, {"resampling": "stratified"}), ("la-rbpf", 8, {"ess_threshold": 0.6}),
-    ("rbpf", 10, {"ess_threshold": 0.6})])
+    ("rbpf", 10, {"ess_threshold": 0.6}), ("pf", 30, {"resampling": "residual", "ess_threshold": 0.5})])
 def test_every_particle_filter_over_units_equals_each_unit_alone(dryer, algorithm, particles, options):
-    """The Rao-Blackwellised engines of units holding as many particles step together (one
-    `step_together`, la-rbpf's systematic selection too), the others one by one; a unit whose
-    gate redoes its step leaves the rest of its group as they were."""
+    """The engines of units holding as many particles step together (`rbpf.step_together`,
+    `pf.step_together`, their systematic resampling too), the others one by one; a unit whose gate
+    redoes its step leaves the rest of its group as they were."""
     ys, us = fleet_data(dryer, 4, 80, seed=3)
     results = filter_units(dryer, ys, us, algorithm=algorithm, particles=particles, seed=7, **options)
     for batched, y, u in zip(results, ys, us):
@@ -109,13 +109,17 @@ def test_every_particle_filter_over_units_equals_each_unit_alone(dryer, algorith
     assert results[2].rejected.any() and results[3].rejected.any()
 
 
-def test_rao_blackwellised_units_step_together(dryer, monkeypatch):
+@pytest.mark.parametrize("algorithm", ["la-rbpf", "pf"])
+def test_particle_filters_step_their_units_together(dryer, monkeypatch, algorithm):
     ys, us = fleet_data(dryer, 6, 60)
     groups = []
-    together = units_module.step_together
-    monkeypatch.setattr(units_module, "step_together",
-                        lambda engines, *a: groups.append(len(engines)) or together(engines, *a))
-    filter_units(dryer, ys, us, algorithm="la-rbpf", particles=10, seed=2)
+
+    def counted(step):
+        return lambda engines, *a: groups.append(len(engines)) or step(engines, *a)
+
+    monkeypatch.setattr(units_module, "STEPPED_TOGETHER",
+                        tuple((kind, counted(step)) for kind, step in units_module.STEPPED_TOGETHER))
+    filter_units(dryer, ys, us, algorithm=algorithm, particles=10, seed=2)
     assert sum(groups) > 0.5 * sum(len(y) for y in ys)  # most unit-steps in groups of two or more
 
 

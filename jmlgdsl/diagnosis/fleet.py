@@ -3,8 +3,8 @@
 Every unit has its own `Diagnosis` (pre-filter, alarm rule, summary, truth scoring, scale check,
 evidence and sinks), so each unit's finished rows are those of diagnosing it alone. Their filters
 step together in a `Units` filter where they can (without a lag): imm as one vectorised filter, the
-evidence per sensor of every unit in one call too; the Rao-Blackwellised filters as the units' own
-filters stepped together. Otherwise (pf, smoothing) each unit's Diagnosis filters its own rows.
+evidence per sensor of every unit in one call too; the particle filters and exact as the units' own
+filters stepped together. A smoothing filter's Diagnosis filters its own rows.
 
 `diagnose_files` is `jmlgdsl run SPEC a.csv b.csv ... -o OUTDIR/`: each file a unit, its table and
 summary; with `cluster` the files are split into chunks, one per CPU of a Ray cluster, each chunk a
@@ -36,7 +36,6 @@ import numpy as np
 
 from ..data import iter_rows, open_source
 from ..errors import DataError
-from ..infer.rbpf import RaoBlackwellised
 from ..infer.units import Units
 from ..model import Model
 from ..progress import Progress
@@ -60,7 +59,7 @@ class Fleet:
         self.filter = None
         if stepped_together(first) and first.algorithm == "imm":  # one vectorised filter beside the units'
             self.filter = Units(model, len(self.units))
-        elif stepped_together(first):  # the units' own filters, stepped together
+        elif stepped_together(first):  # the units' own filters stepped together
             self.filter = Units(model, len(self.units), filters=[unit.filter for unit in self.units])
 
     def feed(self, rows):
@@ -111,9 +110,9 @@ class Fleet:
 
 
 def stepped_together(f) -> bool:
-    """Whether a Fleet steps units with filters like Filter f together (imm, or a Rao-Blackwellised
-    filter, without a lag); pf and smoothing filters step unit after unit."""
-    return f.lag == 0 and (f.algorithm == "imm" or isinstance(f.engine, RaoBlackwellised))
+    """Whether a Fleet steps units with filters like Filter f together: every algorithm without a lag
+    (a smoothing filter holds its records back, each unit's as long as its own data ask)."""
+    return f.lag == 0
 
 
 @dataclass(frozen=True)

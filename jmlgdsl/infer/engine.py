@@ -13,7 +13,7 @@ import numpy as np
 
 from ..errors import JmlgError
 from . import kalman
-from .resample import ess
+from .resample import ess, systematic_points
 
 
 class FilterError(JmlgError, ValueError):
@@ -152,10 +152,25 @@ def mixture_moments(w, means, weighted_cov):
 def sample_rows(probs, rng):
     """One categorical draw per row of non-negative (unnormalised) probabilities (M, K): the first k
     with cdf_k > u for u uniform on [0, total), so a zero-probability category is never drawn."""
-    cdf = probs.cumsum(axis=1)
-    u = rng.random(len(probs)) * cdf[:, -1]
-    cdf[:, -1] = np.inf  # at most K - 1, even where u rounds up to the total
-    return (cdf > u[:, None]).argmax(axis=1)
+    return rows_drawn(probs, rng.random(len(probs)))
+
+
+def rows_drawn(probs, uniforms):
+    """`sample_rows` with its uniforms on [0, 1) given, one per row of probs (..., M, K): the same
+    draws row by row over any leading axes (many units' particles, each with its own numbers)."""
+    cdf = probs.cumsum(axis=-1)
+    u = uniforms * cdf[..., -1]
+    cdf[..., -1] = np.inf  # at most K - 1, even where u rounds up to the total
+    return (cdf > u[..., None]).argmax(axis=-1)
+
+
+def systematic_rows(w, n, offsets):
+    """Systematic resampling (`resample.systematic`) of n draws from each row of normalised weights w
+    (..., J) with its uniform offset on [0, 1): the ancestors (..., n), as the scheme gives them row by row."""
+    cdf = w.cumsum(axis=-1)
+    cdf[..., -1] = 1.0  # as resample._inverse_cdf
+    points = systematic_points(n) + offsets[..., None] / n
+    return (cdf[..., :, None] <= points[..., None, :]).sum(axis=-2)  # searchsorted(points, side="right")
 
 
 class Resampler:

@@ -5,9 +5,10 @@ from __future__ import annotations
 import numpy as np
 
 from ..gaussian import psd_sqrt
-from .engine import OPEN, Estimate, Genealogy, Resampler, mixture_moments, offsets, sample_rows, screen
+from .engine import (OPEN, Estimate, Genealogy, Resampler, mixture_moments, offsets, rows_drawn, sample_rows, screen,
+                     systematic_rows)
 from .kalman import inverse_cholesky, log_density, quad_form
-from .resample import normalize
+from .resample import normalize_rows, row_extreme, systematic
 from .result import Predictive
 
 
@@ -38,29 +39,111 @@ class BootstrapPF:
         return r, np.broadcast_to(np.sqrt(var[:, mask]), y_pred[:, :, mask].shape).reshape(r.shape)
 
     def step(self, y, mask, u, gate=OPEN) -> Estimate:
-        model, z = self.model, self.z
+        model = self.model
         b, c = offsets(model, u)
-        log_prior = self.logw
-        z = sample_rows(model.P[z], self.rng)
+        z = sample_rows(model.P[self.z], self.rng)
         w = self.rng.standard_normal((len(z), model.B.shape[2]))
-        x = np.einsum("nij,nj->ni", model.A[z], self.x) + b[z] + np.einsum("nij,nj->ni", model.B[z], w)
-        y_pred = np.einsum("nij,nj->ni", model.C[z], x) + c[z]
+        x, y_pred = propagate(model, self.x, z, w, b[z], c[z])
         Linv, logdet = self._measurement_noise(mask)
-        Linv = Linv[z]
-        r = y[mask] - y_pred[:, mask]
-        white = np.einsum("nab,nb->na", Linv, r)
-        quad = quad_form(white)
+        r, quad = whitened(y, mask, y_pred, Linv[z])
         flagged = None
         if gate.closer_look(quad):
             screened, flagged = screen(self, y, mask, u, gate, *self._every_mode(y, mask, b, c))
             if screened is not None:
                 return screened
-        self.predictive = Predictive(z, log_prior, r, Linv, mask)
-        q, loglik = normalize(log_prior + log_density(quad, logdet[z], r.shape[1]))
-        mean, cov = mixture_moments(q, x, np.zeros((model.nx, model.nx)))
-        posterior = np.bincount(z, weights=q, minlength=model.K)
-        ancestors, self.logw, size = self.resampler(q)
+        q, loglik, mean, cov, posterior, yp = weigh(model, self.logw, z, x, y_pred, quad, logdet[z], r.shape[-1])
+        size = self.advance(y, mask, z, x, r, Linv[z], q, self.resampler(q))
+        return Estimate(posterior, mean, cov, yp, float(loglik), size, flagged=flagged)
+
+    def advance(self, y, mask, z, x, r, Linv, q, resampled) -> float:
+        """Take the particles `resampled` (ancestors, log-weights, ESS, as the resampler gives them)
+        from this step's (modes z, states x, weights q), the step's predictive and genealogy kept; the ESS."""
+        ancestors, logw, size = resampled
+        self.predictive = Predictive(z, self.logw, r, Linv, mask)
         self.genealogy = Genealogy(np.arange(len(z)), z, q, ancestors)
-        self.z, self.x = z[ancestors], x[ancestors]
-        prior = np.exp(log_prior - log_prior.max())
-        return Estimate(posterior, mean, cov, prior @ y_pred / prior.sum(), loglik, size, flagged=flagged)
+        self.z, self.x, self.logw = z[ancestors], x[ancestors], logw
+        return size
+
+
+def propagate(model, x, z, w, b, c):
+    """States drawn from the state equation and their predicted outputs, over any leading axes: from
+    states x (..., N, nx) into modes z (..., N) with process noise w (..., N, nw) and the offsets b
+    (..., N, nx) and c (..., N, ny) of each particle's mode."""
+    x = np.einsum("...nij,...nj->...ni", model.A[z], x) + b + np.einsum("...nij,...nj->...ni", model.B[z], w)
+    return x, np.einsum("...nij,...nj->...ni", model.C[z], x) + c
+
+
+def whitened(y, mask, y_pred, Linv):
+    """(residuals, squared Mahalanobis distances) of the readings y (..., ny) measured where mask is
+    True against every particle's predicted outputs (..., N, ny), Linv (..., N, m, m) the inverse
+    Cholesky factor of the measurement noise under its mode."""
+    r = y[..., None, mask] - y_pred[..., mask]
+    return r, quad_form(np.einsum("...nab,...nb->...na", Linv, r))
+
+
+def weigh(model, log_prior, z, x, y_pred, quad, logdet, m):
+    """What the readings make of the particles, over any leading axes (one filter's, or many units'
+    side by side, each the same operations on its own arrays): (normalised weights, log-likelihood,
+    the mixture's mean and covariance, the mode posterior, the predicted readings)."""
+    q, loglik = normalize_rows(log_prior + log_density(quad, logdet, m))
+    mean, cov = mixture_moments(q, x, np.zeros((model.nx, model.nx)))
+    if q.ndim == 1:
+        posterior = np.bincount(z, weights=q, minlength=model.K)
+    else:
+        posterior = np.bincount((np.arange(len(q))[:, None] * model.K + z).ravel(), weights=q.ravel(),
+                                minlength=len(q) * model.K).reshape(len(q), model.K)
+    prior = np.exp(log_prior - row_extreme(np.maximum, log_prior)[..., None])
+    return q, loglik, mean, cov, posterior, (prior[..., None, :] @ y_pred)[..., 0, :] / prior.sum(axis=-1)[..., None]
+
+
+def step_together(engines, y, mask, u, gates) -> list:
+    """`BootstrapPF.step` of several engines of one model with as many particles (units of a fleet):
+    readings y (g, ny) measured where mask (ny,) is True, inputs u (g, nu), a gate each; an Estimate
+    each. Each draws from its own Generator what it would alone, and their arithmetic runs with a
+    leading axis over the engines, each engine's the same operations on its own arrays as its own
+    step's, so each gets, bit for bit, what it would get alone."""
+    model, g = engines[0].model, len(engines)
+    b, c = (np.stack(a) for a in zip(*(offsets(model, x) for x in u)))
+    uniforms, w = [], []
+    for e in engines:  # sample_rows' numbers, then the process noise's, as a step alone draws them
+        uniforms.append(e.rng.random(len(e.z)))
+        w.append(e.rng.standard_normal((len(e.z), model.B.shape[2])))
+    z = rows_drawn(model.P[np.stack([e.z for e in engines])], np.stack(uniforms))
+    each = np.arange(g)[:, None]
+    x, y_pred = propagate(model, np.stack([e.x for e in engines]), z, np.stack(w), b[each, z], c[each, z])
+    Linv, logdet = engines[0]._measurement_noise(mask)
+    Linv, logdet = Linv[z], logdet[z]
+    r, quad = whitened(y, mask, y_pred, Linv)
+    estimates, flagged = [None] * g, [None] * g
+    for i, (e, gate) in enumerate(zip(engines, gates)):
+        if gate.closer_look(quad[i]):
+            estimates[i], flagged[i] = screen(e, y[i], mask, u[i], gate, *e._every_mode(y[i], mask, b[i], c[i]))
+    kept = [i for i, est in enumerate(estimates) if est is None]
+    if not kept:
+        return estimates
+    if len(kept) < g:  # the engines whose step screening redid are done (every array here is its own)
+        z, x, y_pred, r, quad, Linv, logdet = (a[kept] for a in (z, x, y_pred, r, quad, Linv, logdet))
+    log_prior = np.stack([engines[i].logw for i in kept])
+    q, loglik, mean, cov, posterior, yp = weigh(model, log_prior, z, x, y_pred, quad, logdet, r.shape[-1])
+    resampled = systematic_together([engines[i] for i in kept], q)
+    for j, i in enumerate(kept):
+        e = engines[i]
+        size = e.advance(y[i], mask, z[j], x[j], r[j], Linv[j], q[j], resampled[j] or e.resampler(q[j]))
+        estimates[i] = Estimate(posterior[j], mean[j], cov[j], yp[j], float(loglik[j]), size, flagged=flagged[i])
+    return estimates
+
+
+def systematic_together(engines, q) -> list:
+    """The resampling of engines with one particle each per column of q (g, N), side by side: (ancestors,
+    log-weights, ESS) for each that resamples this step with the systematic scheme, drawing its one
+    number from its own Generator; None for the others (they resample on their own)."""
+    size = 1.0 / (q[:, None, :] @ q[:, :, None])[:, 0, 0]  # ess(w), row by row
+    ones = np.ones(q.shape[-1], dtype=np.int64)
+    going = [i for i, e in enumerate(engines) if e.resampler.scheme is systematic and e.resampler.resamples(size[i], ones)]
+    out = [None] * len(engines)
+    if going:
+        n = engines[going[0]].resampler.n
+        ancestors = systematic_rows(q[going], n, np.array([engines[i].rng.random() for i in going]))
+        for j, i in enumerate(going):
+            out[i] = ancestors[j], engines[i].resampler.uniform, size[i]
+    return out

@@ -21,8 +21,9 @@ import numpy as np
 
 from .covariances import CovarianceGraph
 from . import kalman
-from .engine import OPEN, Estimate, FilterError, Genealogy, Resampler, mixture_moments, offsets, sample_rows, screen
-from .resample import ess, fearnhead_clifford, normalize, normalize_rows, systematic, systematic_points
+from .engine import (OPEN, Estimate, FilterError, Genealogy, Resampler, mixture_moments, offsets, rows_drawn, sample_rows,
+                     screen, systematic_rows)
+from .resample import ess, fearnhead_clifford, normalize, normalize_rows, systematic
 from .result import Predictive
 
 
@@ -291,15 +292,9 @@ class LookAheadRBPF(RaoBlackwellised):
         if not going:
             return out
         n = engines[going[0]].resampler.n
-        draws = np.stack([engines[i].rng.random(n + 1) for i in going])
-        cdf = w[going].cumsum(axis=1)
-        cdf[:, -1] = 1.0  # as _inverse_cdf
-        ancestors = (cdf[:, :, None] <= (systematic_points(n) + draws[:, :1] / n)[:, None, :]).sum(axis=1)
-        probs = q[going][np.arange(len(going))[:, None], ancestors]
-        cdf = probs.cumsum(axis=-1)  # sample_rows, row by row
-        u = draws[:, 1:] * cdf[..., -1]
-        cdf[..., -1] = np.inf
-        chosen = ancestors * K + (cdf > u[..., None]).argmax(axis=-1)
+        draws = np.stack([engines[i].rng.random(n + 1) for i in going])  # the scheme's, then sample_rows'
+        ancestors = systematic_rows(w[going], n, draws[:, 0])
+        chosen = ancestors * K + rows_drawn(q[going][np.arange(len(going))[:, None], ancestors], draws[:, 1:])
         for j, i in enumerate(going):
             out[i] = chosen[j], engines[i].resampler.uniform, size[i]
         return out

@@ -7,15 +7,15 @@ whole fleet. `imm` runs vectorised through the same arithmetic as `IMM` (jmlgdsl
 by matrix, and each unit's results are those of a `Filter` on its data alone, bit for bit (its
 mode posteriors, state moments, predictions, log-likelihoods and rejected readings).
 
-The Rao-Blackwellised filters (`rbpf`, `la-rbpf`, `fc-rbpf`, `exact`) keep one engine per unit, each
-with its particles, its graph of Kalman covariances and its own Generator, because their banks are
-ragged: identical particles merge into copies and `exact` drops the histories whose weight
-underflows, so units differ in their particle counts from step to step. The units that measured
-the same outputs and hold as many particles step together (`rbpf.step_together`): their
+The particle filters and `exact` keep one engine per unit, each with its particles, its own
+Generator and (Rao-Blackwellised) its graph of Kalman covariances, because their banks are ragged:
+identical particles merge into copies and `exact` drops the histories whose weight underflows, so
+units differ in their particle counts from step to step. The units that measured the same outputs
+and hold as many particles step together (`rbpf.step_together`, `pf.step_together`): their
 predictions, Kalman pieces, weights and mixture moments in one call with a leading unit axis, and
-la-rbpf's systematic resampling and draw of modes too, each unit with the numbers its own Generator
-gives; each unit then merges its copies and grows its own graph. `pf` runs one engine per unit,
-one after the other. Every unit gets, bit for bit, what a Filter with the same seed gets alone.
+their systematic resampling (and la-rbpf's draw of modes) too, each unit with the numbers its own
+Generator gives; each unit then merges its copies and grows its own graph. Every unit gets, bit for
+bit, what a Filter with the same seed gets alone.
 
     >>> import jmlgdsl
     >>> from jmlgdsl.infer.units import Units
@@ -41,11 +41,13 @@ from .algorithms import DEFAULT_ALGORITHM
 from .engine import Estimate, FilterError, Gate, screen
 from .imm import SURE, mix, moments, predict, refresh, whitened
 from .online import MAX_REJECTIONS, Filter, _arrays, _overflow, _readings
-from .rbpf import RaoBlackwellised, step_together
+from . import pf, rbpf
 from .resample import normalize_rows, row_extreme
 from .result import Predictive, Result, Step
 
 ALL = slice(None)  # every unit, as an index that takes views, not copies
+# The engines whose units step together, and how (rbpf.step_together, pf.step_together).
+STEPPED_TOGETHER = ((rbpf.RaoBlackwellised, rbpf.step_together), (pf.BootstrapPF, pf.step_together))
 
 
 class Batch(NamedTuple):
@@ -336,20 +338,20 @@ class Units:
                          b.rejected)
 
     def _each(self, index, t, y, mask, u) -> UnitSteps:
-        """The units through their own Filters: the Rao-Blackwellised engines of the units that measured
-        the same outputs and hold as many particles stepped together (`rbpf.step_together`), the
-        others one after the other."""
+        """The units through their own Filters: the engines of the units that measured the same outputs
+        and hold as many particles stepped together (STEPPED_TOGETHER), each other one on its own."""
         filters = [self._filters[unit] for unit in np.arange(self.count)[index]]
         estimates = [None] * len(filters)
         groups = {}
-        if isinstance(filters[0].engine, RaoBlackwellised):
+        together = next((step for kind, step in STEPPED_TOGETHER if isinstance(filters[0].engine, kind)), None)
+        if together is not None:
             for i, f in enumerate(filters):
                 groups.setdefault((mask[i].tobytes(), len(f.engine.z)), []).append(i)
         for members in groups.values():
             if len(members) > 1:
                 try:
-                    done = step_together([filters[i].engine for i in members], y[members], mask[members[0]],
-                                         u[members], [filters[i]._gate for i in members])
+                    done = together([filters[i].engine for i in members], y[members], mask[members[0]],
+                                    u[members], [filters[i]._gate for i in members])
                 except FilterError as exc:  # refused before any engine moved (exact's bank, as large for all)
                     done = [exc] * len(members)
                 for i, est in zip(members, done):
