@@ -45,17 +45,18 @@ class BootstrapPF:
         w = self.rng.standard_normal((len(z), model.B.shape[2]))
         x, y_pred = propagate(model, self.x, z, w, b[z], c[z])
         Linv, logdet = self._measurement_noise(mask)
-        r, quad = whitened(y, mask, y_pred, Linv[z])
+        Linv = Linv[z]
+        r, quad = whitened(y, mask, y_pred, Linv)
         flagged = None
         if gate.closer_look(quad):
             screened, flagged = screen(self, y, mask, u, gate, *self._every_mode(y, mask, b, c))
             if screened is not None:
                 return screened
         q, loglik, mean, cov, posterior, yp = weigh(model, self.logw, z, x, y_pred, quad, logdet[z], r.shape[-1])
-        size = self.advance(y, mask, z, x, r, Linv[z], q, self.resampler(q))
+        size = self.advance(mask, z, x, r, Linv, q, self.resampler(q))
         return Estimate(posterior, mean, cov, yp, float(loglik), size, flagged=flagged)
 
-    def advance(self, y, mask, z, x, r, Linv, q, resampled) -> float:
+    def advance(self, mask, z, x, r, Linv, q, resampled) -> float:
         """Take the particles `resampled` (ancestors, log-weights, ESS, as the resampler gives them)
         from this step's (modes z, states x, weights q), the step's predictive and genealogy kept; the ESS."""
         ancestors, logw, size = resampled
@@ -128,7 +129,7 @@ def step_together(engines, y, mask, u, gates) -> list:
     resampled = systematic_together([engines[i] for i in kept], q)
     for j, i in enumerate(kept):
         e = engines[i]
-        size = e.advance(y[i], mask, z[j], x[j], r[j], Linv[j], q[j], resampled[j] or e.resampler(q[j]))
+        size = e.advance(mask, z[j], x[j], r[j], Linv[j], q[j], resampled[j] or e.resampler(q[j]))
         estimates[i] = Estimate(posterior[j], mean[j], cov[j], yp[j], float(loglik[j]), size, flagged=flagged[i])
     return estimates
 
