@@ -135,9 +135,9 @@ def step_together(engines, y, mask, u, gates) -> list:
 
 
 def systematic_together(engines, q) -> list:
-    """The resampling of engines with one particle each per column of q (g, N), side by side: (ancestors,
-    log-weights, ESS) for each that resamples this step with the systematic scheme, drawing its one
-    number from its own Generator; None for the others (they resample on their own)."""
+    """The resampling of engines whose particles' weights are the rows of q (g, N), side by side:
+    (ancestors, log-weights, ESS) for each that resamples this step with the systematic scheme, with
+    the one number it draws from its own Generator; None for the others (they resample on their own)."""
     size = 1.0 / (q[:, None, :] @ q[:, :, None])[:, 0, 0]  # ess(w), row by row
     ones = np.ones(q.shape[-1], dtype=np.int64)
     going = [i for i, e in enumerate(engines) if e.resampler.scheme is systematic and e.resampler.resamples(size[i], ones)]
