@@ -51,13 +51,21 @@ def test_learn_checks_its_output_and_sample_time(files, capsys, tmp_path):
 
 
 @pytest.mark.parametrize("extra, message", [
-    (["--amplitude", "nan"], "--amplitude must be a finite number"),
-    (["--around", "inf"], "--around must be a finite number"),
-    (["--dt", "inf"], "--dt must be a finite number"),
-    (["--cells", "20", "--periods", "1000"], "GiB"),
+    (["--amplitude", "nan"], "argument --amplitude: expected a finite number, not 'nan'"),
+    (["--around", "inf"], "argument --around: expected a finite number, not 'inf'"),
+    (["--dt", "inf"], "argument --dt: expected a finite number, not 'inf'"),
+    (["--dt", "0"], "argument --dt: must be positive, not 0"),
+    (["--settling", "-5"], "argument --settling: must be positive, not -5"),
 ])
-def test_prbs_refuses_unusable_numbers(capsys, tmp_path, extra, message):
-    refused(["prbs", "--cells", "5", "-o", str(tmp_path / "u.csv"), *extra], capsys, message)
+def test_prbs_refuses_unusable_numbers_as_it_reads_them(capsys, tmp_path, extra, message):
+    with pytest.raises(SystemExit) as done:
+        main(["prbs", "--cells", "5", "-o", str(tmp_path / "u.csv"), *extra])
+    assert done.value.code == 2 and capsys.readouterr().err.endswith(f"error: {message}\n")
+    assert not (tmp_path / "u.csv").exists()
+
+
+def test_prbs_refuses_a_sequence_too_long_to_write(capsys, tmp_path):
+    refused(["prbs", "--cells", "20", "--periods", "1000", "-o", str(tmp_path / "u.csv")], capsys, "GiB")
 
 
 def test_run_warns_about_an_output_in_another_unit(files, capsys, tmp_path):

@@ -72,5 +72,6 @@ def test_cli_reports_bad_register_length(capsys):
 
 
 def test_cli_reports_a_sample_time_that_is_not_positive(capsys):
-    assert main(["prbs", "--dt", "0"]) == 2
-    assert "--dt must be a positive number of seconds, not 0.0" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as done:
+        main(["prbs", "--dt", "0"])
+    assert done.value.code == 2 and "argument --dt: must be positive, not 0" in capsys.readouterr().err

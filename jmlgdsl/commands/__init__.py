@@ -22,7 +22,8 @@ def whole(least: int):
     return parse
 
 
-def _number(text) -> float:
+def finite(text) -> float:
+    """An argparse type: a finite number."""
     try:
         value = float(text)
     except ValueError:
@@ -34,7 +35,7 @@ def _number(text) -> float:
 
 def positive(text) -> float:
     """An argparse type: a finite number > 0."""
-    value = _number(text)
+    value = finite(text)
     if value <= 0:
         raise argparse.ArgumentTypeError(f"must be positive, not {text}")
     return value
@@ -42,7 +43,7 @@ def positive(text) -> float:
 
 def probability(text) -> float:
     """An argparse type: a number in [0, 1]."""
-    value = _number(text)
+    value = finite(text)
     if not 0 <= value <= 1:
         raise argparse.ArgumentTypeError(f"must be a probability (0 to 1), not {text}")
     return value

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-import math
+from . import finite, positive
 
 
 def register(subparsers):
@@ -15,12 +15,12 @@ def register(subparsers):
                     "then never show the steady-state gain.")
     p.add_argument("--cells", type=int, default=9, help="shift-register length, 2..20 (default 9: 511 bits)")
     p.add_argument("--clock", type=int, default=1, help="samples per bit (default 1)")
-    p.add_argument("--amplitude", type=float, default=1.0, help="half the distance between the two levels")
-    p.add_argument("--around", type=float, default=0.0, help="operating value the levels surround")
+    p.add_argument("--amplitude", type=finite, default=1.0, help="half the distance between the two levels")
+    p.add_argument("--around", type=finite, default=0.0, help="operating value the levels surround")
     p.add_argument("--periods", type=int, default=1, help="whole periods to write (default 1)")
     p.add_argument("--samples", type=int, help="exact number of samples instead of whole periods")
-    p.add_argument("--dt", type=float, default=1.0, help="sample time in seconds (default 1)")
-    p.add_argument("--settling", type=float, help="plant settling time in seconds, to check the longest pulse")
+    p.add_argument("--dt", type=positive, default=1.0, help="sample time in seconds (default 1)")
+    p.add_argument("--settling", type=positive, help="plant settling time in seconds, to check the longest pulse")
     p.add_argument("--name", default="u", help="input column name (default u)")
     p.add_argument("-o", "--output", default="-", help="output CSV (default: standard output)")
     p.set_defaults(func=main)
@@ -31,17 +31,10 @@ def main(args) -> int:
     import numpy as np
 
     from ..data import write_columns
-    from ..errors import JmlgError
     from ..learn.prbs import prbs, warn_if_short
-
     from ..output import check_count, check_file
 
     check_file(args.output)
-    for option, value in (("--dt", args.dt), ("--amplitude", args.amplitude), ("--around", args.around)):
-        if not math.isfinite(value):
-            raise JmlgError(f"{option} must be a finite number, not {value}")
-    if not args.dt > 0:
-        raise JmlgError(f"--dt must be a positive number of seconds, not {args.dt}")
     if 2 <= args.cells <= 20:
         check_count("--samples" if args.samples else "--periods",
                     args.samples or args.periods * (2 ** args.cells - 1) * args.clock, 48)
