@@ -134,6 +134,14 @@ def test_the_options_of_a_cluster_are_refused_where_they_do_not_apply(tmp_path, 
     assert time.monotonic() - start < 10  # refused at once, not after Ray's own minutes of retrying
 
 
+def test_a_shard_count_below_one_is_refused_as_it_is_read(tmp_path, capsys):
+    with pytest.raises(SystemExit) as done:
+        main(["monitor", SPEC, "--source", str(tmp_path / "{unit}.csv"), "--store", str(tmp_path / "s.db"),
+              "--units", "a,b", "--cluster", "auto", "--shards", "0"])
+    assert done.value.code == 2 and capsys.readouterr().err.endswith("argument --shards: must be at least 1, not 0\n")
+    assert not (tmp_path / "s.db").exists()
+
+
 def test_a_shard_never_makes_a_store_of_its_own(tmp_path):
     # on another machine of a cluster an SQLite path names no file: a shard would make a second store
     # there and diagnose into it; it refuses and says what a cluster of machines needs

@@ -6,7 +6,7 @@ from __future__ import annotations
 import sys
 
 from . import (STORE_HELP, add_alarm_options, add_filter_options, add_page_options, add_store_password_options,
-               check_particles, healthy_modes, start_page, store_password)
+               check_particles, healthy_modes, start_page, store_password, whole)
 
 
 def register(subparsers):
@@ -38,7 +38,7 @@ def register(subparsers):
                         "command, reachable from 127.0.0.1 only; HOST:PORT: a cluster started with ray start "
                         "--head). A shard whose process dies is started again and resumes from its last commit. "
                         "Needs pip install 'jmlgdsl[cluster]'")
-    p.add_argument("--shards", type=int, metavar="N",
+    p.add_argument("--shards", type=whole(1), metavar="N",
                    help="with --cluster: the number of shards (default one per CPU of the cluster, at most one per "
                         "unit; keep it the same across restarts, as each shard keeps its own MQTT session)")
     p.add_argument("--tags", metavar="FILE.toml", help="per spec name: topic or node id, unit scale and offset, "
@@ -98,8 +98,8 @@ def main(args) -> int:
         persistence=args.persistence, grace=args.grace, stale=args.stale, max_gap=args.max_gap)
     if (args.cluster or args.shards) and units is None:
         raise JmlgError(f"{'--cluster' if args.cluster else '--shards'} spreads the units of a fleet: give --units")
-    if args.shards is not None and (args.cluster is None or args.shards < 1):
-        raise JmlgError("--shards needs --cluster" if args.cluster is None else "--shards: at least 1")
+    if args.shards is not None and args.cluster is None:
+        raise JmlgError("--shards needs --cluster")
     recipe = dict(url=args.source, follow=not args.no_follow, client_id=args.client_id,
                   credentials=credentials(args.username, args.password_env, args.password_file),
                   ca_file=args.ca_file, security=args.security, certificate=args.certificate,

@@ -76,9 +76,9 @@ class Monitor:
     `units` names the units of a fleet (jmlgdsl.monitor.fleet): each has its run in the store, its
     own diagnosis, assembler and source position, and every commit holds every unit's rows and
     state. The source then hands over (unit index, item) pairs (None: an item for every unit); a
-    source of one plant hands over items. With imm and no lag the units' filters are one vectorised
-    filter (jmlgdsl.diagnosis.fleet.Fleet): the rows that arrived since the last step, a row per
-    unit at a time, are stepped together when the input pauses and before every commit."""
+    source of one plant hands over items. Without a lag the units' filters step together
+    (jmlgdsl.diagnosis.fleet.Fleet): the rows that arrived since the last step, a row per unit at a
+    time, are stepped together when the input pauses and before every commit."""
 
     def __init__(self, model, store: Store, source, *, spec: str | None, options: dict, tags: dict,
                  units=None, new_run: bool = False, log=None):
@@ -99,7 +99,7 @@ class Monitor:
         self.waited = clock.monotonic()
         self.tokens = []
         self.late_unlogged = None  # late events since the first one logged in this batch (None: none logged)
-        self.waiting = self.finished = 0  # rows diagnosed, and rows finished, since the last commit
+        self.finished = 0  # rows finished since the last commit
         self.committed = clock.monotonic()
         self.counts = {}
         self.started_rows = self.stored
@@ -251,7 +251,7 @@ class Monitor:
         self.store.save([watch.commit() for watch in dirty])
         for watch in dirty:
             watch.samples, watch.results, watch.events, watch.dirty = [], [], [], False
-        self.waiting = self.finished = 0
+        self.finished = 0
         if self.late_unlogged:
             self.log(f"late: {self.late_unlogged} more messages came after their rows were diagnosed (each an event "
                      "in the store)")
@@ -289,7 +289,6 @@ class Watch:
         monitor = self.monitor
         self.rows += 1
         self.samples.append((self.rows, row))
-        monitor.waiting += 1
         if monitor.fleet is None:
             self.diagnosis.feed(row)
         else:
