@@ -18,9 +18,10 @@ rule -> the leaderboard's metrics (docs/realdata.md).
 
 Hyperparameters: the a priori row uses --scale, --stay, --threshold and --persistence as given
 (defaults fixed before any run: noise sd x3, stay 0.99, threshold 0.5, persistence 1). The
-cross-validated row chooses them for each file from GRID by leave-one-file-out: the setting with
-the best pooled F1 + NAB(standard)/100 on the other 33 files is the one the file is scored with; a
-file's own labels never choose its setting.
+cross-validated row chooses them for each file from GRID by leave-one-file-out, on the other 33
+files alone (a file's own labels never choose its setting), by the one-standard-error rule: of the
+settings whose pooled F1 + NAB(standard)/100 is within one standard error (a jackknife over the 33
+files) of the best one's, the one that raises the fewest false alarms on them (`choose`).
 
 Writes OUT/<setting>/<folder>_<name>.csv (datetime, anomaly and changepoint predictions of the scored
 rows), OUT/<setting>/<folder>_<name>.jmlg (the spec, to open, check and run), OUT/<setting>/summary.json
@@ -54,6 +55,9 @@ from jmlgdsl.errors import SpecWarning
 from jmlgdsl.diagnosis.metrics import Scores, changepoints, score
 
 REPO = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(REPO / "benchmarks"))
+import ledger  # noqa: E402  (benchmarks/ledger.py, the results ledger)
+
 FOLDERS = ("valve1", "valve2", "other")
 SENSORS = ("Accelerometer1RMS", "Accelerometer2RMS", "Current", "Pressure", "Temperature", "Thermocouple",
            "Voltage", "Volume Flow RateRMS")
@@ -193,6 +197,29 @@ def objective(scores: Scores) -> float:
     return summary["f1"] + summary["nab_standard"] / 100
 
 
+def choose(rest: list[list[Scores]]) -> tuple:
+    """The GRID setting for a file, from the other files' scores alone (`rest`: per file, its Scores
+    under each GRID setting, in GRID's order), by the one-standard-error rule: of the settings whose
+    pooled objective is within one standard error of the best one's (a jackknife over the files),
+    the one that raises the fewest false alarms on them (ties: the higher objective).
+
+    The best setting alone is not a stable choice: several settings' objectives lie within one
+    file's share of each other, so leaving each file out in turn flipped the choice for the files
+    that favour the best setting most, and a small change in a few learned banks moved the
+    cross-validated NAB by four points. Within what the files can tell apart, the quieter alarm is
+    the one an operator wants."""
+    pooled = [Scores.pool([scores[i] for scores in rest]) for i in range(len(GRID))]
+    summaries = [p.summary() for p in pooled]
+    value = [objective(p) for p in pooled]
+    best = int(np.argmax(value))
+    n = len(rest)
+    jackknife = np.array([objective(Scores.pool([scores[best] for j, scores in enumerate(rest) if j != i]))
+                          for i in range(n)])
+    se = np.sqrt((n - 1) / n * ((jackknife - jackknife.mean()) ** 2).sum())
+    near = [i for i in range(len(GRID)) if value[i] >= value[best] - se]
+    return GRID[min(near, key=lambda i: (summaries[i]["fp"], -value[i]))]
+
+
 def table(rows: dict) -> str:
     """Our rows ({name: summary}) beside the published leaderboard rows, as Markdown."""
     f1 = sorted(LEADERBOARD_F1 + [(name, s["f1"], s["far"], s["mar"]) for name, s in rows.items()], key=lambda r: -r[1])
@@ -207,6 +234,18 @@ def table(rows: dict) -> str:
     lines += [f"| {'**' + r[0] + '**' if r[0] in ours else r[0]} | {r[1]:.2f} | {r[2]:.2f} | {r[3]:.2f} | {r[4]} | {r[5]} |"
               for r in nab]
     return "\n".join(lines) + "\n"
+
+
+#: The figures of a setting the ledger keeps, and how far a re-run on another machine may move each. The
+#: learned banks and the filter are deterministic, but another BLAS kernel sums in another order, so a
+#: posterior within rounding of the threshold can fall the other way: the tolerances admit about two
+#: of the ~10,000 scored rows' alarms flipped and one alarm event moved, no more (one row moves F1
+#: and the rates by about 1e-4 and 0.01 %, one missed change point or false alarm moves NAB by at most
+#: 100/127 and a count by 1).
+TOLERANCE = {"f1": 0.0005, "far": 0.05, "mar": 0.05, "nab_standard": 1.0, "nab_lowfp": 1.0, "nab_lowfn": 1.0,
+             "missed_cp": 1, "fp": 1, "detection_rate": 0.0, "mean_delay": 1.0, "median_delay": 1.0,
+             "false_alarms_per_hour": 0.1}
+SCORES = tuple(TOLERANCE)
 
 
 def clean(summary: dict) -> dict:
@@ -233,8 +272,7 @@ def run_setting(setting: str, data: Path, args) -> dict:
     prior = ("a priori", args.scale, args.stay, args.threshold, args.persistence)
     chosen, final = {}, []
     for stem, outcomes, stamps, _ in results:  # leave one file out: the others choose its setting
-        rest = [o for s, o, _, _ in results if s != stem]
-        best = max(GRID, key=lambda g: objective(Scores.pool([o["cv", *g][0] for o in rest])))
+        best = choose([[o["cv", *g][0] for g in GRID] for s, o, _, _ in results if s != stem])
         chosen[stem] = dict(zip(("scale", "stay", "threshold", "persistence"), best))
         scores, alarm = outcomes["cv", *best]
         final.append(scores)
@@ -249,6 +287,11 @@ def run_setting(setting: str, data: Path, args) -> dict:
     (out / "summary.json").write_text(json.dumps(summary, indent=1) + "\n")
     (out / "table.md").write_text(table(rows))
     print(table(rows))
+    figures = {**{k: v for k, v in summary.items() if k in SCORES},
+               **{f"a_priori_{k}": v for k, v in summary["a_priori"].items() if k in SCORES}, "table": table(rows)}
+    ledger.record(f"skab/{setting}", figures, f"python benchmarks/skab/run.py --data DIR --setting {setting}",
+                  tolerance={k: TOLERANCE[k.removeprefix("a_priori_")] for k in figures if k != "table"},
+                  timings={"seconds": summary["seconds"], "workers": args.workers}, path=args.ledger)
     return summary
 
 
@@ -268,6 +311,7 @@ def main(argv=None) -> int:
     parser.add_argument("--particles", type=int)
     parser.add_argument("--no-gate", action="store_true", help="switch the gross-error gate off")
     parser.add_argument("--workers", type=int, default=2)
+    ledger.ledger_argument(parser)
     args = parser.parse_args(argv)
     data = data_folder(parser, args.data)
     for setting in ("strict", "leave-file-out") if args.setting == "both" else (args.setting,):
