@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -43,6 +44,9 @@ import numpy as np  # noqa: E402
 from jmlgdsl.diagnosis.alarms import sub_bank  # noqa: E402
 from jmlgdsl.infer import filter as run_filter  # noqa: E402
 from jmlgdsl.learn import learn  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import ledger  # noqa: E402  (benchmarks/ledger.py, the results ledger)
 
 UNITS, NX, NY = 3, 6, 16
 TRAIN, ONSET, FAULTY, NORMAL_TEST = 480, 160, 400, 800
@@ -252,13 +256,27 @@ def naming(names: list, test) -> dict:
     return out
 
 
+#: Short names of the detectors and namers for the ledger's figures (detected_<detector>_<rate>,
+#: delay_<detector>_<rate>, named_<namer>_<fault>).
+DETECTOR_KEYS = ("pca_t2", "pca_q", "catch_all", "relative_bank")
+NAMER_KEYS = ("var1", "var1_10_rows", "learn", "relative")
+#: How far a re-run on another machine may move a figure (tests/test_ledger.py re-runs this script).
+#: Learning is EM from least squares, stopped by a tolerance, and another BLAS kernel sums in another
+#: order: the banks then differ in the last digits and a row whose two best modes are within rounding
+#: can be named the other way. Such rows are few; the tolerances admit 0.5 % of a fault's 800 test
+#: rows (4 rows) and, for detection, a threshold quantile moved by one of the 5,440 normal rows.
+TOLERANCE = {"named": 0.5, "detected": 0.5, "delay": 2.0}
+
+
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--seed", type=int, default=1, help="root seed of every recording (default 1)")
     p.add_argument("-o", "--output", help="keep the recordings and learned specs in this folder")
+    ledger.ledger_argument(p)
     args = p.parse_args(argv)
     folder = Path(args.output or tempfile.mkdtemp(prefix="bench_naming_"))
     folder.mkdir(parents=True, exist_ok=True)
+    begun = time.perf_counter()
     train, test = recordings(folder, args.seed)
     outputs = [f"s{j + 1}" for j in range(NY)]
     read = {mode: np.loadtxt(path, delimiter=",", skiprows=1) for mode, path in train.items()}
@@ -279,16 +297,18 @@ def main(argv=None):
         "catch-all (normal + anomaly)": lambda y: log_odds(sub_bank(banks["learn"], ["normal", "anomaly"]), y, "normal"),
         "whole relative bank (P(not normal))": lambda y: log_odds(banks["learn --relative-to normal"], y, "normal"),
     }
-    print(f"\n### Detection (alarm at {PERSISTENCE} rows in a row; threshold set on {sum((t == 'normal').sum() for *_, t in test)} "
-          "normal test rows)\n")
-    print("| detector | " + " | ".join(f"detected at {r:g} % FA | delay" for r in RATES) + " | rows/s |")
-    print("|---|" + "---:|---:|" * len(RATES) + "---:|")
-    for label, score in detectors.items():
+    figures, rates = {}, {}
+    lines = ["| detector | " + " | ".join(f"detected at {r:g} % FA | delay" for r in RATES) + " |",
+             "|---|" + "---:|---:|" * len(RATES)]
+    for key, (label, score) in zip(DETECTOR_KEYS, detectors.items()):
         start = time.perf_counter()
         found = detection([persisted(score(y)) for _, y, _ in test], test)
-        rate = sum(len(y) for _, y, _ in test) / (time.perf_counter() - start)
-        print(f"| {label} | " + " | ".join(f"{d:.1f} % | {delay:.1f}" + (f" ({m} missed)" if m else "")
-                                          for d, delay, m in found.values()) + f" | {rate:,.0f} |")
+        rates[key] = round(sum(len(y) for _, y, _ in test) / (time.perf_counter() - start))
+        for rate, (d, delay, _) in found.items():
+            figures[f"detected_{key}_{rate:g}"], figures[f"delay_{key}_{rate:g}"] = round(d, 2), round(delay, 2)
+        lines.append(f"| {label} | " + " | ".join(f"{d:.1f} % | {delay:.1f}" + (f" ({m} missed)" if m else "")
+                                                  for d, delay, m in found.values()) + " |")
+    figures["detection_table"] = "\n".join(lines)
 
     var = VarBank({f: read[f] for f in FAULTS}, read["normal"])
     namers = {"VAR(1) per fault, best one-step likelihood": var.names_of,
@@ -296,16 +316,26 @@ def main(argv=None):
     for label, model in banks.items():
         namers[f"{label}: fault modes by IMM"] = (lambda m: lambda y: fault_names(m, y))(sub_bank(model, FAULTS))
     table = {}
-    for label, name in namers.items():
+    for key, (label, name) in zip(NAMER_KEYS, namers.items()):
         start = time.perf_counter()
         table[label] = naming([name(y) for _, y, _ in test], test)
         seconds[label] = time.perf_counter() - start
+        figures.update({f"named_{key}_{fault}": round(value, 2) for fault, value in table[label].items()})
+    lines = ["| fault | " + " | ".join(table) + " |", "|---|" + "---:|" * len(table)]
+    lines += [f"| {fault} | " + " | ".join(f"{t[fault]:.1f}" for t in table.values()) + " |" for fault in FAULTS + ("all",)]
+    figures["naming_table"] = "\n".join(lines)
+    print(f"\n### Detection (alarm at {PERSISTENCE} rows in a row; threshold set on "
+          f"{sum((t == 'normal').sum() for *_, t in test)} normal test rows)\n")
+    print(figures["detection_table"])
+    print("\nrows/s: " + ", ".join(f"{key} {rate:,}" for key, rate in rates.items()))
     print("\n### Naming (% of each fault's faulty test rows whose most probable fault is right)\n")
-    print("| fault | " + " | ".join(table) + " |")
-    print("|---|" + "---:|" * len(table))
-    for fault in FAULTS + ("all",):
-        print(f"| {fault} | " + " | ".join(f"{t[fault]:.1f}" for t in table.values()) + " |")
+    print(figures["naming_table"])
     print("\nnaming time: " + ", ".join(f"{label} {seconds[label]:.1f} s" for label in namers))
+    ledger.record(f"naming/seed{args.seed}", figures, f"python benchmarks/bench_naming.py --seed {args.seed}",
+                  tolerance={k: TOLERANCE[k.split("_")[0]] for k in figures if not k.endswith("_table")},
+                  timings={"seconds": round(time.perf_counter() - begun, 1),
+                           "learn_seconds": {k: round(v, 1) for k, v in seconds.items()}, "rows_per_second": rates},
+                  path=args.ledger)
 
 
 if __name__ == "__main__":
