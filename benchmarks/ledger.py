@@ -18,8 +18,9 @@ A doc quotes a figure through a mark that names it, so a figure is never typed b
     | ... the table, as the script rendered it ... |
     <!--/ledger-->
 
-`render` writes the ledger's value (formatted by the format spec, when one is given) between the
-marks; `check` (and tests/test_ledger.py) fails on any mark whose text differs from what `render`
+`render` writes the ledger's value (a number formatted by the format spec, when one is given; a
+text as it is, on lines of its own when it has several, or as a fenced code block with the format
+`code`) between the marks; `check` (and tests/test_ledger.py) fails on any mark whose text differs from what `render`
 would write, or that names an entry or a figure the ledger lacks.
 """
 
@@ -70,14 +71,18 @@ def machine() -> str:
             f"numpy {numpy.__version__}, scipy {scipy.__version__}{kernel}")
 
 
+#: What makes a figure: a change to these since the commit makes the recorded commit '+changes'.
+MAKERS = ("jmlgdsl", "grammars", "specs", "examples", "benchmarks", ":!benchmarks/ledger.json")
+
+
 def commit() -> str:
-    """The checkout's commit, with '+changes' when its tracked files differ from it (a figure from code
-    that is not committed yet); 'unknown' outside a git checkout."""
+    """The checkout's commit, with '+changes' when the code and data that make the figures (MAKERS)
+    differ from it (a figure from code that is not committed yet); 'unknown' outside a git checkout."""
     def git(*args):
         return subprocess.run(["git", *args], cwd=REPO, capture_output=True, text=True, check=True).stdout.strip()
     try:
         head = git("rev-parse", "--short=10", "HEAD")
-        changed = git("status", "--porcelain", "--untracked-files=no", "--", ".", ":!benchmarks/ledger.json")
+        changed = git("status", "--porcelain", "--untracked-files=no", "--", *MAKERS)
     except (OSError, subprocess.CalledProcessError):
         return "unknown"
     return head + ("+changes" if changed else "")
@@ -145,7 +150,10 @@ def rendered(mark: re.Match, ledger: dict) -> str:
         raise KeyError(f"ledger entry {key!r} has no figure {name!r}")
     value = ledger[key]["figures"][name]
     if isinstance(value, str):
-        return "\n" + value.strip("\n") + "\n"
+        body = value.strip("\n")
+        if spec == "code":
+            body = f"```\n{body}\n```"
+        return f"\n{body}\n" if "\n" in body else body
     return format(value, spec or "")
 
 

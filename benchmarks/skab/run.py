@@ -42,6 +42,7 @@ import sys
 import tempfile
 import time
 import warnings
+from collections import Counter
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
@@ -98,6 +99,13 @@ def data_folder(parser: argparse.ArgumentParser, data: Path) -> Path:
         parser.error(f"--data {data}: no {', '.join(f + '/' for f in missing)} folder; give the data/ folder of "
                      "the SKAB repository")
     return data
+
+
+def chosen(results: Path) -> tuple:
+    """The setting cross-validation chose for the most files of the strict setting, read from what
+    this script wrote (RESULTS/strict/summary.json): (scale, stay, threshold, persistence)."""
+    picks = json.loads((results / "strict" / "summary.json").read_text())["chosen"].values()
+    return Counter(tuple(p[k] for k in ("scale", "stay", "threshold", "persistence")) for p in picks).most_common(1)[0][0]
 
 
 def files(data: Path) -> list[Path]:
