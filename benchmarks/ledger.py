@@ -210,7 +210,11 @@ def main(argv=None) -> int:
         print("\n".join(problems) or "every marked figure agrees with the ledger")
         return 1 if problems else 0
     else:
-        changed = render()
+        try:
+            changed = render()
+        except KeyError as e:
+            print(f"nothing more rewritten: {e.args[0]} (run the script that records it first)", file=sys.stderr)
+            return 1
         print("\n".join(f"rewrote {p.relative_to(REPO)}" for p in changed) or "the docs already agree with the ledger")
     return 0
 
