@@ -99,7 +99,9 @@ def test_whiten_solves_lower_triangular_systems_with_broadcasting(n):
     L = np.linalg.cholesky(np.stack([random_spd(rng, n) for _ in range(3)]))
     M = rng.normal(size=(2, 3, n, 5))
     r = rng.normal(size=(n, 1))
-    for got, want in zip(kalman.whiten(L, M, r), (np.linalg.solve(L, M), np.linalg.solve(L, r))):
+    # r gets a batch axis for the reference: numpy before 2.0 reads an (n, 1) b beside a stack of (n, n)
+    # matrices as a stack of n-vectors, not as one column
+    for got, want in zip(kalman.whiten(L, M, r), (np.linalg.solve(L, M), np.linalg.solve(L, r[None]))):
         np.testing.assert_allclose(got, np.broadcast_to(want, got.shape), rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(kalman.whiten(L[0], M)[0], np.linalg.solve(L[0], M), rtol=1e-12, atol=1e-12)
     Linv, logdet = kalman.inverse_cholesky(L @ kalman.transpose(L))
