@@ -46,6 +46,33 @@ def test_every_module_and_data_file_of_the_source_tree_is_installed():
     assert installed - source == set(), "installed but not in the source tree (a stale build?)"
 
 
+def test_ci_pins_every_lower_bound_pyproject_declares():
+    """.ci/oldest.txt, with which .ci/run runs the suite a second time, pins exactly the lower bound
+    of each dependency and test extra pyproject.toml declares: a bound raised in one and not the other
+    would leave CI testing versions nobody declared."""
+    try:
+        import tomllib
+    except ImportError:  # Python 3.10
+        import tomli as tomllib
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    requirement = re.compile(r"^([A-Za-z0-9_.-]+)(?:\[[^]]*\])?>=([0-9][0-9.]*)\s*(;.*)?$")
+
+    def release(version):  # 7 and 7.0 are one release
+        return re.sub(r"(\.0)+$", "", version)
+
+    declared = {}
+    for line in project["dependencies"] + project["optional-dependencies"]["test"]:
+        name, bound, marker = requirement.match(line).groups()
+        declared[name.lower()] = (release(bound), (marker or "").replace("'", '"').strip("; "))
+    pinned = {}
+    for line in (ROOT / ".ci" / "oldest.txt").read_text().splitlines():
+        if line.strip() and not line.startswith("#"):
+            pin, _, marker = line.partition(";")
+            name, version = pin.strip().split("==")
+            pinned[name.lower()] = (release(version), marker.strip())
+    assert pinned == declared
+
+
 def test_every_installed_module_imports():
     names = [m.name for m in pkgutil.walk_packages(jmlgdsl.__path__, "jmlgdsl.") if m.name != "jmlgdsl.__main__"]
     assert "jmlgdsl.fitting.estimate" in names
