@@ -126,13 +126,15 @@ def rerun(tmp_path, key, *argv) -> dict:
 def test_the_skab_strict_figures_reproduce(tmp_path):
     again = rerun(tmp_path, "skab/strict", "benchmarks/skab/run.py", "--data", str(SKAB), "--setting", "strict",
                   "--out", str(tmp_path / "out"))
-    assert ledger.disagreements(ledger.load()["skab/strict"], again) == []
+    moved = ledger.disagreements(ledger.load()["skab/strict"], again)
+    assert not moved, "the SKAB strict figures moved:\n" + "\n".join(moved)
 
 
 def test_the_dryer_example_figures_and_the_readmes_run_of_it_reproduce(tmp_path):
     again = rerun(tmp_path, "dryer/seq1", "benchmarks/bench_filters.py", "--only", "example", "--seeds", "25")
     recorded = ledger.load()["dryer/seq1"]
-    assert ledger.disagreements(recorded, again) == []
+    moved = ledger.disagreements(recorded, again)
+    assert not moved, "the dryer example's figures moved:\n" + "\n".join(moved)
 
     def untimed(transcript):  # IMM's run is deterministic; only its time per step is not
         return [line for line in transcript.splitlines() if not line.startswith("time per step:")]
@@ -141,4 +143,5 @@ def test_the_dryer_example_figures_and_the_readmes_run_of_it_reproduce(tmp_path)
 
 def test_the_naming_benchmark_reproduces(tmp_path):
     again = rerun(tmp_path, "naming/seed1", "benchmarks/bench_naming.py", "--seed", "1")
-    assert ledger.disagreements(ledger.load()["naming/seed1"], again) == []
+    moved = ledger.disagreements(ledger.load()["naming/seed1"], again)
+    assert not moved, "the naming benchmark's figures moved:\n" + "\n".join(moved)
