@@ -8,7 +8,9 @@ Every unit filters its own simulated record (16 records, simulated once, taken i
 the best of --repeats runs of the filtering alone (`Units.seconds`: no I/O), over enough steps for
 about --seconds of work. The loop column runs one Filter per unit (what one process per unit does,
 less its start-up). Memory per unit is the filter's state plus the largest transient of a step, as
-tracemalloc sees it at the largest count, divided by the count. Tables are printed as Markdown.
+tracemalloc sees it at the largest count, divided by the count. Tables are printed as Markdown and
+each filter's figures recorded in the results ledger as fleet/units/NAME[:PARTICLES] (timings: never
+compared, only quoted).
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ from __future__ import annotations
 import argparse
 import os
 import platform
+import sys
 import time
 import tracemalloc
 from pathlib import Path
@@ -27,6 +30,9 @@ from jmlgdsl.infer import Filter
 from jmlgdsl.infer.online import _readings
 from jmlgdsl.infer.units import Units
 from jmlgdsl.simulate import simulate
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import ledger  # noqa: E402  (benchmarks/ledger.py, the results ledger)
 
 SPECS = Path(__file__).resolve().parent.parent / "specs"
 RECORDS = 16
@@ -89,7 +95,9 @@ def main():
     p.add_argument("--loop-up-to", type=int, default=1000, help="the largest count the loop is timed at")
     p.add_argument("--seconds", type=float, default=1.0, help="work per figure")
     p.add_argument("--repeats", type=int, default=3)
+    ledger.ledger_argument(p)
     args = p.parse_args()
+    figures = {given: {} for given in args.filters}
     print(f"{platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}, numpy {np.__version__}\n")
     for plant in args.plants:
         model = jmlgdsl.load(SPECS / f"{plant}.jmlg")
@@ -103,14 +111,21 @@ def main():
             print("|---|---|---|---|")
             for count in args.counts:
                 fast = rate(batched, count, args.seconds, args.repeats, model, algorithm, particles, y, u)
+                figures[given][f"{plant}_{count}_batched"] = round(fast)
                 if count <= args.loop_up_to:
                     slow = rate(loop, count, args.seconds, args.repeats, model, algorithm, particles, y, u)
+                    figures[given][f"{plant}_{count}_loop"] = round(slow)
                     print(f"| {count:,} | {fast:,.0f} | {slow:,.0f} | {fast / slow:.1f} |", flush=True)
                 else:
                     print(f"| {count:,} | {fast:,.0f} | - | - |", flush=True)
             big = max(args.counts)
-            print(f"\nmemory per unit at {big:,} units: "
-                  f"{memory_per_unit(model, algorithm, particles, y, u, big) / 1024:.1f} KiB\n", flush=True)
+            kib = memory_per_unit(model, algorithm, particles, y, u, big) / 1024
+            figures[given][f"{plant}_{big}_kib_per_unit"] = round(kib, 1)
+            print(f"\nmemory per unit at {big:,} units: {kib:.1f} KiB\n", flush=True)
+    for given, found in figures.items():
+        ledger.record(f"fleet/units/{given}", found, "OPENBLAS_NUM_THREADS=1 python benchmarks/bench_units.py "
+                      f"--plants {' '.join(args.plants)} --filters {given} --counts {' '.join(map(str, args.counts))} "
+                      f"--repeats {args.repeats}", path=args.ledger)
 
 
 if __name__ == "__main__":
