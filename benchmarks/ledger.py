@@ -71,8 +71,10 @@ def machine() -> str:
             f"numpy {numpy.__version__}, scipy {scipy.__version__}{kernel}")
 
 
-#: What makes a figure: a change to these since the commit makes the recorded commit '+changes'.
-MAKERS = ("jmlgdsl", "grammars", "specs", "examples", "benchmarks", ":!benchmarks/ledger.json")
+#: What makes a figure: a change to these since the commit makes the recorded commit '+changes' (what
+#: the benchmarks write themselves, their results/ folders and this ledger, does not count).
+MAKERS = ("jmlgdsl", "grammars", "specs", "examples", "benchmarks", ":!benchmarks/ledger.json",
+          ":!benchmarks/*/results")
 
 
 def commit() -> str:
