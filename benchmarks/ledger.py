@@ -74,7 +74,7 @@ def machine() -> str:
 #: What makes a figure: a change to these since the commit makes the recorded commit '+changes' (what
 #: the benchmarks write themselves, their results/ folders and this ledger, does not count).
 MAKERS = ("jmlgdsl", "grammars", "specs", "examples", "benchmarks", ":!benchmarks/ledger.json",
-          ":!benchmarks/*/results")
+          ":!benchmarks/*/results/*")
 
 
 def commit() -> str:
