@@ -14,7 +14,6 @@ is less sensitive to other work on a shared machine). Tables are printed as Mark
 from __future__ import annotations
 
 import argparse
-import platform
 import re
 import shutil
 import subprocess
@@ -148,8 +147,7 @@ def main():
     parser.add_argument("--plants", nargs="*", default=PLANTS, help="published plants for the accuracy tables")
     ledger.ledger_argument(parser)
     args = parser.parse_args()
-    print(f"machine: {platform.processor() or platform.machine()}, Python {platform.python_version()}, "
-          f"numpy {np.__version__}; {time.strftime('%Y-%m-%d')}")
+    print(f"machine: {ledger.machine()}; {time.strftime('%Y-%m-%d')}")
     if args.only in (None, "speed"):
         speed_table(max(1, min(args.seeds, 3)))
     if args.only in (None, "example"):

@@ -20,8 +20,8 @@ A doc quotes a figure through a mark that names it, so a figure is never typed b
 
 `render` writes the ledger's value (a number formatted by the format spec, when one is given; a
 text as it is, on lines of its own when it has several, or as a fenced code block with the format
-`code`) between the marks; `check` (and tests/test_ledger.py) fails on any mark whose text differs from what `render`
-would write, or that names an entry or a figure the ledger lacks.
+`code`) between the marks; `check` (and tests/test_ledger.py) fails on any mark whose text differs
+from what `render` would write, or that names an entry or a figure the ledger lacks.
 """
 
 from __future__ import annotations

@@ -15,8 +15,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import platform
 import sys
 import time
 from pathlib import Path
@@ -30,6 +28,9 @@ from jmlgdsl.studies import figures, sweep
 from jmlgdsl.simulate import parse_schedule
 
 ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(ROOT / "benchmarks"))
+from ledger import machine  # noqa: E402  (the machine's description, as the results ledger records it)
+
 SPECS, FIGURES, RESULTS = ROOT / "specs", ROOT / "docs" / "figures", Path(__file__).resolve().parent / "results"
 PARTICLE_FILTERS = ("pf", "rbpf", "la-rbpf", "fc-rbpf")
 
@@ -268,17 +269,6 @@ STUDIES = {
     "cstr4": lambda args: cstr(args, "cstr4"),
     "cstr10": lambda args: cstr(args, "cstr10"),
 }
-
-
-def machine():
-    """The processor, core count and versions, for the record."""
-    cpu = platform.processor() or platform.machine()
-    try:
-        with open("/proc/cpuinfo") as info:
-            cpu = next(line.split(":", 1)[1].strip() for line in info if line.startswith("model name"))
-    except (OSError, StopIteration):
-        pass
-    return f"{cpu}, {os.cpu_count()} cores, Python {platform.python_version()}, numpy {np.__version__}"
 
 
 def main(argv=None):
