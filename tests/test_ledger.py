@@ -33,7 +33,7 @@ def test_every_marked_figure_in_the_docs_is_the_ledgers():
 
 
 def test_the_docs_mark_the_headline_figures():
-    """The figures the issue tracker and users quote most are marked, not typed: SKAB strict in the
+    """The figures users quote most are marked, not typed: SKAB strict in the
     README-linked realdata guide and BENCHMARKS, the dryer example in the README, the naming table."""
     marks = {(m["key"], m["name"]) for path in ledger.doc_files() for m in ledger.MARK.finditer(path.read_text())}
     assert {("skab/strict", "nab_standard"), ("skab/strict", "f1"), ("skab/strict", "table"),
