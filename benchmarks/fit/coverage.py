@@ -7,6 +7,9 @@ the count's own standard error is about 3 points, so 90-98 % is what honest erro
 
     python benchmarks/fit/coverage.py [--runs 50] [--jobs 2] [--case cstr|dryer|dryer-unlabelled] [--out DIR]
 
+Each case's table and figures go to OUT/<case>.md and .json and to the results ledger (fit/coverage/<case>;
+the shares are figures, the times per fit timings).
+
 Cases:
   cstr              the nonlinear CSTR (ODEs integrated, `simulate --nonlinear`), 2,000 labelled samples
                     through normal and the three fouling modes; unknowns k0, U and the three fouling
@@ -24,6 +27,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # small matrices: threads on
 
 import argparse
 import json
+import sys
 import time
 import warnings
 from concurrent.futures import ProcessPoolExecutor
@@ -37,6 +41,8 @@ from jmlgdsl.data import Data
 from jmlgdsl import fit
 
 ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(ROOT / "benchmarks"))
+import ledger  # noqa: E402  (benchmarks/ledger.py, the results ledger)
 CSTR_TRUTH = {"k0": 1.43, "U": 1.2, "f1": 0.95, "f2": 0.90, "f3": 0.85}
 CSTR_SCHEDULE = "1-500:normal,501-1000:fouling1,1001-1500:fouling2,1501-2000:fouling3"
 DRYER_TRUTH = {"g_normal": 1.94, "tau_normal": 30.45, "g_fan": 1.44, "tau_fan": 25.10,
@@ -116,12 +122,23 @@ def table(summary: dict) -> str:
     return "\n".join(lines)
 
 
+def figures(summary: dict) -> dict:
+    """The ledger's figures of a case: the table, and per unknown its mean estimate, the share within 3 se
+    and the coverage of the 95 % interval; all intervals' coverage."""
+    found = {"table": table(summary), "coverage_all": round(summary["coverage_all"], 4)}
+    for name, r in summary["unknowns"].items():
+        found.update({f"{name}_mean": r["mean"], f"{name}_within_3se": r["within_3se"],
+                      f"{name}_coverage_95": r["coverage_95"]})
+    return found
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--runs", type=int, default=50)
     parser.add_argument("--jobs", type=int, default=1, help="processes working side by side")
     parser.add_argument("--case", action="append", choices=list(CASES), help="repeat for several (default: all)")
     parser.add_argument("--out", default=str(ROOT / "benchmarks/fit/results"))
+    ledger.ledger_argument(parser)
     args = parser.parse_args()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -136,6 +153,11 @@ def main():
         (out / f"{case}.json").write_text(json.dumps({"summary": summary, "runs": runs}, indent=1))
         (out / f"{case}.md").write_text(table(summary) + "\n")
         print(table(summary), f"\n({time.perf_counter() - start:.0f} s)\n", flush=True)
+        ledger.record(f"fit/coverage/{case}", figures(summary),
+                      f"python benchmarks/fit/coverage.py --runs {args.runs} --jobs {args.jobs} --case {case}",
+                      timings={"seconds_median": round(summary["seconds_median"], 1),
+                               "seconds_max": round(summary["seconds_max"], 1), "jobs": args.jobs},
+                      path=args.ledger)
 
 
 if __name__ == "__main__":
