@@ -67,6 +67,18 @@ def test_what_the_docs_say_of_the_figures_holds():
     assert naming["detected_relative_bank_1"] > naming["detected_catch_all_1"] > naming["detected_pca_q_1"]
 
 
+def test_what_the_fit_guide_says_of_its_coverage_holds():
+    """docs/fit.md: honest standard errors put all intervals together within the 90-98 % band 50 data
+    sets allow, and every estimate of the dryer lies within 3 se in nearly every data set, with labels
+    or without."""
+    book = {key: entry["figures"] for key, entry in ledger.load().items()}
+    for case in ("cstr", "dryer", "dryer-unlabelled"):
+        assert 0.90 <= book[f"fit/coverage/{case}"]["coverage_all"] <= 0.98, case
+    for case in ("dryer", "dryer-unlabelled"):
+        shares = [v for k, v in book[f"fit/coverage/{case}"].items() if k.endswith("_within_3se")]
+        assert len(shares) == 8 and min(shares) >= 0.96, case
+
+
 def test_every_entry_says_how_it_was_made():
     entries = ledger.load()
     assert entries
