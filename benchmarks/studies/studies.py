@@ -5,6 +5,7 @@ benchmarks/studies/results/<study>/ and figures in docs/figures/<study>-*.png.
     python benchmarks/studies/studies.py dryer-seq1                 # one study, 25 runs
     python benchmarks/studies/studies.py --runs 5 level-tank4 cstr4 # quicker, noisier
     python benchmarks/studies/studies.py                            # every study, 25 runs (about 35 minutes on 2 cores)
+    python benchmarks/studies/studies.py --redraw                   # the figures again from the saved runs
 
 Every study draws fresh sequences per run from a fixed mode schedule (the published sequences where
 the source study printed them, else a hand-made one that visits every mode along allowed
@@ -14,6 +15,7 @@ transitions), so a run's data and filter seeds follow from --seed alone.
 from __future__ import annotations
 
 import argparse
+import csv
 import json
 import sys
 import time
@@ -32,6 +34,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 from ledger import machine  # noqa: E402  (the machine's description, as the results ledger records it)
 
 SPECS, FIGURES, RESULTS = ROOT / "specs", ROOT / "docs" / "figures", Path(__file__).resolve().parent / "results"
+REDRAW = False  # --redraw: the sweeps' figures from the runs saved in RESULTS, nothing run and no table written
 PARTICLE_FILTERS = ("pf", "rbpf", "la-rbpf", "fc-rbpf")
 
 # Industrial dryer, random sequences No. 1-4 (Tables 5.4, D.1-D.3). Sequence 4's last interval is
@@ -92,8 +95,25 @@ def check_schedule(model, schedule):
                              f"which the transition matrix forbids")
 
 
+def saved_records(name, sources) -> list[dict]:
+    """The records an earlier run of this sweep saved (RESULTS/<study>[-<label>]/runs.csv, the rows of
+    these sources), for --redraw: a study's sweeps are named '<study>' or '<study> <label>', and the
+    perturbation sweeps ('<study> 5 %') share their study's file."""
+    study, _, label = name.partition(" ")
+    folder = RESULTS / (study if not label or label.endswith("%") else f"{study}-{label}")
+    wanted = {source.name for source in sources}
+    with open(folder / "runs.csv", newline="") as stream:
+        return [{"data": r["data"], "filter": r["filter"], "particles": int(r["particles"]) if r["particles"] else None,
+                 "lag": None if r["lag"] == "offline" else int(r["lag"]), "run": int(r["run"]),
+                 **{key: float(r[key]) for key in sweep.MEASURES}}
+                for r in csv.DictReader(stream) if r["data"] in wanted]
+
+
 def one_sweep(args, name, model, sources, filters, particles, **options):
-    """Run one sweep with the common options, print its progress, return its records."""
+    """Run one sweep with the common options, print its progress, return its records (with --redraw,
+    the records it saved before)."""
+    if REDRAW:
+        return saved_records(name, sources)
     print(f"\n== {name}: {len(filters)} filters, N = {','.join(map(str, particles))}, {args.runs} runs",
           file=sys.stderr)
     return sweep.sweep(model, sources, filters, particles, args.runs, args.seed, workers=args.workers,
@@ -102,19 +122,24 @@ def one_sweep(args, name, model, sources, filters, particles, **options):
 
 def publish(name, model, records, reference=None, title=None):
     """Write a study's tables (results/<name>/) and figures (docs/figures/<name>-*.png)."""
+    summary = sweep.summarise(records)
+    figures.study_figures(FIGURES, name, title or model.name, model.dt, summary, records, reference)
+    if REDRAW:
+        return
     folder = RESULTS / name
     folder.mkdir(parents=True, exist_ok=True)
-    summary = sweep.summarise(records)
     sweep.write_records_csv(folder / "runs.csv", records)
     sweep.write_table_csv(folder / "table.csv", summary)
     (folder / "table.md").write_text(sweep.report(summary))
-    figures.study_figures(FIGURES, name, title or model.name, model.dt, summary, records, reference)
     print(sweep.markdown_table(summary))
 
 
 def diagnosis_example(name, model, schedule, algorithm, particles, seed, plant=None, prefilter=None, run=0,
                       figure="diagnosis"):
-    """The mode-posterior figure of one run (the sweep's run `run`): docs/figures/<name>-<figure>.png."""
+    """The mode-posterior figure of one run (the sweep's run `run`): docs/figures/<name>-<figure>.png
+    (not with --redraw, which runs nothing)."""
+    if REDRAW:
+        return
     source = sweep.Simulated(None, schedule, name, plant)
     jobs = sweep.make_jobs(model, [source], (algorithm,), (particles,), runs=run + 1, seed=seed, prefilter=prefilter)
     data, result = sweep.filter_job(next(job for job in jobs if job.run == run))
@@ -189,13 +214,14 @@ def robustness(args, name, spec, schedule, filters, rows=None):
     for percent in VARIATIONS:
         source = sweep.Simulated(None, schedule, f"{percent}%", plant=true)
         records += one_sweep(args, f"{name} {percent} %", perturbed(true, percent, rows), [source], filters, particles)
-    folder = RESULTS / name
-    folder.mkdir(parents=True, exist_ok=True)
-    sweep.write_records_csv(folder / "runs.csv", records)
     summary = sweep.summarise(records)
-    text = "\n\n".join(variation_table(summary, f) for f in filters) + "\n"
-    (folder / "table.md").write_text(text)
-    print(text)
+    if not REDRAW:
+        folder = RESULTS / name
+        folder.mkdir(parents=True, exist_ok=True)
+        sweep.write_records_csv(folder / "runs.csv", records)
+        text = "\n\n".join(variation_table(summary, f) for f in filters) + "\n"
+        (folder / "table.md").write_text(text)
+        print(text)
     variation_figure(summary, filters, FIGURES / f"{name}.png",
                      f"{true.name}: the filters' transition matrix perturbed,\ndata from the published one")
 
@@ -281,10 +307,14 @@ def main(argv=None):
     parser.add_argument("--workers", type=int, help="processes (default: every core)")
     parser.add_argument("--filters", default=",".join(sweep.DEFAULT_FILTERS))
     parser.add_argument("--particles", default=",".join(map(str, sweep.DEFAULT_PARTICLES)))
+    parser.add_argument("--redraw", action="store_true",
+                        help="draw the sweeps' figures again from the runs saved in the results folder (after the "
+                             "figure code changed); nothing is run and no table is written")
     parser.add_argument("--out", type=Path, help="write to OUT/figures and OUT/results instead (to compare first)")
     args = parser.parse_args(argv)
+    global FIGURES, RESULTS, REDRAW
+    REDRAW = args.redraw
     if args.out:
-        global FIGURES, RESULTS
         FIGURES, RESULTS = args.out / "figures", args.out / "results"
     if args.list:
         print("\n".join(STUDIES))
@@ -298,6 +328,8 @@ def main(argv=None):
     for name in args.studies or STUDIES:
         start = time.perf_counter()
         STUDIES[name](args)
+        if REDRAW:
+            continue
         seconds = time.perf_counter() - start
         log = RESULTS / name / "run.json"
         log.parent.mkdir(parents=True, exist_ok=True)
