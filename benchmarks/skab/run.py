@@ -199,9 +199,8 @@ def one_file(path: Path, others: list[Path], setting: str, out: Path, args):
     return stem, outcomes, stamps, list(notes)
 
 
-def objective(scores: Scores) -> float:
-    """What cross-validation maximises: F1 plus NAB (standard) / 100, pooled."""
-    summary = scores.summary()
+def objective(summary: dict) -> float:
+    """What cross-validation maximises: F1 plus NAB (standard) / 100, of pooled scores' summary."""
     return summary["f1"] + summary["nab_standard"] / 100
 
 
@@ -216,12 +215,11 @@ def choose(rest: list[list[Scores]]) -> tuple:
     that favour the best setting most, and a small change in a few learned banks moved the
     cross-validated NAB by four points. Within what the files can tell apart, the quieter alarm is
     the one an operator wants."""
-    pooled = [Scores.pool([scores[i] for scores in rest]) for i in range(len(GRID))]
-    summaries = [p.summary() for p in pooled]
-    value = [objective(p) for p in pooled]
+    summaries = [Scores.pool([scores[i] for scores in rest]).summary() for i in range(len(GRID))]
+    value = [objective(s) for s in summaries]
     best = int(np.argmax(value))
     n = len(rest)
-    jackknife = np.array([objective(Scores.pool([scores[best] for j, scores in enumerate(rest) if j != i]))
+    jackknife = np.array([objective(Scores.pool([scores[best] for j, scores in enumerate(rest) if j != i]).summary())
                           for i in range(n)])
     se = np.sqrt((n - 1) / n * ((jackknife - jackknife.mean()) ** 2).sum())
     near = [i for i in range(len(GRID)) if value[i] >= value[best] - se]
