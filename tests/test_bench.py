@@ -2,6 +2,7 @@
 (bound to 127.0.0.1) and the CLI."""
 
 import csv
+import math
 import io
 
 import numpy as np
@@ -204,6 +205,9 @@ def test_table_and_record_csv_files(tmp_path):
     assert float(rows[2]["imm_error_mean"]) == 4.0
     sweep.write_records_csv(tmp_path / "runs.csv", RECORDS)
     assert read_records(tmp_path / "runs.csv") == RECORDS
+    back = sweep.read_records_csv(tmp_path / "runs.csv")  # the reader --redraw uses: every measure, lag 0
+    assert [{k: r[k] for k in RECORDS[0]} for r in back] == RECORDS
+    assert all(r["lag"] == 0 and math.isnan(r["delay"]) for r in back)
 
 
 def test_progress_bar_reports_runs_done_on_a_plain_stream():

@@ -15,7 +15,6 @@ transitions), so a run's data and filter seeds follow from --seed alone.
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import sys
 import time
@@ -102,11 +101,7 @@ def saved_records(name, sources) -> list[dict]:
     study, _, label = name.partition(" ")
     folder = RESULTS / (study if not label or label.endswith("%") else f"{study}-{label}")
     wanted = {source.name for source in sources}
-    with open(folder / "runs.csv", newline="") as stream:
-        return [{"data": r["data"], "filter": r["filter"], "particles": int(r["particles"]) if r["particles"] else None,
-                 "lag": None if r["lag"] == "offline" else int(r["lag"]), "run": int(r["run"]),
-                 **{key: float(r[key]) for key in sweep.MEASURES}}
-                for r in csv.DictReader(stream) if r["data"] in wanted]
+    return [r for r in sweep.read_records_csv(folder / "runs.csv") if r["data"] in wanted]
 
 
 def one_sweep(args, name, model, sources, filters, particles, **options):

@@ -370,6 +370,15 @@ def _cell(value):
     return "" if value is None or (isinstance(value, float) and math.isnan(value)) else f"{value:.6g}"
 
 
+def read_records_csv(path) -> list[dict]:
+    """The runs `write_records_csv` wrote, back as records (the naming counts are not in the file):
+    to summarise or draw a sweep again without running it."""
+    with open(path, newline="") as stream:
+        return [{"data": r["data"], "filter": r["filter"], "particles": int(r["particles"]) if r["particles"] else None,
+                 "lag": None if r["lag"] == "offline" else int(r["lag"]), "run": int(r["run"]),
+                 **{key: float(r[key]) for key in MEASURES}} for r in csv.DictReader(stream)]
+
+
 def write_records_csv(path, records):
     """Every run as one CSV row (RECORD_FIELDS), for box plots and re-analysis."""
     with open(path, "w", newline="") as stream:
