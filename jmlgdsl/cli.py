@@ -5,12 +5,19 @@ and sets `func(args) -> exit status`. With no arguments the full help, every com
 goes to standard error with exit status 2, as for any other usage error. User errors (JmlgError)
 print as located messages, exit 2; so does a request that runs out of memory after the up-front
 checks let it through. Warnings about the data (DataWarning) print as `warning: ...` lines.
+
+The command's linear algebra runs on one BLAS thread unless the user sets a thread count
+(OPENBLAS_NUM_THREADS, OMP_NUM_THREADS, MKL_NUM_THREADS): its matrices are small (a few dozen
+states), where a second thread only waits on the first. Learning a 19-mode bank of 52 outputs took
+147 s with OpenBLAS's two threads on a two-core machine, 30 s with one (BENCHMARKS.md).
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
+import os
 import pkgutil
 import sys
 import warnings
@@ -52,6 +59,19 @@ def _show_warning(message, category, filename, lineno, file=None, line=None):
     print(_printable(text), file=sys.stderr)
 
 
+#: The variables by which a user sets the BLAS thread count; with none set, a command uses one thread.
+THREAD_SETTINGS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+def _blas_threads():
+    """One BLAS thread for the command, unless the user has set a thread count."""
+    if any(os.environ.get(name) for name in THREAD_SETTINGS):
+        return contextlib.nullcontext()
+    from threadpoolctl import threadpool_limits
+
+    return threadpool_limits(limits=1, user_api="blas")
+
+
 def main(argv=None) -> int:
     parser = build_parser()
     argv = sys.argv[1:] if argv is None else list(argv)
@@ -61,7 +81,8 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     warnings.showwarning = _show_warning
     try:
-        return args.func(args) or 0
+        with _blas_threads():
+            return args.func(args) or 0
     except JmlgError as exc:
         print(_printable(str(exc) if isinstance(exc, SpecError) else f"error: {exc}"), file=sys.stderr)
         return 2
