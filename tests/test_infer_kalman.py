@@ -158,3 +158,21 @@ def test_a_triangular_factor_inverts_alike_alone_and_in_a_stack(n):
     assert np.all(np.triu(stacked, 1) == 0)
     for one, alone in zip(L, stacked):  # a fleet's units get what each would alone, bit for bit
         assert np.array_equal(triangular_inverse(one), alone)
+
+
+def test_the_filtered_covariance_stays_positive_when_outputs_are_read_almost_exactly():
+    # a wide start (sd about 300) and measurement noise 1e-11: Sig_p - K C Sig_p cancels to rounding
+    # (eps * 1e5 = 2e-11, as large as the answer: the short form gives eigenvalues from -4e-11 to 6e-11)
+    rng = np.random.default_rng(2)
+    n = 12
+    M = rng.standard_normal((n, n))
+    Sig = 1e5 * (M @ M.T / n + np.eye(n))
+    R = 1e-11 * np.eye(n)
+    *_, filtered = kalman.covariance_step(Sig, 0.9 * np.eye(n), np.eye(n), slice(0, n), R, np.ones(n, bool))
+    # every output read directly: the posterior is R - R S^-1 R, R to 1e-15 relative
+    assert np.linalg.eigvalsh(filtered) == pytest.approx(np.full(n, 1e-11), rel=1e-6)
+    # the same with C as a matrix and some outputs missing
+    C = np.eye(n)
+    mask = np.arange(n) % 3 > 0
+    *_, filtered = kalman.covariance_step(Sig, 0.9 * np.eye(n), np.eye(n), C, R, mask)
+    assert np.linalg.eigvalsh(filtered).min() > 0

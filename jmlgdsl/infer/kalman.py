@@ -162,7 +162,26 @@ def covariance_step(Sig, A, Q, C, R, mask):
     if not mask.all():
         S, CS = S[..., mask, :][..., :, mask], CS[..., mask, :]
     gain_t, Linv, logdet = gain(S, CS)
-    return Linv, logdet, gain_t, symmetrize(Sig_p - transpose(CS) @ gain_t)
+    return Linv, logdet, gain_t, joseph(Sig_p, gain_t, C, R, mask)
+
+
+def joseph(Sig_p, gain_t, C, R, mask):
+    """The filtered covariance (I - K C) Sig_p (I - K C)' + K R K' (K = gain_t', the rows of C and
+    R where mask is True): a sum of two positive semidefinite terms, so rounding cannot make it
+    indefinite. The shorter Sig_p - K C Sig_p cancels to the measurement noise's size when that is
+    far below the predicted spread (outputs read almost exactly, R / Q of 1e-7 in a learned bank of
+    many sensors), and its rounding then leaves eigenvalues below zero that a bank's mixing turns
+    into a diverging filter."""
+    K = transpose(gain_t)
+    nx = Sig_p.shape[-1]
+    if picks(C):
+        KC = np.zeros(K.shape[:-1] + (nx,))
+        KC[..., np.arange(nx)[C][mask]] = K
+    else:
+        KC = K @ C[..., mask, :]
+    I_KC = np.eye(nx) - KC
+    R = R[..., mask, :][..., :, mask]
+    return symmetrize(I_KC @ Sig_p @ transpose(I_KC) + K @ R @ transpose(K))
 
 
 def tolerance(Sig):
