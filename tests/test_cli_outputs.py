@@ -77,6 +77,6 @@ def test_run_warns_about_an_output_in_another_unit(files, capsys, tmp_path):
     write_columns(scaled, {"temp": [100 * float(r["temp"]) for r in rows]})  # degC written as centi-degC
     assert main(["run", str(spec), str(scaled)]) == 0
     err = capsys.readouterr().err
-    assert "warning: output 'temp': its residuals are about" in err and "times the model's measurement noise" in err
+    assert "warning: output 'temp': its residuals are about" in err and "times the model's noise" in err
     assert main(["run", str(spec), str(data)]) == 0
     assert "residuals are about" not in capsys.readouterr().err  # data in the spec's unit: no warning

@@ -228,16 +228,19 @@ def test_cli_learn_without_template_writes_the_spec_to_standard_output(dryer, ex
     assert main(["learn", "--output", "temp", "--input", "current", "--order", "auto", "--max-order", "2",
                  "--stay", "0.95", "--name", "dryer2"] + [f"--mode={n}={p}" for n, p in paths.items()]) == 0
     captured = capsys.readouterr()
-    progress, summary = captured.err.splitlines()[:2], captured.err.splitlines()[2:]
-    assert [line.split(":")[0] for line in progress] == ["learned mode 1 of 2, normal", "learned mode 2 of 2, fan"]
-    assert summary[0].startswith("normal: ARX(1,1,0)")  # the summary goes beside the spec
+    err = captured.err.splitlines()
+    # what cross-validation chose, each mode as learned, the catch-all's scale; then the summary
+    assert err[0].startswith("the other modes relative to normal, or each on its own") and "so each on its own" in err[0]
+    assert [line.split(":")[0] for line in err[1:3]] == ["learned mode 1 of 2, normal", "learned mode 2 of 2, fan"]
+    assert err[3].startswith("catch-all noise scale ")
+    assert err[4].startswith("normal: ARX(1,1,0)")  # the summary goes beside the spec
     spec = tmp_path / "two.jmlg"
     spec.write_text(captured.out)
     model = jmlgdsl.load(spec)
     assert model.nx == 1  # first order, as the plant is
-    assert model.name == "dryer2" and model.modes == tuple(paths) and model.states == ("temp_lag1",)
-    assert np.allclose(model.P, [[0.95, 0.05], [0.05, 0.95]])
-    assert np.allclose(model.p0, [0.99, 0.01])  # the first mode is the healthy one
+    assert model.name == "dryer2" and model.modes == tuple(paths) + ("anomaly",) and model.states == ("temp_lag1",)
+    assert np.allclose(model.P, [[0.95, 0.025, 0.025], [0.025, 0.95, 0.025], [0.025, 0.025, 0.95]])
+    assert np.allclose(model.p0, [0.99, 0.005, 0.005])  # the first mode is the healthy one
     assert "initial     normal 0.99, otherwise uniform" in captured.out
 
 

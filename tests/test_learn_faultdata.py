@@ -109,10 +109,12 @@ def test_an_unstable_mode_is_scaled_inside_the_unit_circle_keeping_its_level():
 
 @pytest.fixture(scope="module")
 def learned(tmp_path_factory):
-    """`jmlgdsl learn` on the four recordings, 52 outputs, as a user runs it: (folder, the spec's
-    path, standard error's lines, the report on standard output)."""
+    """`jmlgdsl learn` on the four recordings, 52 outputs, every mode by EM on its own (what the
+    relative learning of few rows does is tests/test_learn_defaults.py's): (folder, the spec's path,
+    standard error's lines, the report on standard output)."""
     folder = tmp_path_factory.mktemp("faultdata")
-    argv = ["learn", "--output", ",".join(NAMES), "--dt", "180", "--order", "1", "--max-iter", "4"]
+    argv = ["learn", "--output", ",".join(NAMES), "--dt", "180", "--order", "1", "--max-iter", "4",
+            "--relative-to", "none", "--catch-all", "none"]
     for mode, y in recordings().items():
         write_columns(folder / f"{mode}.csv", {"time": np.arange(T) * 180.0, **dict(zip(NAMES, y.T))})
         argv += ["--mode", f"{mode}={folder / mode}.csv"]

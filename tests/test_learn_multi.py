@@ -63,7 +63,7 @@ def test_cli_learns_several_sensors_from_rows_labelled_by_mode(runs, tmp_path, c
         write_columns(tmp_path / f"run{j}.csv", {"mode": ["normal"] * 200 + ["fault"] * 200, "valve": u[:, 0],
                                                 "volts": y[:, 0], "flow": y[:, 1]})
     spec = tmp_path / "two.jmlg"
-    argv = ["learn", "--output", "volts,flow", "--input", "valve", "--order", "1", "-o", str(spec)]
+    argv = ["learn", "--output", "volts,flow", "--input", "valve", "--order", "1", "--catch-all", "none", "-o", str(spec)]
     for name in model.modes:
         argv += ["--mode", f"{name}={tmp_path / 'run0.csv'}", "--mode", f"{name}={tmp_path / 'run1.csv'}"]
     assert main(argv) == 0

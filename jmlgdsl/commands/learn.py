@@ -49,13 +49,19 @@ def register(subparsers):
     p.add_argument("--initial", type=probability, default=0.99, metavar="P",
                    help="prior probability of the first --mode, taken as the healthy one; the rest is "
                         "shared uniformly (without --template; default 0.99)")
-    p.add_argument("--relative-to", metavar="MODE",
+    p.add_argument("--relative-to", metavar="MODE|auto|none", default="auto", type=relative_to,
                    help="learn every other mode relative to this one (the normal one): its dynamics and noise "
                         "shrunk toward MODE's as far as cross-validation on the mode's own rows says, with its "
-                        "own offset and noise scale; for short fault recordings over many sensors")
-    p.add_argument("--catch-all", metavar="NAME=SCALE", type=catch_all,
+                        "own offset and noise scale; for short fault recordings over many sensors. auto (the "
+                        "default): relative to the first --mode when cross-validation says that beats each "
+                        "mode's own regression; none: every mode on its own")
+    p.add_argument("--catch-all", metavar="NAME[=SCALE]|none", default="auto", type=catch_all,
                    help="add a mode NAME: the first mode with every noise sd times SCALE (as 'like FIRST "
-                        "{ noise scale SCALE }'), the detector of 'run --detect FIRST,NAME' (without --template)")
+                        "{ noise scale SCALE }'); 'run' then raises the alarm from the first mode and NAME and "
+                        "names the fault with the other modes. Without =SCALE, the smallest scale that alarms "
+                        "on at most 0.5 %% of the first mode's rows held out by cross-validation. Default: "
+                        "'anomaly' so chosen when there are fault modes besides the first, none for a single "
+                        "mode or with --template; none: no catch-all")
     p.add_argument("--max-iter", type=whole(0), default=100, help="EM iteration cap (default 100)")
     p.add_argument("--tol", type=float, default=1e-5, help="EM relative log-likelihood tolerance (default 1e-5)")
     p.add_argument("--figures", metavar="DIR", help="write validation (and step-fit) figures here")
@@ -76,16 +82,24 @@ def parse_modes(items):
     return modes
 
 
-def catch_all(text: str) -> tuple[str, float]:
-    """(name, scale) from NAME=SCALE."""
+def catch_all(text: str):
+    """(name, scale) from NAME=SCALE, (name, None) from NAME (the scale chosen by cross-validation),
+    None from none, "auto" as it is."""
+    if text in ("auto", "none"):
+        return None if text == "none" else text
     name, sep, scale = text.partition("=")
     try:
-        value = float(scale)
+        value = float(scale) if sep else None
     except ValueError:
         value = float("nan")
-    if not (sep and name.isidentifier() and value > 1):
-        raise argparse.ArgumentTypeError(f"expected NAME=SCALE with a scale above 1, not {text!r}")
+    if not (name.isidentifier() and (value is None or value > 1)):
+        raise argparse.ArgumentTypeError(f"expected NAME, NAME=SCALE with a scale above 1, or none, not {text!r}")
     return name, value
+
+
+def relative_to(text: str):
+    """A mode's name, "auto", or None from none."""
+    return None if text == "none" else text
 
 
 def names(text: str) -> tuple[str, ...]:

@@ -65,7 +65,10 @@ def register(subparsers):
     split = p.add_argument_group("detect, then name (one data file; the table holds the detector's columns)")
     split.add_argument("--detect", metavar="MODE,MODE[,...]", type=mode_list,
                        help="the alarm from these modes alone (the healthy ones and a catch-all, e.g. "
-                            "normal,anomaly; default: the whole bank)")
+                            "normal,anomaly). Default: when the bank has fault modes and a catch-all of a "
+                            "healthy mode (that mode with every noise scaled up, 'like normal { noise scale S }', "
+                            "as 'jmlgdsl learn' writes one), the healthy modes and the catch-all, without "
+                            "--prefilter or --explain; otherwise the whole bank")
     split.add_argument("--name", metavar="MODE,MODE[,...]", type=mode_list,
                        help="while the alarm is up, name each row by the most probable of these modes (the "
                             "fault modes, filtered on their own; default: the modes outside --detect). With the "
@@ -87,7 +90,7 @@ def main(args) -> int:
 
     from ..data import iter_rows, open_source, open_target
     from ..diagnosis import AlarmRule, Diagnosis, Kept, Raised, TableSink
-    from ..diagnosis.alarms import DetectThenName
+    from ..diagnosis.alarms import DetectThenName, catch_alls
     from ..diagnosis.prefilter import parse
     from ..diagnosis.report import evidence_report, naming_report
     from ..errors import DataError, JmlgError
@@ -111,11 +114,17 @@ def main(args) -> int:
     check_particles(args, model)
     healthy = healthy_modes(args) or model.modes[:1]
     naming = None
-    if args.detect or args.name:
+    detect, name = args.detect, args.name
+    if not (detect or name or args.prefilter or args.explain) and set(healthy) <= set(model.modes):
+        # a bank with a catch-all of its healthy modes and fault modes: detect with those, name with the rest
+        found = catch_alls(model, healthy)
+        if found and len(model.modes) > len(healthy) + len(found):
+            detect = list(healthy) + found
+    if detect or name:
         for given, option in ((args.prefilter, "--prefilter"), (args.explain or None, "--explain")):
             if given is not None:
                 raise JmlgError(f"--detect and --name take no {option}: the namer filters the rows as they are")
-        naming = DetectThenName(model, args.detect, args.name, healthy,
+        naming = DetectThenName(model, detect, name, healthy,
                                 algorithm=args.filter, particles=args.particles, seed=args.seed,
                                 resampling=args.resampling, ess_threshold=args.ess_threshold)
         model = naming.detector

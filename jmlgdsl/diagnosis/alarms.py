@@ -107,6 +107,27 @@ def sub_bank(model, modes):
                                        if model.modes[k] in model.descriptions})
 
 
+def catch_alls(model, healthy) -> list[str]:
+    """The modes that are a healthy mode with every noise scaled up by one factor above 1, as `like
+    HEALTHY { noise scale S }` writes a catch-all (`jmlgdsl learn` adds one): the same dynamics,
+    inputs, offsets and start, B and D times S. With a healthy mode it makes a detector that no
+    fault mode has to be right for, which `run` uses by itself when the bank also has fault modes."""
+    same = ("A", "F", "f", "C", "G", "g", "mu0")
+    found = []
+    for j, mode in enumerate(model.modes):
+        for h in (model.mode_index(name) for name in healthy):
+            if mode in healthy or not all(np.array_equal(getattr(model, k)[j], getattr(model, k)[h]) for k in same):
+                continue
+            noise = np.concatenate([model.B[h].ravel(), model.D[h].ravel()])
+            scaled = np.concatenate([model.B[j].ravel(), model.D[j].ravel()])
+            big = np.argmax(np.abs(noise))
+            factor = scaled[big] / noise[big] if noise[big] else np.nan
+            if factor > 1 and np.allclose(scaled, factor * noise, rtol=1e-9, atol=0.0):
+                found.append(mode)
+                break
+    return found
+
+
 class DetectThenName:
     """Detect, then name, in one run over one bank: the alarm comes from the `detect` modes (default:
     the whole bank) as the rule says, and while it is up each row is named by the most probable of

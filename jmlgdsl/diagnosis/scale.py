@@ -12,13 +12,17 @@ from ..data import DataWarning
 
 class ScaleCheck:
     """Warns, once, about an output whose residuals over the first `rows` steps are typically more
-    than `factor` times the model's measurement noise."""
+    than `factor` times the model's one-step noise: the measurement noise and the process noise the
+    output reads (C Q C' + R, averaged over the modes). A bank learned as regressions puts nearly
+    all of it in the process noise and the measurement noise at the sensors' rounding, so the
+    measurement noise alone would take every sensor for one in the wrong unit."""
 
     rows, factor = 50, 100.0
 
     def __init__(self, model):
         self.model = model
-        self.sd = np.sqrt(np.diagonal(model.R, axis1=1, axis2=2).mean(axis=0))  # (ny,)
+        noise = model.C @ model.Q @ np.swapaxes(model.C, 1, 2) + model.R
+        self.sd = np.sqrt(np.diagonal(noise, axis1=1, axis2=2).mean(axis=0))  # (ny,)
         self.seen, self.done = [], False
 
     def add(self, step):
@@ -41,5 +45,5 @@ class ScaleCheck:
             if size > self.factor:
                 unit = self.model.units.get(name)
                 warnings.warn(DataWarning(
-                    f"output {name!r}: its residuals are about {size:.3g} times the model's measurement noise; "
+                    f"output {name!r}: its residuals are about {size:.3g} times the model's noise; "
                     f"is the column in the spec's unit{f' [{unit}]' if unit else ''}?"), stacklevel=2)

@@ -18,9 +18,9 @@ from ..lang.probabilities import otherwise_uniform
 from ..model import Model
 from . import arx, basis, steptest
 from .resolution import noise_floor, resolution, unresolved
-from .relative import Reference, RelativeFit, fit_relative
+from .relative import POOLING, SHRINKAGE, Reference, RelativeFit, fit_relative, naming_setting, relative_wins
 from .em import EMResult
-from .basis import LaggedMode
+from .basis import LaggedMode, Lags
 from .statespace import StateSpace
 from .validate import Validation, validate
 
@@ -86,8 +86,8 @@ class LearnedMode:
         else:
             verdict = (f"residual tests fail for {_listed(failing, str)} ({len(failing)} of {ny} outputs; "
                        f"a right model fails about {v.by_chance:.2g} by chance)")
-        fitted = ("" if self.relative is not None else
-                  f", EM {plural(self.em.iterations, 'iteration')}{self._stop()}, log-lik {self.em.loglik[-1]:.6g}")
+        fitted = (f", EM {plural(self.em.iterations, 'iteration')}{self._stop()}, log-lik {self.em.loglik[-1]:.6g}"
+                  if self.by_em else "")
         line = (f"{self.name}: {self.structure}{fitted}; "
                 f"poles {_listed(self.mode.poles())}; {gain}measurement sd {np.sqrt(np.diag(self.mode.R)).max():.3g}; "
                 f"{fit}; {verdict}")
@@ -110,6 +110,11 @@ class LearnedMode:
         return f" (not converged: last gain {em.gain:.3g}, tolerance {em.tolerance:.3g}{left})"
 
     @property
+    def by_em(self) -> bool:
+        """Whether EM fitted the mode (not so a least-squares reference and the modes relative to it)."""
+        return bool(np.isfinite(self.em.loglik).any())
+
+    @property
     def parameters(self) -> int:
         """The free parameters of the fitted mode: its free coefficients, and Q and R."""
         m = self.mode
@@ -123,7 +128,7 @@ class LearnedMode:
 
 def learn_modes(experiments: dict, order="auto", fopdt=False, dt=1.0, max_order=4, max_delay=0,
                 criterion="bic", max_iter=100, tol=1e-5, progress=None, outputs=None,
-                relative_to: str | None = None) -> list[LearnedMode]:
+                relative_to: str | None = None, stay: float = 0.99) -> list[LearnedMode]:
     """Fit every mode: `experiments` maps a mode's name to its Experiment, or to a list of them (runs
     of the same mode, pooled: their equations in least squares, their moments in EM). Structure:
     ARX order (na, nb, nk), "auto", or FOPDT step tests (one per mode).
@@ -139,12 +144,20 @@ def learn_modes(experiments: dict, order="auto", fopdt=False, dt=1.0, max_order=
     that rounding), and then of each mode as it is learned (a bank can take minutes). `outputs`
     names the outputs in those lines (default y1, y2, ...).
 
-    `relative_to` names a mode (the normal one) learned first as above; every other mode is then
-    learned relative to it (`relative`): its dynamics, offset and covariance, shrunk toward the
-    reference's as far as cross-validation on its own rows says, for fault recordings too short for
-    a model of their own.
+    `relative_to` names a mode (the normal one), written as its least-squares regression at the
+    order given (or the one the criterion picks); every other mode is then learned relative to it
+    (`relative`): its dynamics, offset and covariance, shrunk toward the reference's, for fault
+    recordings too short for a model of their own. One such mode takes the shrinkage its own rows
+    say by cross-validation; several share the one with which they name held-out halves of their
+    recordings best (`relative.naming_setting`, a forward filter that stays in a mode with
+    probability `stay`). AUTO (the default of `jmlgdsl learn`) lets the data choose: the first mode
+    is the reference, the others are learned relative to it, and they are kept so when their
+    cross-validation says that beats their own regressions (`relative.relative_wins`); otherwise each is learned on its own as above. None: each on its
+    own. Step tests (`fopdt`) are always learned on their own.
     """
-    if relative_to is not None and relative_to not in experiments:
+    if relative_to == AUTO:
+        relative_to = None if fopdt or len(experiments) < 2 else AUTO
+    elif relative_to is not None and relative_to not in experiments:
         raise JmlgError(f"relative_to: no mode {relative_to!r} among {', '.join(experiments)}")
     if relative_to is not None and fopdt:
         raise JmlgError("modes relative to another are regressions, not step-test fits: relative_to takes no fopdt")
@@ -180,26 +193,21 @@ def learn_modes(experiments: dict, order="auto", fopdt=False, dt=1.0, max_order=
         def learn_mode(k, exps):
             return _refine_arx(k, exps, order, max_iter, tol, steps, notes[k])
     else:
-        na, nb, nk = arx.select_order([(e.y, e.u) for e in everything], max_order, max_order, max_delay, criterion,
-                                      steps)
-        orders = range(1, max(na, nk + nb) + 1)
+        order = arx.select_order([(e.y, e.u) for e in everything], max_order, max_order, max_delay, criterion, steps)
+        orders = range(1, max(order[0], order[2] + order[1]) + 1)
 
         def learn_mode(k, exps):
             return min((_refine_arx(k, exps, (n, n, 0), max_iter, tol, steps, notes[k]) for n in orders),
                        key=lambda lm: lm.criterion(criterion))
-    learned, reference = {}, None
     start = time.perf_counter()
-    first = [relative_to] if relative_to is not None else []
-    for i, k in enumerate(dict.fromkeys(first + list(by_mode)), 1):
-        exps = by_mode[k]
-        if reference is None:
-            lm = learned[k] = learn_mode(k, exps)
-            if relative_to is not None:
-                reference = Reference.of([e.y for e in exps], [e.u for e in exps], lm.mode.lags, steps[:ny])
-        else:
-            lm = learned[k] = _relative(k, exps, reference, relative_to, steps, notes[k])
+    learned = (_relative_bank(by_mode, relative_to, order, steps, notes, progress, stay) if relative_to is not None
+               else None) or {}
+    for i, k in enumerate(learned or by_mode, 1):
+        if k not in learned:
+            learned[k] = learn_mode(k, by_mode[k])
         if progress is not None:
-            fitted = "" if lm.relative is not None else f", EM {plural(lm.em.iterations, 'iteration')}"
+            lm = learned[k]
+            fitted = f", EM {plural(lm.em.iterations, 'iteration')}" if lm.by_em else ""
             progress(f"learned mode {i} of {len(by_mode)}, {k}: {lm.structure}{fitted} "
                      f"({time.perf_counter() - start:.1f} s so far)")
             for line in lm.notes[len(notes[k]):]:
@@ -207,14 +215,70 @@ def learn_modes(experiments: dict, order="auto", fopdt=False, dt=1.0, max_order=
     return [learned[k] for k in by_mode]
 
 
-def _relative(name, exps, reference: Reference, reference_name, steps, notes) -> LearnedMode:
-    """One mode learned relative to the reference (`relative.fit_relative`), kept stable and validated."""
+def _relative_bank(by_mode, relative_to, order, steps, notes, progress, stay) -> dict | None:
+    """{mode: LearnedMode}, the reference first: the reference mode as its least-squares regression
+    at `order` (na, nb, nk) and every other mode relative to it; or, with relative_to AUTO (the
+    first mode the reference), None when cross-validation prefers each mode on its own
+    (`relative.relative_wins`) or a mode has too few rows to cross-validate."""
+    auto = relative_to == AUTO
+    if auto:
+        relative_to = next(iter(by_mode))
+    exps = by_mode[relative_to]
+    ny = exps[0].y.shape[1]
+    reference = Reference.of([e.y for e in exps], [e.u for e in exps], Lags(*order), steps[:ny])
+    others = [k for k in by_mode if k != relative_to]
+    setting = None
+    if len(others) > 1:  # a bank of faults: their shrinkage and pooling chosen to tell them apart
+        setting, named = naming_setting(reference, [([e.y for e in by_mode[k]], [e.u for e in by_mode[k]])
+                                                    for k in others], stay)
+        if progress is not None:
+            progress(f"the modes relative to {relative_to} share the penalty {SHRINKAGE[setting[0]]:g} on their change "
+                     f"of dynamics and the weight {POOLING[setting[1]]:g} of {relative_to}'s covariance shape: "
+                     f"cross-validated over the halves of their recordings, they name {named[setting]:.1%} of the "
+                     "held-out rows right")
+    learned = {}
+    for k in others:
+        try:
+            learned[k] = _relative(k, by_mode[k], reference, relative_to, steps, notes[k], setting)
+        except DataError:
+            if auto:
+                return None
+            raise
+    if auto:
+        wins, better, differ = relative_wins([lm.relative for lm in learned.values()])
+        if progress is not None:
+            progress(f"the other modes relative to {relative_to}, or each on its own: relative learning predicts "
+                     f"{better} of {differ} held-out blocks better than their own regressions, so "
+                     + ("relative" if wins else "each on its own"))
+        if not wins:
+            return None
+    mode, structure = reference.mode()
+    mode, kept = _stable_mode(mode, exps, notes[relative_to])
+    longest = max(exps, key=lambda e: len(e.y))
+    first = LearnedMode(relative_to, exps, structure, mode, _unfitted(mode), mode,
+                        validate(mode.statespace(longest.u[0]), longest.y, longest.u), None, kept)
+    return {relative_to: first, **learned}
+
+
+def _unfitted(mode: LaggedMode) -> EMResult:
+    """The EMResult of a mode written from least squares without EM (no iterations, no log-likelihood)."""
+    return EMResult(mode.reduced(), np.array([np.nan]), True)
+
+
+#: `learn_modes(relative_to=AUTO)`: the other modes relative to the first one or each on its own, as
+#: cross-validation says.
+AUTO = "auto"
+
+
+def _relative(name, exps, reference: Reference, reference_name, steps, notes, setting=None) -> LearnedMode:
+    """One mode learned relative to the reference (`relative.fit_relative`, at `setting` when the
+    bank chose one), kept stable and validated."""
     mode, fit = _located(exps[0], fit_relative, reference, [e.y for e in exps], [e.u for e in exps],
-                         exps[0].source)
+                         exps[0].source, setting)
     mode, notes = _stable_mode(mode, exps, notes)
     longest = max(exps, key=lambda e: len(e.y))
-    return LearnedMode(name, exps, fit.structure(reference_name), mode, EMResult(mode.reduced(), np.array([np.nan]), True),
-                       mode, validate(mode.statespace(longest.u[0]), longest.y, longest.u), None, notes, fit)
+    return LearnedMode(name, exps, fit.structure(reference_name), mode, _unfitted(mode), mode,
+                       validate(mode.statespace(longest.u[0]), longest.y, longest.u), None, notes, fit)
 
 
 def _refine_arx(name, exps, order, max_iter, tol, steps, notes) -> LearnedMode:

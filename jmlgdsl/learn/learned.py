@@ -21,8 +21,11 @@ from ..model import Model
 from ..names import plural
 from ..output import writing
 from . import validate
-from .bank import Experiment, LearnedMode, assemble, default_transitions, healthy_prior, learn_modes, with_catch_all
-from .resolution import RELATIVE
+from .bank import (AUTO, Experiment, LearnedMode, assemble, default_transitions, healthy_prior, learn_modes,
+                   with_catch_all)
+from .detector import catch_all_scale
+from .relative import Reference
+from .resolution import RELATIVE, resolution
 from .writer import write_spec
 
 
@@ -65,7 +68,7 @@ class LearnedBank:
 def learn(experiments: dict, template: Model | None = None, *, outputs=(), inputs=(), dt: float = 1.0,
           name: str = "plant", stay: float = 0.99, initial: float = 0.99, order="auto", fopdt: bool = False,
           criterion: str = "bic", max_order: int = 4, max_delay: int = 0, max_iter: int = 100, tol: float = 1e-5,
-          relative_to: str | None = None, catch_all: tuple[str, float] | None = None, progress=None) -> LearnedBank:
+          relative_to: str | None = AUTO, catch_all=AUTO, progress=None) -> LearnedBank:
     """Learn a mode bank from experiments of every mode (docs/learning.md).
 
     experiments: {mode: source or [source, ...]}. A source is a CSV path, read by the bank's column
@@ -86,14 +89,25 @@ def learn(experiments: dict, template: Model | None = None, *, outputs=(), input
 
     `relative_to`: a mode (the normal one) whose dynamics and covariance every other mode is learned
     relative to, with its own offset and scale and changes shrunk as cross-validation on its own
-    rows says (`relative`): for short fault recordings over many sensors. `catch_all` = (NAME,
-    SCALE): one more mode, the first mode with its noise times SCALE (`bank.with_catch_all`), with
-    which the first mode alone detects anything unlike it (`run --detect FIRST,NAME`); not with a
-    template, whose transitions and prior have no place for it.
+    rows says (`relative`): for short fault recordings over many sensors. "auto" (the default): the
+    first mode, when cross-validation says relative learning beats each mode's own regression
+    (`bank.learn_modes`); None: every mode on its own.
+
+    `catch_all` = (NAME, SCALE): one more mode, the first mode with its noise times SCALE
+    (`bank.with_catch_all`), with which the first mode alone detects anything unlike it; `run`
+    then detects with the two and names the fault with the others. SCALE None: the smallest scale
+    that stays quiet on the first mode's rows held out (`detector.catch_all_scale`). "auto" (the
+    default): ("anomaly", None) for a bank of a healthy mode and fault modes learned without a
+    template, none otherwise; None: none. Not with a template, whose transitions and prior have no
+    place for it.
     """
     arx_order = _arx_order(order)
+    if catch_all == AUTO:
+        catch_all = (CATCH_ALL, None) if template is None and len(experiments) > 1 else None
     if catch_all is not None and template is not None:
         raise JmlgError("catch_all takes no template: the template's transitions and prior have no place for it")
+    if catch_all is not None and catch_all[0] in experiments:
+        raise JmlgError(f"the catch-all mode {catch_all[0]!r} is already a mode of the bank; name it otherwise")
     for option, value, least in (("max_order", max_order, 1), ("max_delay", max_delay, 0),
                                  ("max_iter", max_iter, 0)):
         if value < least:
@@ -108,22 +122,55 @@ def learn(experiments: dict, template: Model | None = None, *, outputs=(), input
     by_mode = {mode: [e for source in sources[mode] for e in _experiments(source, columns, mode, k)]
                for k, mode in enumerate(modes)}
     learned = learn_modes(by_mode, arx_order, fopdt, frame["dt"], max_order, max_delay, criterion, max_iter, tol,
-                          progress, frame["outputs"], relative_to)
+                          progress, frame["outputs"], relative_to, float(np.mean(np.diag(frame["P"]))))
     defaults = frame["input_defaults"]
     model = assemble(learned, operating_input=defaults if np.isfinite(defaults).all() else None, **frame)
+    chosen = None
     if catch_all is not None:
-        model = with_catch_all(model, *catch_all, stay=stay, initial=initial)
+        name_, scale = catch_all
+        if scale is None:
+            chosen = _catch_all_scale(model, learned[0], by_mode, name_, stay, initial)
+            scale = chosen.scale
+            if progress is not None:
+                progress(chosen.describe(modes[0]))
+        catch_all = name_, scale
+        model = with_catch_all(model, name_, scale, stay=stay, initial=initial)
     origins = dict.fromkeys(s.source if isinstance(s, Experiment) else str(s) for given in sources.values()
                             for s in given)
-    how = ("FOPDT fits of step tests" if fopdt else
-           f"states chosen by {criterion.upper()} of the EM fits, started from ARX" if arx_order == "auto"
-           else f"ARX order {_written(order)}")
-    if relative_to is not None:
-        how += f"; the other modes relative to {relative_to} (cross-validated shrinkage toward its dynamics and noise)"
+    reference = next((lm for lm in learned if lm.relative is None), None)
+    if any(lm.relative is not None for lm in learned):
+        how = (f"{reference.name} by least squares, {reference.structure.split(' least')[0]}; the other modes "
+               f"relative to it (cross-validated shrinkage toward its dynamics and noise)")
+    else:
+        how = ("FOPDT fits of step tests" if fopdt else
+               f"states chosen by {criterion.upper()} of the EM fits, started from ARX" if arx_order == "auto"
+               else f"ARX order {_written(order)}")
     if catch_all is not None:
         how += f"; catch-all mode {catch_all[0]}: {model.modes[0]} with its noise x{catch_all[1]:g}"
+        if chosen is not None:
+            how += f", the {chosen.describe(model.modes[0])}"
     return LearnedBank(tuple(learned), model,
                        write_spec(model, _header(origins, how, max_iter, tol, learned, model.outputs)))
+
+
+#: The name of the catch-all mode `learn` adds by default.
+CATCH_ALL = "anomaly"
+
+
+def _catch_all_scale(model: Model, healthy: LearnedMode, by_mode: dict, name: str, stay, initial):
+    """The catch-all's scale chosen on the healthy mode's runs held out (`detector.catch_all_scale`),
+    with the transitions and prior of the detector `run` splits from the bank with it; each
+    output's resolution read from every mode's runs, as learning read it."""
+    from ..diagnosis.alarms import sub_bank
+
+    runs = by_mode[healthy.name]
+    ys, us = [e.y for e in runs], [e.u for e in runs]
+    trial = with_catch_all(model, name, 2.0, stay=stay, initial=initial)
+    detector = sub_bank(trial, (model.modes[0], name))
+    everything = [e for exps in by_mode.values() for e in exps]
+    steps = resolution(np.vstack([np.hstack([e.y, e.u]) for e in everything]))[:model.ny]
+    reference = Reference.of(ys, us, healthy.mode.lags, steps)
+    return catch_all_scale(reference, ys, us, detector.P, detector.p0)
 
 
 def experiments_of(data, mode: str, index: int) -> list[Experiment]:
