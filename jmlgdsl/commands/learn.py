@@ -23,7 +23,13 @@ def register(subparsers):
                     "before any fitting; a mode EM leaves unstable has its poles scaled inside the unit circle, "
                     "and says so. Without --template "
                     "the first --mode is the healthy one: the prior is 'initial FIRST 0.99, otherwise uniform' "
-                    "(--initial) and the transitions 'stay 0.99, otherwise uniform' (--stay).")
+                    "(--initial) and the transitions 'stay 0.99, otherwise uniform' (--stay). With several "
+                    "modes, cross-validation on the recordings chooses whether the others are learned relative "
+                    "to the first (few rows over many sensors: its least-squares regression, their changes "
+                    "shrunk as far as tells them apart best) or each on its own by EM, and, without --template, "
+                    "the noise scale of a catch-all mode 'anomaly' that stays quiet on held-out normal rows: "
+                    "'jmlgdsl run' then raises the alarm from the first mode and 'anomaly' and names the fault "
+                    "with the others. Each choice is printed as it is made.")
     p.add_argument("--mode", action="append", required=True, metavar="NAME=CSV",
                    help="a mode's experiment (repeat for every mode; repeat a name for several runs of "
                         "one mode). A file with a 'mode' column gives only the rows labelled NAME, each "

@@ -152,8 +152,9 @@ def learn_modes(experiments: dict, order="auto", fopdt=False, dt=1.0, max_order=
     recordings best (`relative.naming_setting`, a forward filter that stays in a mode with
     probability `stay`). AUTO (the default of `jmlgdsl learn`) lets the data choose: the first mode
     is the reference, the others are learned relative to it, and they are kept so when their
-    cross-validation says that beats their own regressions (`relative.relative_wins`); otherwise each is learned on its own as above. None: each on its
-    own. Step tests (`fopdt`) are always learned on their own.
+    cross-validation says that beats their own regressions (`relative.relative_wins`); otherwise
+    each is learned on its own as above. None: each on its own. Step tests (`fopdt`) are always
+    learned on their own.
     """
     if relative_to == AUTO:
         relative_to = None if fopdt or len(experiments) < 2 else AUTO
@@ -231,11 +232,6 @@ def _relative_bank(by_mode, relative_to, order, steps, notes, progress, stay) ->
     if len(others) > 1:  # a bank of faults: their shrinkage and pooling chosen to tell them apart
         setting, named = naming_setting(reference, [([e.y for e in by_mode[k]], [e.u for e in by_mode[k]])
                                                     for k in others], stay)
-        if progress is not None:
-            progress(f"the modes relative to {relative_to} share the penalty {SHRINKAGE[setting[0]]:g} on their change "
-                     f"of dynamics and the weight {POOLING[setting[1]]:g} of {relative_to}'s covariance shape: "
-                     f"cross-validated over the halves of their recordings, they name {named[setting]:.1%} of the "
-                     "held-out rows right")
     learned = {}
     for k in others:
         try:
@@ -252,6 +248,11 @@ def _relative_bank(by_mode, relative_to, order, steps, notes, progress, stay) ->
                      + ("relative" if wins else "each on its own"))
         if not wins:
             return None
+    if setting is not None and progress is not None:
+        progress(f"the modes relative to {relative_to} share the penalty {SHRINKAGE[setting[0]]:g} on their change "
+                 f"of dynamics and the weight {POOLING[setting[1]]:g} of {relative_to}'s covariance shape: "
+                 f"cross-validated over the halves of their recordings, they name {named[setting]:.1%} of the "
+                 "held-out rows right")
     mode, structure = reference.mode()
     mode, kept = _stable_mode(mode, exps, notes[relative_to])
     longest = max(exps, key=lambda e: len(e.y))

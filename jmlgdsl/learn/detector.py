@@ -22,6 +22,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+
 from .relative import FOLDS, Reference, forward, ridge
 from .resolution import at_least
 
@@ -44,9 +45,13 @@ class CatchAllScale:
     def describe(self, healthy: str) -> str:
         """A line for the learner's report."""
         share = self.shares[SCALES.index(self.scale)]
-        how = ("the smallest" if self.quiet else "none quiet enough; the largest")
-        return (f"catch-all noise scale {self.scale:g} ({how} of {SCALES[0]:g}-{SCALES[-1]:g} that alarms on at most "
-                f"{QUIET:.1%} of {healthy}'s rows held out by {FOLDS}-fold cross-validation: {share:.2%})")
+        held = f"{healthy}'s rows held out by {FOLDS}-fold cross-validation"
+        if not self.quiet:
+            return (f"catch-all noise scale {self.scale:g} (the largest tried: every scale of {SCALES[0]:g}-"
+                    f"{SCALES[-1]:g} alarms on more than {QUIET:.1%} of {held}, this one on {share:.2%}; the "
+                    f"normal mode does not describe its own recording well)")
+        return (f"catch-all noise scale {self.scale:g} (the smallest of {SCALES[0]:g}-{SCALES[-1]:g} that alarms on "
+                f"at most {QUIET:.1%} of {held}: {share:.2%})")
 
 
 def catch_all_scale(reference: Reference, ys, us, P, p0) -> CatchAllScale:
