@@ -3,9 +3,11 @@ cross-validation prefers it, a catch-all whose scale is chosen on held-out norma
 stable, and detect-then-name from the learned spec with no more options."""
 
 import numpy as np
+import pytest
 
 import jmlgdsl
 from jmlgdsl.cli import main as cli
+from jmlgdsl.errors import DataError
 from jmlgdsl.diagnosis.alarms import catch_alls
 from jmlgdsl.learn import learn
 from jmlgdsl.learn.bank import Experiment
@@ -146,3 +148,14 @@ def test_run_detects_then_names_with_a_plainly_learned_spec(tmp_path, capsys):
     assert alarm[310:].mean() >= 0.9  # the fault is seen within a few rows, and the alarm stays up
     line = next(ln for ln in report.splitlines() if ln.startswith("naming:"))
     assert float(line.split()[1]) >= 90.0  # f1 named right on at least 90 % of its rows
+
+
+def test_a_fault_too_short_to_cross_validate_is_learned_on_its_own_unless_relative_is_asked_for():
+    rng = np.random.default_rng(6)
+    data = {"normal": Experiment(plant(rng, 2, 300), np.empty((300, 0)), "normal.csv"),
+            "short": Experiment(plant(rng, 2, 9, np.array([8.0, 0.0])), np.empty((9, 0)), "short.csv"),
+            "long": Experiment(plant(rng, 2, 200, np.array([0.0, 8.0])), np.empty((200, 0)), "long.csv")}
+    bank = learn(data, outputs=["a", "b"], order=1, max_iter=3)
+    assert all(lm.relative is None for lm in bank.learned)
+    with pytest.raises(DataError, match="mode short: 8 complete equations, too few to learn it relative"):
+        learn(data, outputs=["a", "b"], order=1, relative_to="normal")

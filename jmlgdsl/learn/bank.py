@@ -228,18 +228,17 @@ def _relative_bank(by_mode, relative_to, order, steps, notes, progress, stay) ->
     ny = exps[0].y.shape[1]
     reference = Reference.of([e.y for e in exps], [e.u for e in exps], Lags(*order), steps[:ny])
     others = [k for k in by_mode if k != relative_to]
-    setting = None
-    if len(others) > 1:  # a bank of faults: their shrinkage and pooling chosen to tell them apart
-        setting, named = naming_setting(reference, [([e.y for e in by_mode[k]], [e.u for e in by_mode[k]])
-                                                    for k in others], stay)
-    learned = {}
-    for k in others:
-        try:
+    setting, learned = None, {}
+    try:
+        if len(others) > 1:  # a bank of faults: their shrinkage and pooling chosen to tell them apart
+            setting, named = naming_setting(reference, {k: ([e.y for e in by_mode[k]], [e.u for e in by_mode[k]])
+                                                        for k in others}, stay)
+        for k in others:
             learned[k] = _relative(k, by_mode[k], reference, relative_to, steps, notes[k], setting)
-        except DataError:
-            if auto:
-                return None
-            raise
+    except DataError:
+        if auto:  # too few rows to cross-validate: each mode on its own
+            return None
+        raise
     if auto:
         wins, better, differ = relative_wins([lm.relative for lm in learned.values()])
         if progress is not None:

@@ -241,10 +241,10 @@ def _fitted(ref: Reference, X, Y, lam, g):
     return np.vstack([ref.W + D, c]), Sigma, k
 
 
-def naming_setting(ref: Reference, runs, stay: float) -> tuple[tuple[int, int], np.ndarray]:
+def naming_setting(ref: Reference, runs: dict, stay: float) -> tuple[tuple[int, int], np.ndarray]:
     """The penalty and pooling (indices into SHRINKAGE and POOLING) that name a bank's modes best,
-    and the share named right at each, (len(SHRINKAGE), len(POOLING)). `runs`: each mode's (ys,
-    us), lists of arrays. Cross-validation over two halves: every mode is fitted to one half of its
+    and the share named right at each, (len(SHRINKAGE), len(POOLING)). `runs`: {mode: (ys, us)},
+    lists of arrays. Cross-validation over two halves: every mode is fitted to one half of its
     equations, and the rows of every other half are named by a forward filter over the modes (one-
     step densities of the regressions, `stay` the probability of staying in a mode, the rest shared
     evenly), then the other way round.
@@ -254,7 +254,11 @@ def naming_setting(ref: Reference, runs, stay: float) -> tuple[tuple[int, int], 
     a covariance thousands of times normal's, and then names every large deviation), while the
     setting chosen here is the one that tells held-out rows of every fault apart (on the Tennessee
     Eastman recordings, docs/realdata.md)."""
-    equations = [ref.equations(ys, us) for ys, us in runs]
+    equations = [ref.equations(ys, us) for ys, us in runs.values()]
+    for mode, (_, Y) in zip(runs, equations):
+        if len(Y) < 2 * FOLDS:
+            raise DataError(f"mode {mode}: {plural(len(Y), 'complete equation')}, too few to learn it relative to "
+                            f"normal by cross-validation")
     K = len(runs)
     logP = np.log(np.where(np.eye(K, dtype=bool), stay, (1 - stay) / max(K - 1, 1)))
     right = np.zeros((len(SHRINKAGE), len(POOLING)))

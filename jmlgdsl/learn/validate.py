@@ -70,14 +70,15 @@ def _within(lags: int) -> float:
 
 def correlation(a, b, lags) -> np.ndarray:
     """Normalised cross-correlation sum_t a_t b_{t+k} / sqrt(sum a^2 sum b^2) of centred series;
-    NaN (a missing sample) counts as zero, and the result is NaN when either series is constant."""
+    NaN (a missing sample) counts as zero, and the result is NaN when either series is constant,
+    and at a lag the series are too short for."""
     a = np.nan_to_num(a - np.nanmean(a))
     b = np.nan_to_num(b - np.nanmean(b))
     scale = np.sqrt((a @ a) * (b @ b))
     if scale == 0:
         return np.full(len(lags), np.nan)
     n = len(a)
-    return np.array([a[:n - k] @ b[k:] for k in lags]) / scale
+    return np.array([a[:n - k] @ b[k:] if k < n else np.nan for k in lags]) / scale
 
 
 def nrmse_fit(y, y_hat) -> np.ndarray:
