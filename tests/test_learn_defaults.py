@@ -142,6 +142,8 @@ def test_run_detects_then_names_with_a_plainly_learned_spec(tmp_path, capsys):
     report = out.out
     assert "residuals are about" not in out.err  # the sensors' noise is the regression's, not the rounding's
     assert "naming:" in report and "naming confusion" in report
+    assert report.startswith("detect, then name: the alarm from normal, anomaly (a healthy mode and its catch-all), "
+                             "the fault named by f0, f1;")
     table = np.genfromtxt(tmp_path / "out.csv", delimiter=",", names=True, dtype=None, encoding=None)
     alarm = table["alarm"]
     assert alarm[:300].mean() <= 0.01  # quiet on normal operation

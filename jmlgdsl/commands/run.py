@@ -148,6 +148,10 @@ def main(args) -> int:
         if not diagnosis.summary.T:
             raise DataError(f"{source.name}: no data rows")
     out = sys.stderr if args.output == "-" else sys.stdout
+    if naming is not None and not (args.detect or args.name):
+        print(f"detect, then name: the alarm from {', '.join(naming.detector.modes)} (a healthy mode and its "
+              f"catch-all), the fault named by {', '.join(naming.namer.modes)}; --detect with every mode gives the "
+              "whole bank's alarm", file=out)
     print(diagnosis.report(), file=out)
     counts = None if naming is None else naming.counts()
     if counts is not None:
