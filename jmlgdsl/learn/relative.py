@@ -117,8 +117,9 @@ class RelativeFit:
     equation (inf: normal's dynamics), the weight of normal's covariance shape, its scale, the
     held-out log-likelihood per row at that choice and at the normal dynamics with the fault's own
     offset and scale, and the number of equations. `folds`: each block's held-out log-likelihood at
-    the choice and with no shrinkage nor pooling (the fault's own regression), (FOLDS, 2), from
-    which `relative_wins` decides whether a bank is better learned relative at all."""
+    the mode's own best setting (which a bank's shared one may differ from) and with no shrinkage
+    nor pooling (the fault's own regression), (FOLDS, 2), from which `relative_wins` decides whether
+    a bank is better learned relative at all."""
 
     shrinkage: float
     pooling: float
