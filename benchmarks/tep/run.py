@@ -43,7 +43,7 @@ from pathlib import Path
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # small matrices: threads only contend (BENCHMARKS.md)
 
 import numpy as np  # noqa: E402
-from scipy.special import logsumexp  # noqa: E402
+from jmlgdsl.learn.relative import forward as hidden_markov_forward  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import ledger  # noqa: E402  (benchmarks/ledger.py, the results ledger)
@@ -164,14 +164,10 @@ def var_loglik(bank, rows):
 
 
 def forward(loglik, stay):
+    """The filtered log-probabilities of the bank's modes (jmlgdsl's forward filter), staying in a mode
+    with probability `stay`, the rest shared evenly."""
     K = loglik.shape[1]
-    logP = np.log(np.where(np.eye(K, dtype=bool), stay, (1 - stay) / (K - 1)))
-    a, out = np.full(K, -np.log(K)), np.empty_like(loglik)
-    for t, e in enumerate(loglik):
-        a = (logsumexp(a[:, None] + logP, axis=0) if t else a) + e
-        a -= logsumexp(a)
-        out[t] = a
-    return out
+    return hidden_markov_forward(loglik, np.log(np.where(np.eye(K, dtype=bool), stay, (1 - stay) / (K - 1))))
 
 
 def var_bank(z, data):

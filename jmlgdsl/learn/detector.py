@@ -68,9 +68,9 @@ def catch_all_scale(reference: Reference, ys, us, P, p0) -> CatchAllScale:
         D, c, S = ridge(X[train], Y[train], np.zeros((X.shape[1], ny)), 0.0)
         L = np.linalg.cholesky(at_least(S, reference.floor))
         m = np.sum(np.linalg.solve(L, (Y[block] - X[block] @ D - c).T) ** 2, axis=0)
-        for i, scale in enumerate(SCALES):
-            evidence = np.stack([np.zeros_like(m), -ny * np.log(scale) + 0.5 * (1 - scale ** -2) * m], axis=1)
-            alarms[i] += np.sum(forward(evidence, logP, logp0)[:, 1] > np.log(0.5))
+        scale = np.array(SCALES)[:, None]
+        evidence = np.stack(np.broadcast_arrays(0.0, -ny * np.log(scale) + 0.5 * (1 - scale ** -2) * m), axis=-1)
+        alarms += np.sum(forward(evidence, logP, logp0)[..., 1] > np.log(0.5), axis=-1)  # every scale at once
     shares = alarms / N
     quiet = shares <= QUIET
     i = int(np.argmax(quiet)) if quiet.any() else len(SCALES) - 1

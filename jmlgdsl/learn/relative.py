@@ -166,16 +166,12 @@ def _solve(N, xm, ym, W_ref, Xc, U, s, Vt, projected, target, lam):
     return D, ym - xm @ W, E.T @ E / N
 
 
-def pooled(S, S_ref, g, floor) -> tuple[np.ndarray, float]:
+def pooled(S, S_ref, g, floor, factor=None) -> tuple[np.ndarray, float]:
     """(1 - g) S + g k S_ref, k = tr(S_ref^-1 S) / ny (the scale of S_ref that fits S best), kept at
-    least diag(floor); and k."""
-    k = _scale(S, cho_factor(S_ref))
+    least diag(floor); and k. `factor`: S_ref's Cholesky factor (scipy's cho_factor), for a caller
+    that pools many covariances with one S_ref."""
+    k = float(np.trace(cho_solve(cho_factor(S_ref) if factor is None else factor, S))) / len(S)
     return at_least((1 - g) * S + g * k * S_ref, floor), k
-
-
-def _scale(S, S_ref_factor) -> float:
-    """tr(S_ref^-1 S) / ny from S_ref's Cholesky factor."""
-    return float(np.trace(cho_solve(S_ref_factor, S))) / len(S)
 
 
 def _holding(W, Sigma, held, floor):
@@ -217,13 +213,14 @@ def fit_relative(ref: Reference, ys, us, source="<data>", setting=None) -> tuple
         for i, lam in enumerate(SHRINKAGE):
             D, c, S = _solve(*pieces, lam)
             E = Y[block] - X[block] @ (ref.W + D) - c
-            k = _scale(S, factor)
             for j, g in enumerate(POOLING):
-                folds[f, i, j] = _loglik(E, at_least((1 - g) * S + g * k * ref.S, ref.floor))
+                folds[f, i, j] = _loglik(E, pooled(S, ref.S, g, ref.floor, factor)[0])
     heldout = folds.sum(axis=0)
     best = np.unravel_index(np.argmax(heldout), heldout.shape)
     i, j = best if setting is None else setting
-    W, Sigma, k = _fitted(ref, X, Y, SHRINKAGE[i], POOLING[j])
+    D, c, S = ridge(X, Y, ref.W, SHRINKAGE[i])
+    Sigma, k = pooled(S, ref.S, POOLING[j], ref.floor, factor)
+    W = np.vstack([ref.W + D, c])
     held = [group[0] for group in unresolved([(y - ref.my) / ref.sy for y, _ in segments(ys, us)],
                                              np.sqrt(ref.floor / ROUNDING)) if len(group) == 1]
     if held and ref.lags.na:
@@ -232,14 +229,6 @@ def fit_relative(ref: Reference, ys, us, source="<data>", setting=None) -> tuple
     fit = RelativeFit(SHRINKAGE[i], POOLING[j], k, heldout[i, j] / N, heldout[-1, -1] / N, N,
                       np.stack([folds[:, best[0], best[1]], folds[:, 0, 0]], axis=1))
     return mode, fit
-
-
-def _fitted(ref: Reference, X, Y, lam, g):
-    """(coefficients with the offset last, covariance, scale) of a mode relative to `ref` from its
-    standardised equations at penalty lam and pooling g."""
-    D, c, S = ridge(X, Y, ref.W, lam)
-    Sigma, k = pooled(S, ref.S, g, ref.floor)
-    return np.vstack([ref.W + D, c]), Sigma, k
 
 
 def naming_setting(ref: Reference, runs: dict, stay: float) -> tuple[tuple[int, int], np.ndarray]:
@@ -264,6 +253,7 @@ def naming_setting(ref: Reference, runs: dict, stay: float) -> tuple[tuple[int, 
     logP = np.log(np.where(np.eye(K, dtype=bool), stay, (1 - stay) / max(K - 1, 1)))
     right = np.zeros((len(SHRINKAGE), len(POOLING)))
     total = 0
+    factor = cho_factor(ref.S)
     for half in (0, 1):
         fitted, tested = [], []
         for X, Y in equations:
@@ -280,7 +270,7 @@ def naming_setting(ref: Reference, runs: dict, stay: float) -> tuple[tuple[int, 
             for j, g in enumerate(POOLING):
                 density = np.zeros((K * max(sizes), K))
                 for m, (D, c, S) in enumerate(solved):
-                    L = np.linalg.cholesky(pooled(S, ref.S, g, ref.floor)[0])
+                    L = np.linalg.cholesky(pooled(S, ref.S, g, ref.floor, factor)[0])
                     density[where, m] = _densities(Y - X @ (ref.W + D) - c, L)
                 named = forward(density.reshape(K, max(sizes), K), logP).argmax(axis=-1).ravel()[where]
                 right[i, j] += np.sum(named == np.repeat(np.arange(K), sizes))
