@@ -10,7 +10,8 @@ Each run simulates the plant through its study schedule (sequence No. 1 for the 
 seed; every filter and lag sees the same data. The error is the % of steps whose smoothed MAP mode
 is wrong; the detection delay is, for each true switch, the number of steps from the switch to the
 first row whose MAP mode is the new mode (the whole segment if none is), counting the lag itself:
-a row smoothed with lag L is only known L steps after it.
+a row smoothed with lag L is only known L steps after it. The table and every mean go into the
+results ledger (benchmarks/ledger.json) as `studies/smoothing`.
 """
 
 from __future__ import annotations
@@ -33,6 +34,8 @@ from jmlgdsl.simulate import simulate
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from studies import DRYER, FIGURES, RESULTS, SCHEDULES, SPECS  # noqa: E402
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from ledger import ledger_argument, record  # noqa: E402
 
 PLANTS = {"dryer": DRYER["seq1"], **{k: SCHEDULES[k] for k in
                                      ("level_tank4", "level_tank5", "heat_exchanger", "robot_smooth", "robot8")}}
@@ -121,6 +124,7 @@ def main():
     parser.add_argument("--workers", type=int, default=os.cpu_count())
     parser.add_argument("--replot", action="store_true",
                         help="only redraw the figure from results/smoothing/table.md")
+    ledger_argument(parser)
     args = parser.parse_args()
     folder = RESULTS / "smoothing"
     if args.replot:
@@ -130,14 +134,9 @@ def main():
     start = time.perf_counter()
     with ProcessPoolExecutor(args.workers) as pool:
         results = dict(pool.map(plant_runs, PLANTS, [args.runs] * len(PLANTS), [args.seed] * len(PLANTS)))
-    lines = [f"Machine: {platform.machine()}, Python {platform.python_version()}, numpy {np.__version__}; "
-             f"{time.strftime('%Y-%m-%d')}; {args.runs} runs a plant, seed {args.seed}, "
-             f"{time.perf_counter() - start:.0f} s.", "",
-             "Diagnosis error % (mean over runs) / detection delay in steps (mean over switches and runs, "
-             "lag included), by lag:", "",
-             "| plant | filter | " + " | ".join(lag_label(lag) for lag in LAGS) + " |",
-             "|---|---|" + "---|" * len(LAGS)]
-    means = {}
+    seconds = time.perf_counter() - start
+    table = ["| plant | filter | " + " | ".join(lag_label(lag) for lag in LAGS) + " |", "|---|---|" + "---|" * len(LAGS)]
+    means, figures_found = {}, {}
     for name, out in results.items():
         for algorithm, n in FILTERS:
             cells = []
@@ -145,10 +144,20 @@ def main():
                 values = np.array(out[algorithm, n, lag])
                 means[name, filter_label(algorithm, n), lag] = tuple(values.mean(axis=0))
                 cells.append(f"{values[:, 0].mean():.2f} / {values[:, 1].mean():.1f}")
-            lines.append(f"| {name} | {filter_label(algorithm, n)} | " + " | ".join(cells) + " |")
+                cell = f"{name}_{algorithm}{n or ''}_lag{'offline' if lag is None else lag}"
+                figures_found[f"{cell}_error"], figures_found[f"{cell}_delay"] = (
+                    round(float(v), 6) for v in values.mean(axis=0))
+            table.append(f"| {name} | {filter_label(algorithm, n)} | " + " | ".join(cells) + " |")
+    lines = [f"Machine: {platform.machine()}, Python {platform.python_version()}, numpy {np.__version__}; "
+             f"{time.strftime('%Y-%m-%d')}; {args.runs} runs a plant, seed {args.seed}, {seconds:.0f} s.", "",
+             "Diagnosis error % (mean over runs) / detection delay in steps (mean over switches and runs, "
+             "lag included), by lag:", "", *table]
     folder.mkdir(parents=True, exist_ok=True)
     (folder / "table.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
+    record("studies/smoothing", {"table": "\n".join(table), **figures_found},
+           f"python benchmarks/studies/smoothing.py --runs {args.runs} --seed {args.seed}",
+           timings={"seconds": round(seconds, 1)}, path=args.ledger)
     draw(means, args.runs, FIGURES / "smoothing.png")
     print(f"figure: {FIGURES / 'smoothing.png'}")
 

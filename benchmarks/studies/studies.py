@@ -7,6 +7,10 @@ benchmarks/studies/results/<study>/ and figures in docs/figures/<study>-*.png.
     python benchmarks/studies/studies.py                            # every study, 25 runs (about 35 minutes on 2 cores)
     python benchmarks/studies/studies.py --redraw                   # the figures again from the saved runs
 
+Each study's tables and figures also go into the results ledger (benchmarks/ledger.json) as
+`studies/<study>`: its error tables as docs/studies.md quotes them (Markdown), every filter's mean
+error and SD at every particle count, and its times per step (recorded, never compared).
+
 Every study draws fresh sequences per run from a fixed mode schedule (the published sequences where
 the source study printed them, else a hand-made one that visits every mode along allowed
 transitions), so a run's data and filter seeds follow from --seed alone.
@@ -30,7 +34,7 @@ from jmlgdsl.simulate import parse_schedule
 
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "benchmarks"))
-from ledger import machine  # noqa: E402  (the machine's description, as the results ledger records it)
+from ledger import ledger_argument, machine, record  # noqa: E402  (the results ledger)
 
 SPECS, FIGURES, RESULTS = ROOT / "specs", ROOT / "docs" / "figures", Path(__file__).resolve().parent / "results"
 REDRAW = False  # --redraw: the sweeps' figures from the runs saved in RESULTS, nothing run and no table written
@@ -83,6 +87,8 @@ TABLE_D_4 = [(1, 78.3, 72.8), (4, 66.2, 24.2), (10, 31.7, 17.1), (25, 21.9, 11.0
              (200, 8.2, 8.2)]  # RBPF: N, error at 0 % and at 320 %
 TABLE_D_5 = [(1, 27.38, 25.42), (4, 19.12, 9.02), (10, 12.04, 8.58), (25, 7.80, 7.78), (50, 6.80, 7.16),
              (100, 6.86, 7.26), (200, 6.70, 7.20)]  # la-RBPF: N, error at 0 % and at 320 %
+TABLE_D_7 = [(1, 38.72, 35.60), (4, 10.40, 9.00), (10, 8.44, 7.86), (25, 5.16, 4.76), (50, 5.48, 5.00),
+             (100, 4.06, 4.18), (200, 3.18, 3.22)]  # heat exchanger, la-RBPF, normal-flow row: N, 0 % and 320 %
 
 
 def check_schedule(model, schedule):
@@ -115,18 +121,54 @@ def one_sweep(args, name, model, sources, filters, particles, **options):
                        progress=sys.stderr, **options)
 
 
-def publish(name, model, records, reference=None, title=None):
-    """Write a study's tables (results/<name>/) and figures (docs/figures/<name>-*.png)."""
+def publish(name, model, records, reference=None, title=None) -> dict:
+    """Write a study's tables (results/<name>/) and figures (docs/figures/<name>-*.png); return what
+    the ledger records of it (`ledger_figures`, and the table beside the published one when there is
+    a `reference`)."""
     summary = sweep.summarise(records)
     figures.study_figures(FIGURES, name, title or model.name, model.dt, summary, records, reference)
     if REDRAW:
-        return
+        return {}
     folder = RESULTS / name
     folder.mkdir(parents=True, exist_ok=True)
     sweep.write_records_csv(folder / "runs.csv", records)
     sweep.write_table_csv(folder / "table.csv", summary)
     (folder / "table.md").write_text(sweep.report(summary))
     print(sweep.markdown_table(summary))
+    found = ledger_figures(summary)
+    if reference:
+        found["published"] = published_table(summary, reference)
+    return found
+
+
+def ledger_figures(summary) -> dict:
+    """What the ledger records of one sweep: each filter's mean error % and its SD at each particle
+    count (`<filter>_<N>_error_mean`, `..._sd`; a filter without particles drops the N), its error
+    table as docs/studies.md quotes it (`errors`) and its times per step (`ms_per_step`, a table:
+    like every table in the ledger, never compared with a re-run's)."""
+    found = {}
+    for r in summary:
+        cell = r["filter"] + ("" if r["particles"] is None else f"_{r['particles']}")
+        found[f"{cell}_error_mean"] = round(r["error_mean"], 6)
+        found[f"{cell}_error_sd"] = None if np.isnan(r["error_sd"]) else round(r["error_sd"], 6)
+    found["errors"] = sweep.markdown_table(summary, titled=False)
+    found["ms_per_step"] = sweep.markdown_table(summary, "ms_per_step", titled=False)
+    return found
+
+
+def published_table(summary, reference) -> str:
+    """Ours beside the published errors, 'mean (SD)': a column pair for each filter the source
+    study published (`reference`: {filter: [(N, mean, SD), ...]}), one column for the others."""
+    counts, filters, cells = sweep.wide(summary)
+    published = {(name, n): f"{mean:.2f} ({sd:.2f})" for name, rows in reference.items() for n, mean, sd in rows}
+    columns = [(f, kind) for f in filters for kind in (("published", "ours") if f in reference else ("ours",))]
+    lines = ["| N | " + " | ".join(f"{f} {kind}" if f in reference else f for f, kind in columns) + " |",
+             "|---|" + "---|" * len(columns)]
+    for n in counts:
+        row = [published.get((f, n), "") if kind == "published" else
+               sweep.mean_sd(cells[f, n], "error", 2) if (f, n) in cells else "" for f, kind in columns]
+        lines.append(f"| {'—' if n is None else n} | " + " | ".join(row) + " |")
+    return "\n".join(lines)
 
 
 def diagnosis_example(name, model, schedule, algorithm, particles, seed, plant=None, prefilter=None, run=0,
@@ -156,15 +198,16 @@ def linear_study(args, name, spec, schedule, reference=None, model=None, title=N
     model = model or jmlgdsl.load(SPECS / spec)
     check_schedule(model, schedule)
     records = one_sweep(args, name, model, [sweep.Simulated(None, schedule, name)], args.filters, args.particles)
-    publish(name, model, records, reference, title)
+    found = publish(name, model, records, reference, title)
     diagnosis_example(name, model, schedule, *example, args.seed)
     if worst and example[0] in args.filters and example[1] in args.particles:
         worst_example(name, model, schedule, records, *example, args.seed)
+    return found
 
 
 def dryer(args, seq):
     """One of the published dryer sequences; sequence 1 is drawn beside the published Table 5.5."""
-    linear_study(args, f"dryer-{seq}", "dryer.jmlg", DRYER[seq], TABLE_5_5 if seq == "seq1" else None,
+    return linear_study(args, f"dryer-{seq}", "dryer.jmlg", DRYER[seq], TABLE_5_5 if seq == "seq1" else None,
                  title=f"Dryer, sequence {seq[-1]}")
 
 
@@ -174,8 +217,9 @@ def cstr(args, name):
     model = sweep.nonlinear_plant(spec).model
     source = sweep.Simulated(None, SCHEDULES[name], name, plant=spec)
     records = one_sweep(args, name, model, [source], args.filters, args.particles)
-    publish(name, model, records, title=f"{name.upper()} ({model.K} modes, nonlinear data)")
+    found = publish(name, model, records, title=f"{name.upper()} ({model.K} modes, nonlinear data)")
     diagnosis_example(name, model, SCHEDULES[name], "la-rbpf", 10, args.seed, plant=spec)
+    return found
 
 
 def with_measurement_noise(model, level):
@@ -187,7 +231,7 @@ def robot8(args, level):
     """The 8-mode robot with measurement noise `level` times its process noise."""
     name = f"robot8-noise{level}"
     model = with_measurement_noise(jmlgdsl.load(SPECS / "robot8.jmlg"), level)
-    linear_study(args, name, None, SCHEDULES["robot8"], model=model, title=f"Robot, 8 modes, n_m = {level} n_p")
+    return linear_study(args, name, None, SCHEDULES["robot8"], model=model, title=f"Robot, 8 modes, n_m = {level} n_p")
 
 
 def perturbed(model, percent, rows=None):
@@ -201,8 +245,9 @@ def perturbed(model, percent, rows=None):
     return model.replace(P=P, name=f"{model.name}, P {percent:+d} %")
 
 
-def robustness(args, name, spec, schedule, filters, rows=None):
-    """Filters built on a perturbed transition matrix, data from the published one (paired runs)."""
+def robustness(args, name, spec, schedule, filters, published, rows=None) -> dict:
+    """Filters built on a perturbed transition matrix, data from the published one (paired runs);
+    `published`: {filter: [(N, error at 0 %, error at 320 %), ...]} of the source study's table."""
     true = jmlgdsl.load(SPECS / spec)
     particles = tuple(n for n in args.particles if n <= 200)
     records = []
@@ -219,6 +264,31 @@ def robustness(args, name, spec, schedule, filters, rows=None):
         print(text)
     variation_figure(summary, filters, FIGURES / f"{name}.png",
                      f"{true.name}: the filters' transition matrix perturbed,\ndata from the published one")
+    if REDRAW:
+        return {}
+    found = {f"{r['filter']}_{r['particles']}_{r['data'].rstrip('%')}pct_error_mean": round(r["error_mean"], 6)
+             for r in summary}
+    found |= {f"{f}_errors": variation_table(summary, f) for f in filters}
+    found["published"] = published_variation_table(summary, published)
+    return found
+
+
+def published_variation_table(summary, published) -> str:
+    """The published errors at 0 % and at the largest perturbation beside ours, by N and filter."""
+    top = f"{VARIATIONS[-1]}%"
+    cells = {(r["filter"], r["particles"], r["data"]): r["error_mean"] for r in summary}
+    filters = list(published)
+    lines = ["| N | " + " | ".join(f"{f} published 0 % → {VARIATIONS[-1]} % | {f} ours" for f in filters) + " |",
+             "|---|" + "---|---|" * len(filters)]
+    counts = sorted({n for rows in published.values() for n, _, _ in rows})
+    for n in counts:
+        row = []
+        for f in filters:
+            at = {m: (a, b) for m, a, b in published[f]}
+            row.append(f"{at[n][0]:.2f} → {at[n][1]:.2f}" if n in at else "")
+            row.append(f"{cells[f, n, '0%']:.2f} → {cells[f, n, top]:.2f}" if (f, n, "0%") in cells else "")
+        lines.append(f"| {n} | " + " | ".join(row) + " |")
+    return "\n".join(lines)
 
 
 def variation_table(summary, name):
@@ -261,19 +331,31 @@ def prefilter(args, name, model_level, data_level=None):
     schedule = SCHEDULES["robot8"]
     filters = ("rbpf", "la-rbpf", "fc-rbpf")
     particles = tuple(n for n in args.particles if n <= 400)
+    found, means = {}, {}
     for window in (None, 3, 5):
         label = "raw" if window is None else f"ma{window}"
         source = sweep.Simulated(None, schedule, label, plant)
         records = one_sweep(args, f"{name} {label}", model, [source], filters, particles, prefilter=window)
-        publish(f"{name}-{label}", model, records,
-                title=f"Robot, 8 modes, {noise}, {'raw' if window is None else f'moving average of {window}'}")
+        title = f"Robot, 8 modes, {noise}, {'raw' if window is None else f'moving average of {window}'}"
+        found |= {f"{label}_{key}": value for key, value in
+                  publish(f"{name}-{label}", model, records, title=title).items()}
+        means |= {(r["filter"], label, r["particles"]): r["error_mean"] for r in sweep.summarise(records)}
     diagnosis_example(f"{name}-ma5", model, schedule, "la-rbpf", 10, args.seed, plant=plant, prefilter=5)
+    if found:
+        labels = ("raw", "ma3", "ma5")
+        columns = [(f, label) for f in filters for label in labels]
+        lines = ["| N | " + " | ".join(f"{f} {label.replace('ma', 'ma:')}" for f, label in columns) + " |",
+                 "|---|" + "---|" * len(columns)]
+        lines += [f"| {n} | " + " | ".join(f"{means[f, label, n]:.2f}" for f, label in columns) + " |"
+                  for n in particles]
+        found["errors"] = "\n".join(lines)
+    return found
 
 
 STUDIES = {
     **{f"dryer-{seq}": (lambda args, seq=seq: dryer(args, seq)) for seq in DRYER},
     "dryer-transitions": lambda args: robustness(args, "dryer-transitions", "dryer.jmlg", DRYER["seq1"],
-                                                 ("rbpf", "la-rbpf")),
+                                                 ("rbpf", "la-rbpf"), {"rbpf": TABLE_D_4, "la-rbpf": TABLE_D_5}),
     "level-tank4": lambda args: linear_study(args, "level-tank4", "level_tank4.jmlg", SCHEDULES["level_tank4"],
                                              TABLE_D_6, title="Level tank, 4 modes", worst=True),
     "level-tank5": lambda args: linear_study(args, "level-tank5", "level_tank5.jmlg", SCHEDULES["level_tank5"],
@@ -281,7 +363,8 @@ STUDIES = {
     "heat-exchanger": lambda args: linear_study(args, "heat-exchanger", "heat_exchanger.jmlg",
                                                 SCHEDULES["heat_exchanger"], title="Heat exchanger"),
     "heat-exchanger-transitions": lambda args: robustness(args, "heat-exchanger-transitions", "heat_exchanger.jmlg",
-                                                          SCHEDULES["heat_exchanger"], ("la-rbpf",), rows=[2]),
+                                                          SCHEDULES["heat_exchanger"], ("la-rbpf",),
+                                                          {"la-rbpf": TABLE_D_7}, rows=[2]),
     "robot-smooth": lambda args: linear_study(args, "robot-smooth", "robot_smooth.jmlg", SCHEDULES["robot_smooth"],
                                               title="Robot, smooth floor"),
     **{f"robot8-noise{level}": (lambda args, level=level: robot8(args, level)) for level in (1, 2, 4)},
@@ -305,12 +388,16 @@ def main(argv=None):
     parser.add_argument("--redraw", action="store_true",
                         help="draw the sweeps' figures again from the runs saved in the results folder (after the "
                              "figure code changed); nothing is run and no table is written")
-    parser.add_argument("--out", type=Path, help="write to OUT/figures and OUT/results instead (to compare first)")
+    parser.add_argument("--out", type=Path, help="write to OUT/figures, OUT/results and OUT/ledger.json instead "
+                                                  "(to compare first)")
+    ledger_argument(parser)
     args = parser.parse_args(argv)
     global FIGURES, RESULTS, REDRAW
     REDRAW = args.redraw
     if args.out:
         FIGURES, RESULTS = args.out / "figures", args.out / "results"
+        if "--ledger" not in " ".join(sys.argv if argv is None else argv):
+            args.ledger = args.out / "ledger.json"
     if args.list:
         print("\n".join(STUDIES))
         return
@@ -322,7 +409,7 @@ def main(argv=None):
     FIGURES.mkdir(parents=True, exist_ok=True)
     for name in args.studies or STUDIES:
         start = time.perf_counter()
-        STUDIES[name](args)
+        found = STUDIES[name](args)
         if REDRAW:
             continue
         seconds = time.perf_counter() - start
@@ -331,6 +418,8 @@ def main(argv=None):
         log.write_text(json.dumps({"study": name, "seconds": round(seconds, 1), "runs": args.runs,
                                    "seed": args.seed, "command": " ".join(["python", *sys.argv]),
                                    "machine": machine()}, indent=1) + "\n")
+        command = f"python benchmarks/studies/studies.py --runs {args.runs} --seed {args.seed} {name}"
+        record(f"studies/{name}", found, command, timings={"seconds": round(seconds, 1)}, path=args.ledger)
         print(f"{name}: {seconds:.0f} s", file=sys.stderr)
 
 

@@ -272,7 +272,7 @@ def summarise(records) -> list[dict]:
     return rows
 
 
-def _wide(summary):
+def wide(summary):
     """(particle-count rows, filter columns, cell lookup) for one data source; deterministic filters
     (no particle count) share a last row."""
     filters = list(dict.fromkeys(r["filter"] for r in summary))
@@ -302,12 +302,14 @@ QUANTITIES = {
 }
 
 
-def markdown_table(summary, quantity="error") -> str:
+def markdown_table(summary, quantity="error", titled=True) -> str:
     """A Markdown table shaped like the published Table 5.5: one row per particle count N, one
-    column per filter; deterministic filters fill the row N = '—'."""
+    column per filter; deterministic filters fill the row N = '—'. `titled`: the quantity's title
+    above it."""
     title, cell = QUANTITIES[quantity]
-    counts, filters, cells = _wide(summary)
-    lines = [f"{title}", "", "| N | " + " | ".join(filters) + " |", "|---|" + "---|" * len(filters)]
+    counts, filters, cells = wide(summary)
+    lines = [f"{title}", ""] if titled else []
+    lines += ["| N | " + " | ".join(filters) + " |", "|---|" + "---|" * len(filters)]
     for n in counts:
         row = [cell(cells[f, n]) if (f, n) in cells else "" for f in filters]
         lines.append(f"| {'—' if n is None else n} | " + " | ".join(row) + " |")
@@ -354,7 +356,7 @@ def write_table_csv(path, summary):
         writer = csv.writer(stream, lineterminator="\n")
         writer.writerow(["lag", "particles"] + [f"{f}_{k}" for f in filters for k in keys])
         for lag in dict.fromkeys(r.get("lag", 0) for r in summary):
-            counts, _, cells = _wide([r for r in summary if r.get("lag", 0) == lag])
+            counts, _, cells = wide([r for r in summary if r.get("lag", 0) == lag])
             for n in counts:
                 writer.writerow([lag_cell(lag), "" if n is None else n] + [
                     _cell(cells[f, n][k]) if (f, n) in cells else "" for f in filters for k in keys])
