@@ -13,12 +13,18 @@ the steady rate beside it leaves the start out: the same command on files of one
 measures the start, and the steady rate is the other rows over the rest of the time. The per-row
 cost of the source, actor and store path is the steady time per row and shard less the diagnosis's
 own (a Fleet fed the same rows in this process, its units in one vectorised filter with their
-evidence, as the monitor keeps them).
+evidence, as the monitor keeps them). The memory a unit holds is what tracemalloc sees a monitor
+of 2,000 units hold beyond one of 200 (its diagnosis, alarm rule, its share of the filter), per unit.
+
+The figures go into the results ledger (benchmarks/ledger.json) as `fleet/monitor`, with the
+sizing table of docs/fleet.md ("How much machine a fleet needs") worked out from them: rows a
+second per shard, store bytes per row and memory per unit, for plants of 200 to 100,000 units.
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import platform
 import sqlite3
@@ -26,13 +32,20 @@ import subprocess
 import sys
 import tempfile
 import time
+import tracemalloc
 from pathlib import Path
 
 import jmlgdsl
 from jmlgdsl.data import iter_rows, open_source
 from jmlgdsl.diagnosis.fleet import Fleet
+from jmlgdsl.monitor import Monitor, Store, monitor_options
+from jmlgdsl.monitor.sources import open_bus
+
+from ledger import ledger_argument, record
 
 SPEC = Path(__file__).resolve().parent.parent / "specs" / "dryer.jmlg"
+#: The plants docs/fleet.md sizes: (units, seconds between samples).
+PLANTS = ((200, 1), (1_000, 1), (10_000, 1), (10_000, 10), (100_000, 1), (100_000, 60))
 
 
 def write_units(folder: Path, units: list[str], rows: int):
@@ -74,20 +87,66 @@ def filter_cost(folder: Path, units: list[str]) -> float:
     return (time.perf_counter() - start) / sum(map(len, records))
 
 
+def held(folder: Path, count: int) -> int:
+    """Bytes tracemalloc sees a monitor of `count` units (files of one row each, not yet read) hold."""
+    units = [f"m{k:05d}" for k in range(count)]
+    write_units(folder, units, 1)
+    model = jmlgdsl.load(SPEC)
+    with Store(folder / "store.db") as store:
+        source = open_bus(str(folder / "{unit}.csv"), model, {}, follow=False, units=units)
+        tracemalloc.start()
+        before = tracemalloc.get_traced_memory()[0]
+        monitor = Monitor(model, store, source, spec=None, options=monitor_options(), tags={}, units=units)
+        size = tracemalloc.get_traced_memory()[0] - before
+        tracemalloc.stop()
+        del monitor
+    return size
+
+
+def per_unit_memory(folder: Path, small: int = 200, large: int = 2000) -> float:
+    """Bytes a monitor holds per unit: a monitor of `large` units against one of `small`."""
+    return (held(folder / "memory-large", large) - held(folder / "memory-small", small)) / (large - small)
+
+
+def sizing(rate: float, store_bytes: float, memory: float) -> str:
+    """docs/fleet.md's table: for each plant, rows a second, the shards (cores) at `rate` rows a second
+    each, the store a day at `store_bytes` a row, and the memory at `memory` bytes a unit."""
+    def size(value, units, step=1000):
+        for unit in units[:-1]:
+            if value < step * 0.95:
+                return f"{value:.1f} {unit}" if value < 10 else f"{value:,.0f} {unit}"
+            value /= step
+        return f"{value:.1f} {units[-1]}" if value < 10 else f"{value:,.0f} {units[-1]}"
+    lines = [f"| units | sampled every | rows/s | shards (cores) at {rate:,.0f} rows/s each | store per day | memory |",
+             "|---:|---:|---:|---:|---:|---:|"]
+    for units, every in PLANTS:
+        rows = units / every
+        shards = math.ceil(rows / rate)
+        load = f" ({rows / rate:.0%} of a core)" if shards == 1 else ""
+        lines.append(f"| {units:,} | {every} s | {rows:,.0f} | {shards}{load} | "
+                     f"{size(rows * 86400 * store_bytes, ('B', 'kB', 'MB', 'GB', 'TB'))} | "
+                     f"{size(units * memory, ('B', 'KiB', 'MiB', 'GiB'), 1024)} |")
+    return "\n".join(lines)
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--units", type=int, default=40)
     parser.add_argument("--rows", type=int, default=2000, help="rows per unit")
     parser.add_argument("--shards", type=int, nargs="+", default=[1, 2])
+    ledger_argument(parser)
     args = parser.parse_args()
     units = [f"u{k:03d}" for k in range(1, args.units + 1)]
+    found = {}
     with tempfile.TemporaryDirectory() as name:
         folder, short = Path(name) / "records", Path(name) / "one-row"
         write_units(folder, units, args.rows)
         write_units(short, units, 1)
         per_row = filter_cost(folder, units)
+        memory = per_unit_memory(Path(name))
         print(f"machine: {platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}; "
-              f"{args.units} dryers x {args.rows} rows; the diagnosis alone: {per_row * 1e6:.0f} us per row\n")
+              f"{args.units} dryers x {args.rows} rows; the diagnosis alone: {per_row * 1e6:.0f} us per row; "
+              f"a monitor holds {memory / 1024:.1f} KiB per unit\n")
         print("| monitor | wall s | rows/s (command) | rows/s (steady) | us per row beyond the diagnosis | store bytes/row |")
         print("|---|---:|---:|---:|---:|---:|")
         for shards in [None, *args.shards]:
@@ -95,8 +154,16 @@ def main():
             begun, first, _ = monitor(short, units, shards)
             steady = (rows - first) / (seconds - begun)
             what = "one process" if shards is None else f"Ray, {shards} shard{'s' if shards > 1 else ''}"
+            key = "process" if shards is None else f"ray{shards}"
+            found |= {f"{key}_rows_per_s": round(steady), f"{key}_us_per_row": round(1e6 * (shards or 1) / steady),
+                      f"{key}_us_beyond_diagnosis": round(((shards or 1) / steady - per_row) * 1e6),
+                      f"{key}_store_bytes_per_row": round(size / rows)}
             print(f"| {what} | {seconds:.1f} (start {begun:.1f}) | {rows / seconds:,.0f} | {steady:,.0f} | "
-                  f"{((shards or 1) / steady - per_row) * 1e6:,.0f} | {size / rows:,.0f} |", flush=True)
+                  f"{found[f'{key}_us_beyond_diagnosis']:,} | {size / rows:,.0f} |", flush=True)
+    found |= {"diagnosis_us_per_row": round(per_row * 1e6, 1), "memory_kib_per_unit": round(memory / 1024, 1),
+              "sizing": sizing(found["process_rows_per_s"], found["process_store_bytes_per_row"], memory)}
+    print("\n" + found["sizing"])
+    record("fleet/monitor", found, "python benchmarks/bench_shards.py " + " ".join(sys.argv[1:]), path=args.ledger)
 
 
 if __name__ == "__main__":
