@@ -82,6 +82,55 @@ def test_batched_imm_equals_each_unit_alone_bit_for_bit(spec, request):
         assert_same(batched, jmlgdsl.filter(model, y, u, algorithm="imm"))
 
 
+def own_numbers(model, units, seed):
+    """`units` banks of the model's shape, each with its own numbers: dynamics, offsets, noise and
+    sensor offsets moved at random (a fleet of one design whose units were each fitted)."""
+    rng = np.random.default_rng(seed)
+    return [model.replace(A=model.A * rng.uniform(0.97, 1.0), f=model.f + rng.normal(0, 0.3, model.f.shape),
+                          g=model.g + rng.normal(0, 0.5, model.g.shape), B=model.B * rng.uniform(0.7, 1.4),
+                          D=model.D * rng.uniform(0.7, 1.4))
+            for _ in range(units)]
+
+
+@pytest.mark.parametrize("spec", ["dryer", "wide", "many"])
+def test_units_with_their_own_numbers_step_together_each_as_alone(spec, request, monkeypatch):
+    """Each unit's own bank (models=), stacked under one vectorised IMM: every unit's results are those
+    of filtering it alone under its own bank, bit for bit, through the same gaps, gross errors and
+    inputs, and the units still step together (one covariance step for every unit of a mask)."""
+    model = request.getfixturevalue(spec)
+    models = own_numbers(model, 5, seed=4)
+    ys, us = fleet_data(model, 5, 150, seed=1)
+    calls = []
+    step = kalman.covariance_step
+    monkeypatch.setattr(kalman, "covariance_step", lambda *a: calls.append(a[0].shape) or step(*a))
+    results = filter_units(model, ys, us, algorithm="imm", models=models)
+    assert max(shape[0] for shape in calls if len(shape) == 4) >= 4  # (units, K, nx, nx): units in one call
+    for batched, own, y, u in zip(results, models, ys, us):
+        assert_same(batched, jmlgdsl.filter(own, y, u, algorithm="imm"))
+    assert results[2].rejected.any()  # its absurd reading screened under its own bank
+
+
+@pytest.mark.parametrize("algorithm, particles", [("la-rbpf", 5), ("pf", 30)])
+def test_particle_filters_of_units_with_their_own_numbers_equal_each_alone(dryer, algorithm, particles):
+    models = own_numbers(dryer, 2, seed=5)
+    models = [models[0], models[1], models[0], models[1]]  # two banks, two units each: those step together
+    ys, us = fleet_data(dryer, 4, 80, seed=3)
+    results = filter_units(dryer, ys, us, algorithm=algorithm, particles=particles, seed=7, models=models)
+    for batched, own, y, u in zip(results, models, ys, us):
+        assert_same(batched, jmlgdsl.filter(own, y, u, algorithm=algorithm, particles=particles, seed=7))
+
+
+def test_units_whose_banks_differ_in_shape_are_refused(dryer):
+    other = jmlgdsl.load("specs/cstr4.jmlg")
+    with pytest.raises(FilterError, match="modes, outputs, inputs, states"):
+        Units(dryer, 2, models=[dryer, other])
+    with pytest.raises(FilterError, match="1 banks for 2 units"):
+        Units(dryer, 2, models=[dryer])
+    gated = dryer.replace(outlier_gate=np.full(dryer.ny, 5.0))
+    with pytest.raises(FilterError, match="gate"):
+        Units(dryer, 2, models=[dryer, gated])
+
+
 def test_the_wide_fleet_goes_through_every_path_of_the_step(wide, monkeypatch):
     """Kept Kalman pieces, units in groups by what they measured, and gross errors left out."""
     ys, us = fleet_data(wide, 5, 150)

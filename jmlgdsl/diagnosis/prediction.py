@@ -28,7 +28,7 @@ def predictive_sd(model, posterior, mean, cov, u) -> np.ndarray:
     """(ny,) standard deviation of the one-step prediction of each output of the row with inputs u,
     from the estimate after the row before it (mode posterior (K,), state mean (nx,), covariance
     (nx, nx)); for many units at once, (n, ny) from (n, K), (n, nx), (n, nx, nx) and (n, nu)."""
-    w = posterior @ model.P  # (..., K)
+    w = (posterior[..., None, :] @ model.P)[..., 0, :]  # (..., K); P (K, K), or a unit's own (n, K, K)
     b, c = offsets(model, u)  # (..., K, nx), (..., K, ny)
     S, _ = kalman.innovation_cov(kalman.predict_cov(cov[..., None, :, :], model.A, model.Q), model.C, model.R)
     means = (model.C @ (model.A @ mean[..., None, :, None])[..., 0][..., None] + b[..., None])[..., 0] + c

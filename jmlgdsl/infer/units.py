@@ -17,6 +17,11 @@ their systematic resampling (and la-rbpf's draw of modes) too, each unit with th
 Generator gives; each unit then merges its copies and grows its own graph. Every unit gets, bit for
 bit, what a Filter with the same seed gets alone.
 
+Units of one design need not share their numbers: `models=` gives each unit its own bank (its fitted
+spec: its own gain, settled temperature, sensor offsets). Banks of one shape (`stackable`) still step
+together, as `Stacked` arrays with a leading unit axis; the particle filters step together the units
+that share a bank.
+
     >>> import jmlgdsl
     >>> from jmlgdsl.infer.units import Units
     >>> model = jmlgdsl.load("specs/dryer.jmlg")
@@ -75,6 +80,39 @@ class Batch(NamedTuple):
             mine[rows] = theirs
 
 
+SHAPED = ("modes", "outputs", "inputs", "nx", "output_states")  # what units stepped together must share
+STACKED = ("P", "logP", "A", "Q", "R", "C", "F", "f", "G", "g")  # what a step of many units reads
+
+
+def stackable(models) -> bool:
+    """Whether these banks can step together as one `Stacked`: the same modes, outputs, inputs and
+    states, the same gate and input defaults (a step screens and fills every unit alike)."""
+    first = models[0]
+    return all(m is first or (all(getattr(m, k) == getattr(first, k) for k in SHAPED)
+                              and np.array_equal(m.outlier_gate, first.outlier_gate)
+                              and np.array_equal(m.input_defaults, first.input_defaults, equal_nan=True))
+               for m in models)
+
+
+class Stacked:
+    """The banks of many units of one shape, each with its own numbers, as one: every array a step
+    of many units reads (STACKED: BatchIMM's, the predictive bands') with a leading unit axis, so
+    the arithmetic, which broadcasts over leading axes, runs every unit under its own matrices in
+    the same calls."""
+
+    def __init__(self, models, arrays=None):
+        self.models = models
+        self.output_states = models[0].output_states
+        for name in STACKED:
+            setattr(self, name, np.stack([getattr(m, name) for m in models]) if arrays is None else arrays[name])
+
+    def take(self, rows) -> "Stacked":
+        """The units at positions `rows` (an index array; ALL: every one)."""
+        if rows is ALL:
+            return self
+        return Stacked([self.models[i] for i in rows], {name: getattr(self, name)[rows] for name in STACKED})
+
+
 class BatchIMM:
     """IMM over `count` units: mode log-probabilities (U, K), per-mode moments (U, K, nx[, nx]) and,
     for the units whose last posterior was sure of its mode, `refresh`'s kept pieces (each unit's
@@ -84,15 +122,18 @@ class BatchIMM:
 
     STATE = ("log_mu", "means", "covs", "sure", "_mask", "_base", "_tol", "_Sig", "_Linv", "_logdet", "_gain")
 
-    def __init__(self, model: Model, count: int):
+    def __init__(self, model: Model, count: int, models=None):
         K, nx, ny = model.K, model.nx, model.ny
         self.model, self.count = model, count
+        # each unit's bank: one shared (every array as the model has it), or the units' own, stacked
+        self.models = None if models is None or all(m is model for m in models) else list(models)
+        self.bank = model if self.models is None else Stacked(self.models)
+        banks = [model] * count if self.models is None else self.models
         with np.errstate(divide="ignore"):
-            self.log_mu = np.tile(np.log(model.p0), (count, 1))
-        self.means = np.tile(model.mu0, (count, 1, 1))
-        self.covs = np.tile(model.Sigma0, (count, K, 1, 1))
+            self.log_mu = np.log(np.array([m.p0 for m in banks]))
+        self.means = np.array([m.mu0 for m in banks])
+        self.covs = np.array([np.broadcast_to(m.Sigma0, (K, nx, nx)) for m in banks])
         self.sure = np.zeros(count, dtype=bool)
-        self._C = model.C if model.output_states is None else model.output_states
         self._gate = model.outlier_gate
         self._bound = Gate.of(self._gate).bound
         # kept pieces, valid where `sure`: the mask, the covariances they belong to and their
@@ -107,15 +148,15 @@ class BatchIMM:
         """Condition the units `units` (all, or an index array) on readings y (n, ny), measured where
         mask (n, ny) is True, under inputs u (n, nu); enforce (n, ny) says where each unit's gate
         leaves out a gross error (None: no gate). Units sharing a mask share every call."""
-        model = self.model
+        bank = self._bank(units)
         # the mode log-probabilities with the unit axis innermost in memory: numpy lays the mixing's
         # joint array out after them, so its reductions over the previous mode run over planes of
         # every unit instead of rows of K (the same operations, and mix_t's matrices the same but for
         # their leading dimension; a step at 1,000 units 10 to 25 % faster)
-        log_pred, mixed, covs = mix(np.asfortranarray(self.log_mu[units]), model.logP, self.means[units],
+        log_pred, mixed, covs = mix(np.asfortranarray(self.log_mu[units]), bank.logP, self.means[units],
                                     self.covs[units])
         # units under the same inputs (the usual case) share their offsets, computed once
-        mu_p, y_pred = predict(model, self._C, mixed, u[:1] if (u == u[0]).all() else u)
+        mu_p, y_pred = predict(bank, _reads(bank), mixed, u[:1] if (u == u[0]).all() else u)
         prior = log_pred, covs, mu_p, y_pred
         if (mask == mask[0]).all():
             batch, self.predictives = self._group(_index(units, ALL), y, mask[0], u, prior, enforce)
@@ -136,20 +177,25 @@ class BatchIMM:
                 getattr(self, name)[units] = getattr(batch, name)
         return batch
 
+    def _bank(self, units):
+        """The banks of the units `units` (ALL, or an index array): the shared model, or theirs stacked."""
+        return self.bank if self.models is None else self.bank.take(units)
+
     def _group(self, units, y, mask, u, prior, enforce) -> tuple[Batch, list]:
         """`step` for units that share one mask (ny,); prior holds their mixing and predictions. With the
         batch, its predictives as [(positions in the group, Predictive)]: one for the units that used
         every reading, one for each unit whose gate left readings out."""
         log_pred, covs, mu_p, y_pred = prior
+        bank = self._bank(units)
         m = np.count_nonzero(mask)
         reusable = self.sure[units]
         if reusable.any() and (reusable := reusable & (self._mask[units] == mask).all(axis=-1)).any():
             kept = (self._base[units], tuple(np.ascontiguousarray(p) for p in (
                 self._Linv[units][..., :m, :m], self._logdet[units], self._gain[units][..., :m, :], self._Sig[units])),
                 self._tol[units])
-            (Linv, logdet, gain_t, covs), kept = refresh(self.model, self._C, covs, mask, kept, reusable)
+            (Linv, logdet, gain_t, covs), kept = refresh(bank, _reads(bank), covs, mask, kept, reusable)
         else:  # `refresh` with nothing kept, less its tolerances: `_keep` takes them for the units it keeps
-            pieces = kalman.covariance_step(covs, self.model.A, self.model.Q, self._C, self.model.R, mask)
+            pieces = kalman.covariance_step(covs, bank.A, bank.Q, _reads(bank), bank.R, mask)
             (Linv, logdet, gain_t, covs), kept = pieces, (covs, pieces, None)
         r, quad = whitened(y, mask, y_pred, Linv)
         heard = Predictive(np.arange(log_pred.shape[-1]), log_pred, r, Linv, mask)
@@ -200,12 +246,19 @@ class _Unit:
     redone from the same prior (its batch kept for the caller, the state left as it was)."""
 
     def __init__(self, batch: BatchIMM, unit, prior):
-        self.model, self._batch, self._unit, self._prior = batch.model, batch, unit, prior
+        self.model = batch.model if batch.models is None else batch.models[int(unit[0])]  # the unit's own bank
+        self._batch, self._unit, self._prior = batch, unit, prior
 
     def step(self, y, mask, u, gate=None) -> Estimate:
         self.batch, [(_, self.predictive)] = self._batch._group(self._unit, y[None], mask, u[None], self._prior, None)
         b = self.batch
         return Estimate(b.post[0], b.mean[0], b.cov[0], b.y_pred[0], float(b.loglik[0]), np.nan)
+
+
+def _reads(bank):
+    """What the outputs read of the states, as kalman takes it: the slice of the states they are, or
+    the bank's C (a unit axis first where the bank is Stacked)."""
+    return bank.C if bank.output_states is None else bank.output_states
 
 
 def _groups(mask):
@@ -257,24 +310,35 @@ class Units:
     inputs) per unit. The options are a Filter's; every unit gets the same seed, as it would alone.
     `units=` steps only some units (those whose data go on), leaving the others where they are.
 
-    `filters=` steps the units' own Filters instead (one model and algorithm, no lag; their count is
-    the count, imm's too unit after unit): each goes on as itself, so whatever saves a Filter (a
-    Diagnosis's checkpoint) saves its unit."""
+    `models=` gives unit i its own bank models[i] (`stackable` with `model`, which names the outputs
+    and inputs every unit reads).
+
+    `filters=` steps the units' own Filters instead (one algorithm, no lag, banks stackable; their
+    count is the count, imm's too unit after unit): each goes on as itself, so whatever saves a
+    Filter (a Diagnosis's checkpoint) saves its unit."""
 
     def __init__(self, model: Model, count: int, algorithm: str = DEFAULT_ALGORITHM, particles: int | None = None,
-                 seed=None, resampling: str = "systematic", ess_threshold: float = 1.0, filters=None):
+                 seed=None, resampling: str = "systematic", ess_threshold: float = 1.0, filters=None, models=None):
         if filters is not None:
             filters = list(filters)
-            count, algorithm = len(filters), filters[0].algorithm
+            count, algorithm, models = len(filters), filters[0].algorithm, [f.model for f in filters]
             if any(f.lag != 0 for f in filters):
                 raise FilterError("the units' filters must have no lag: a step gives each unit's record of that row")
         if isinstance(count, bool) or not isinstance(count, (int, np.integer)) or count < 1:
             raise FilterError(f"the number of units must be a positive whole number, got {count!r}")
+        if models is not None:
+            models = list(models)
+            if len(models) != count:
+                raise FilterError(f"{len(models)} banks for {count} units: give one bank per unit")
+            if not stackable([model, *models]):
+                raise FilterError("the units' banks must have the model's modes, outputs, inputs, states, gate and "
+                                  "input defaults to step together")
         self.model, self.count, self.algorithm = model, count, algorithm
-        self._filters = filters or [Filter(model, algorithm, particles, seed, resampling, ess_threshold)
-                                    for _ in range(1 if algorithm == "imm" else count)]
+        banks = models or [model] * count
+        self._filters = filters or [Filter(banks[i], algorithm, particles, seed, resampling, ess_threshold)
+                                    for i in range(1 if algorithm == "imm" else count)]
         self.particles = self._filters[0].particles
-        self._engine = BatchIMM(model, count) if filters is None and algorithm == "imm" else None
+        self._engine = BatchIMM(model, count, models) if filters is None and algorithm == "imm" else None
         self.t = np.array([f.t for f in self._filters] if filters else np.zeros(count), dtype=np.int64)
         self.loglik = np.array([f.loglik for f in self._filters] if filters else np.zeros(count), dtype=float)
         self.seconds = 0.0  # time spent inside step(), for every unit together
@@ -345,8 +409,8 @@ class Units:
         groups = {}
         together = next((step for kind, step in STEPPED_TOGETHER if isinstance(filters[0].engine, kind)), None)
         if together is not None:
-            for i, f in enumerate(filters):
-                groups.setdefault((mask[i].tobytes(), len(f.engine.z)), []).append(i)
+            for i, f in enumerate(filters):  # units of one bank that measured the same and hold as many particles
+                groups.setdefault((id(f.model), mask[i].tobytes(), len(f.engine.z)), []).append(i)
         for members in groups.values():
             if len(members) > 1:
                 try:
