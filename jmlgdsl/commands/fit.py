@@ -1,4 +1,5 @@
-"""`jmlgdsl fit SPEC DATA.csv [MORE.csv ...] -o FITTED.jmlg`: fit a spec's unknowns to recorded data."""
+"""`jmlgdsl fit SPEC DATA.csv [MORE.csv ...] -o FITTED.jmlg`: fit a spec's unknowns to recorded data;
+`jmlgdsl fit SPEC u1.csv u2.csv ... -o DIR/`: each file a unit of the plant, fitted on its own."""
 
 from __future__ import annotations
 
@@ -21,10 +22,15 @@ def register(subparsers):
                     "cannot tell apart, warns when the fit did not converge or its curvature cannot be trusted, "
                     "and writes the spec with the fitted values.")
     p.add_argument("spec", help="plant spec (.jmlg) with unknowns")
-    p.add_argument("data", nargs="+", metavar="DATA", help="CSV recordings of the plant (several: one likelihood)")
-    p.add_argument("-o", "--output", default="-", metavar="FITTED.jmlg",
+    p.add_argument("data", nargs="+", metavar="DATA",
+                   help="CSV recordings of the plant (several: one likelihood; with -o DIR/, one unit each)")
+    p.add_argument("-o", "--output", default="-", metavar="FITTED.jmlg|DIR/",
                    help="where to write the fitted spec (default: standard output; the report goes to "
-                        "standard error)")
+                        "standard error). A folder (ending in / or existing) fits each data file as a unit of "
+                        "the plant on its own, in parallel: DIR/NAME.jmlg for each NAME.csv, and DIR/units.csv, "
+                        "every unit's values and standard errors side by side (for run --unit-specs DIR/)")
+    p.add_argument("--jobs", type=int, metavar="N",
+                   help="with -o DIR/: fit N units at a time (default: one per core)")
     p.add_argument("--filter", default="imm", choices=list(ALGORITHMS),
                    help="the filter whose likelihood is used for unlabelled data (default imm: deterministic "
                         "and smooth in the unknowns; a particle filter's likelihood is noisy)")
@@ -48,9 +54,17 @@ def register(subparsers):
 
 
 def main(args) -> int:
+    import os
+
     from ..fitting import fit
     from ..output import check_file
 
+    if args.output.endswith(("/", os.sep)) or os.path.isdir(args.output):
+        return units(args)
+    if args.jobs is not None:
+        from ..errors import JmlgError
+
+        raise JmlgError("--jobs fits several units at a time: give -o a folder (DIR/)")
     check_file(args.output, inputs=[args.spec, *args.data])  # before the work: never over an input
     progress = None if args.quiet else (lambda text: print(text, file=sys.stderr, flush=True))
     result = fit(args.spec, args.data, algorithm=args.filter, samples=args.samples, starts=args.starts,
@@ -60,3 +74,46 @@ def main(args) -> int:
     if args.output != "-":
         print(f"wrote {args.output}", file=sys.stderr)
     return 1 if args.strict and result.warnings else 0
+
+
+def units(args) -> int:
+    """Each data file a unit, fitted on its own: DIR/NAME.jmlg per NAME.csv and DIR/units.csv."""
+    from pathlib import Path
+
+    from ..data import open_target
+    from ..errors import JmlgError
+    from ..fitting import fit_units, units_table
+    from ..names import plural
+    from ..output import check_folder
+
+    if "-" in args.data:
+        raise JmlgError("standard input (-) cannot be a unit's recording: give files")
+    names = [Path(path).stem for path in args.data]
+    twice = sorted({name for name in names if names.count(name) > 1})
+    if twice:
+        raise JmlgError(f"two data files would write the same unit spec {twice[0]}.jmlg; give files with different names")
+    if args.jobs is not None and args.jobs < 1:
+        raise JmlgError(f"--jobs must be 1 or more, got {args.jobs}")
+    check_folder(args.output, [f"{name}.jmlg" for name in names] + ["units.csv"], inputs=[args.spec, *args.data])
+    folder = Path(args.output)
+
+    def done(i, result):
+        if not args.quiet:
+            status = "warnings: " + "; ".join(result.warnings) if result.warnings else "converged"
+            print(f"{args.data[i]}: {result.evaluations} likelihood evaluations in {result.seconds:.1f} s, {status}",
+                  file=sys.stderr, flush=True)
+
+    fits = fit_units(args.spec, args.data, jobs=args.jobs, done=done, algorithm=args.filter, samples=args.samples,
+                     starts=args.starts, seed=args.seed, label_rounds=args.label_rounds)
+    folder.mkdir(parents=True, exist_ok=True)
+    for name, path, result in zip(names, args.data, fits):
+        print(f"== {path}\n{result.report()}", file=sys.stderr)
+        result.write(folder / f"{name}.jmlg")
+    with open_target(folder / "units.csv") as out:
+        out.write(units_table(names, fits))
+    flagged = [name for name, result in zip(names, fits) if result.warnings]
+    print(f"wrote {plural(len(fits), 'unit spec')} and units.csv to {folder}"
+          + (f"; the fits of {', '.join(flagged)} cannot be trusted (their warnings above)" if flagged else ""),
+          file=sys.stderr)
+    return 1 if args.strict and flagged else 0
+

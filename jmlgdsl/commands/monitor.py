@@ -32,6 +32,10 @@ def register(subparsers):
                         "{unit} in --source and in the tag file stands for each one's name (a CSV file per unit, "
                         "data/{unit}.csv; MQTT topics PREFIX/{unit}/NAME on one connection; OPC UA node ids). "
                         "Each unit has its own run in the store, named by its unit column (docs/fleet.md)")
+    p.add_argument("--unit-specs", metavar="DIR",
+                   help="with --units: diagnose each unit with its own spec DIR/UNIT.jmlg (the spec fitted to that "
+                        "unit: jmlgdsl fit SPEC units/*.csv -o DIR/), SPEC for a unit without one; its run records "
+                        "its spec, and the units still step together, each under its own numbers")
     p.add_argument("--cluster", metavar="auto|HOST:PORT",
                    help="with --units: spread the units over a Ray cluster, a shard of units per actor, each with "
                         "its own connection to the source and the store (auto: a Ray on this machine for this "
@@ -100,6 +104,20 @@ def main(args) -> int:
         raise JmlgError(f"{'--cluster' if args.cluster else '--shards'} spreads the units of a fleet: give --units")
     if args.shards is not None and args.cluster is None:
         raise JmlgError("--shards needs --cluster")
+    banks = None
+    if args.unit_specs is not None:
+        if units is None:
+            raise JmlgError("--unit-specs gives each unit of a fleet its own spec: give --units")
+        from pathlib import Path
+
+        from ..diagnosis.fleet import unit_banks
+
+        models, missing = unit_banks(model, args.unit_specs, units)
+        banks = [(bank, _text(args.spec if unit in missing else Path(args.unit_specs) / f"{unit}.jmlg"))
+                 for unit, bank in zip(units, models)]
+        print(f"monitor: unit specs for {len(units) - len(missing)} of {plural(len(units), 'unit')} from "
+              f"{args.unit_specs}" + (f"; {', '.join(missing)} with {args.spec}" if missing else ""),
+              file=sys.stderr, flush=True)
     recipe = dict(url=args.source, follow=not args.no_follow, client_id=args.client_id,
                   credentials=credentials(args.username, args.password_env, args.password_file),
                   ca_file=args.ca_file, security=args.security, certificate=args.certificate,
@@ -110,11 +128,11 @@ def main(args) -> int:
     page = start_page(args, args.store, password=password, unit=units and units[0])
     try:
         if args.cluster:
-            stopped = _sharded(args, model, password, options, tags, units, recipe, stop)
+            stopped = _sharded(args, model, password, options, tags, units, recipe, stop, banks)
         else:
             with Store(args.store, password=password) as store:
                 monitor = Monitor(model, store, source, spec=_text(args.spec), options=options, tags=tags,
-                                  units=units, new_run=args.new_run,
+                                  units=units, new_run=args.new_run, banks=banks,
                                   log=lambda text: print(f"monitor: {text}", file=sys.stderr, flush=True))
                 stopped = [monitor.run(stop)]
     finally:
@@ -133,7 +151,7 @@ def main(args) -> int:
     return 0
 
 
-def _sharded(args, model, password, options, tags, units, recipe, stop):
+def _sharded(args, model, password, options, tags, units, recipe, stop, banks):
     """The fleet's units in shards on a Ray cluster: each shard's Stopped."""
     from ..cluster import joined
     from ..monitor.shards import run_shards
@@ -145,7 +163,7 @@ def _sharded(args, model, password, options, tags, units, recipe, stop):
         print(f"monitor: {plural(len(units), 'unit')} in {plural(count, 'shard')} on the Ray cluster "
               f"{args.cluster}", file=sys.stderr, flush=True)
         return run_shards(ray, model, args.store, password, spec=_text(args.spec), options=options, tags=tags,
-                          units=units, count=count, source=recipe, new_run=args.new_run, stop=stop)
+                          units=units, count=count, source=recipe, new_run=args.new_run, stop=stop, banks=banks)
 
 
 def stopped_by_signals(stop=None):

@@ -47,6 +47,10 @@ def register(subparsers):
                         "reachable from 127.0.0.1 only; HOST:PORT: a cluster started with ray start --head, "
                         "whose machines all see the data files at the same paths). Needs pip install "
                         "'jmlgdsl[cluster]'")
+    p.add_argument("--unit-specs", metavar="DIR",
+                   help="with several data files: diagnose each unit with its own spec DIR/NAME.jmlg for NAME.csv "
+                        "(the spec fitted to that unit: jmlgdsl fit SPEC units/*.csv -o DIR/), SPEC for a unit "
+                        "without one; units of one shape still step together, each under its own numbers")
     when = p.add_mutually_exclusive_group()
     when.add_argument("--lag", type=int, metavar="L",
                       help="fixed-lag smoothing: report each row once L more rows have arrived, with "
@@ -103,6 +107,9 @@ def main(args) -> int:
         return fleet(args)
     if args.cluster:
         raise JmlgError("--cluster spreads several data files over a Ray cluster; with one file, leave it out")
+    if args.unit_specs:
+        raise JmlgError("--unit-specs gives each of several data files its unit's spec; with one file, give its "
+                        "unit's spec as SPEC")
     args.data = args.data[0]
     streaming = args.data == "-"
     if streaming and args.output is None:
@@ -175,7 +182,7 @@ def fleet(args) -> int:
     from ..cluster import joined
     from ..data import open_target
     from ..diagnosis import AlarmRule
-    from ..diagnosis.fleet import diagnose_files
+    from ..diagnosis.fleet import diagnose_files, unit_banks
     from ..diagnosis.prefilter import parse
     from ..errors import JmlgError
     from ..output import check_folder
@@ -196,9 +203,14 @@ def fleet(args) -> int:
     window = parse(args.prefilter)
     model = jmlgdsl.load(args.spec)
     check_particles(args, model)
+    models = None
+    if args.unit_specs is not None:
+        models, missing = unit_banks(model, args.unit_specs, [Path(path).stem for path in args.data])
+        print(f"unit specs: {len(args.data) - len(missing)} of {plural(len(args.data), 'unit')} from {args.unit_specs}"
+              + (f"; {', '.join(missing)} with {args.spec}" if missing else ""), file=sys.stderr)
     with joined(args.cluster):  # refused here, before any work, when no cluster answers
         history = diagnose_files(
-            model, args.data, tables=args.output is not None, cluster=args.cluster,
+            model, args.data, tables=args.output is not None, cluster=args.cluster, models=models,
             progress=sys.stderr if sys.stderr.isatty() else None, algorithm=args.filter, particles=args.particles,
             seed=args.seed, resampling=args.resampling, ess_threshold=args.ess_threshold,
             lag=None if args.smooth else args.lag or 0, prefilter=window, explain=args.explain,

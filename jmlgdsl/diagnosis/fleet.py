@@ -31,12 +31,13 @@ from __future__ import annotations
 import io
 import os
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
 from ..data import iter_rows, open_source
-from ..errors import DataError
-from ..infer.units import Units
+from ..errors import DataError, JmlgError
+from ..infer.units import Units, stackable
 from ..model import Model
 from ..progress import Progress
 from .evidence import Evidence
@@ -46,21 +47,27 @@ from .sinks import Raised, TableSink
 
 
 class Fleet:
-    """Diagnose `count` units of one model: `feed(rows)` with one data row per unit (None for a unit
+    """Diagnose `count` units of one plant: `feed(rows)` with one data row per unit (None for a unit
     whose data have ended), `finish()` at the end. The options are a Diagnosis's; `sinks` gives each
-    unit its own list of sinks. `units` takes the units' Diagnoses as they are instead (of one
-    model and the same options; resumed ones with `Units.restore` of their filters' states)."""
+    unit its own list of sinks; `models` each unit its own bank (its fitted spec; default `model` for
+    every unit). `units` takes the units' Diagnoses as they are instead (of the same options;
+    resumed ones with `Units.restore` of their filters' states).
 
-    def __init__(self, model: Model, count: int | None = None, *, sinks=None, units=None, **options):
+    Units whose banks are of one shape (`jmlgdsl.infer.units.stackable`: the same modes, outputs,
+    inputs and states) step together, each under its own numbers; others each step alone."""
+
+    def __init__(self, model: Model, count: int | None = None, *, sinks=None, units=None, models=None, **options):
         self.model = model
         self.units = list(units) if units is not None else [
-            Diagnosis(model, sinks=() if sinks is None else sinks[i], **options) for i in range(count)]
+            Diagnosis(model if models is None else models[i], sinks=() if sinks is None else sinks[i], **options)
+            for i in range(count)]
         first = self.units[0].filter
-        self.filter = None
-        if stepped_together(first) and first.algorithm == "imm":  # one vectorised filter beside the units'
-            self.filter = Units(model, len(self.units))
-        elif stepped_together(first):  # the units' own filters stepped together
-            self.filter = Units(model, len(self.units), filters=[unit.filter for unit in self.units])
+        banks = [unit.model for unit in self.units]
+        self.filter = None  # None: each unit's Diagnosis filters its own rows
+        if stepped_together(first) and stackable([model, *banks]):
+            # imm: one vectorised filter beside the units'; the others: the units' own filters stepped together
+            self.filter = (Units(model, len(self.units), models=banks) if first.algorithm == "imm" else
+                           Units(model, len(self.units), filters=[unit.filter for unit in self.units]))
 
     def feed(self, rows):
         """Diagnose one data row of each unit (rows[i] for unit i; None: unit i has no row)."""
@@ -109,6 +116,36 @@ class Fleet:
         return self.filter.seconds if self.filter is not None else sum(u.filter.seconds for u in self.units)
 
 
+def unit_banks(model: Model, folder, units) -> tuple[list[Model], list[str]]:
+    """Each unit's own bank, from its spec FOLDER/<unit>.jmlg (the plant's spec fitted to that unit:
+    `jmlgdsl fit SPEC u1.csv u2.csv ... -o FOLDER/`), and the units that have none there, which take
+    the plant's `model`. A unit spec that is not of the plant's shape (other modes, outputs, inputs or
+    states, another gate) is a FleetSpecError naming it: it cannot be a copy of the plant's spec."""
+    from .. import load
+
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise FleetSpecError(f"{folder}: no such folder of unit specs")
+    banks, missing = [], []
+    for unit in units:
+        path = folder / f"{unit}.jmlg"
+        if not path.exists():
+            banks.append(model)
+            missing.append(unit)
+            continue
+        bank = load(path)
+        if not stackable([model, bank]):
+            raise FleetSpecError(f"{path}: unit {unit}'s spec is not of the plant {model.name}'s shape (modes "
+                                 f"{', '.join(bank.modes)}; outputs {', '.join(bank.outputs)}): a unit spec is the "
+                                 f"plant's spec with the unit's own numbers")
+        banks.append(bank)
+    return banks, missing
+
+
+class FleetSpecError(JmlgError):
+    """A folder of unit specs that cannot serve the fleet."""
+
+
 def stepped_together(f) -> bool:
     """Whether a Fleet steps units with filters like Filter f together: every algorithm without a lag
     (a smoothing filter holds its records back, each unit's as long as its own data ask)."""
@@ -141,9 +178,10 @@ class History:
 
 
 def diagnose_files(model: Model, paths, *, tables: bool = True, cluster: str | None = None, progress=None,
-                   **options) -> History:
+                   models=None, **options) -> History:
     """Diagnose every data file in `paths` as a unit of a fleet (the options are a Diagnosis's), with
     its table when `tables`; a file without data rows, or with a bad one, is a DataError naming it.
+    `models` gives each file its unit's own bank (in the order of `paths`; default `model` for all).
 
     With `cluster` (an address as `jmlgdsl.cluster.connect` takes it: 'auto' or HOST:PORT) the files
     are split into as many contiguous chunks as the cluster has CPUs (at most one per file), each chunk
@@ -154,15 +192,17 @@ def diagnose_files(model: Model, paths, *, tables: bool = True, cluster: str | N
     them in a folder every machine sees at the same path. A chunk that fails stops the others and
     raises its own error."""
     paths = list(paths)
+    models = [model] * len(paths) if models is None else list(models)
     if cluster is None:
-        return _diagnose_chunk(model, paths, "", tables, options)
+        return _diagnose_chunk(model, paths, models, "", tables, options)
     from ..cluster import completed, connect
 
     ray = connect(cluster)
     count = max(1, min(len(paths), int(ray.cluster_resources().get("CPU", 1))))
-    chunks = [[paths[i] for i in part] for part in np.array_split(np.arange(len(paths)), count)]
+    chunks = np.array_split(np.arange(len(paths)), count)
     task = ray.remote(num_cpus=1)(_diagnose_chunk)
-    refs = [task.remote(model, chunk, os.getcwd(), tables, options) for chunk in chunks]
+    refs = [task.remote(model, [paths[i] for i in chunk], [models[i] for i in chunk], os.getcwd(), tables, options)
+            for chunk in chunks]
     bar = Progress(len(paths), progress, "files")
     parts = [None] * len(refs)
     for i, part in completed(ray, refs):
@@ -172,25 +212,26 @@ def diagnose_files(model: Model, paths, *, tables: bool = True, cluster: str | N
                    sum(part.seconds for part in parts))
 
 
-def _diagnose_chunk(model: Model, paths: list, folder: str, tables: bool, options: dict) -> History:
-    """Some files diagnosed as one Fleet: in this process, or in a Ray task on a cluster, whose working
-    folder is not the driver's; a relative path is from `folder` ('': this process's own)."""
+def _diagnose_chunk(model: Model, paths: list, models: list, folder: str, tables: bool, options: dict) -> History:
+    """Some files diagnosed as one Fleet, each under its unit's bank in `models`: in this process, or in
+    a Ray task on a cluster, whose working folder is not the driver's; a relative path is from `folder`
+    ('': this process's own)."""
     records = []
-    for path in paths:
+    for path, bank in zip(paths, models):
         with open_source(os.path.join(folder, path)) as source:
-            records.append(list(iter_rows(source, model, path)))
+            records.append(list(iter_rows(source, bank, path)))
         if not records[-1]:
             raise DataError(f"{path}: no data rows")
     explain = options.get("explain", False)
     texts = [io.StringIO() if tables else None for _ in paths]
     raised = [Raised() if explain else None for _ in paths]
-    sinks = [([TableSink(text, model, options.get("lag", 0), explain=explain)] if tables else [])
-             + ([alarms] if explain else []) for text, alarms in zip(texts, raised)]
-    run = Fleet(model, len(paths), sinks=sinks, **options).run(records)
-    units = [Outcome(path, unit.summary.T, model.modes[unit.summary.current], unit.alarms.raised,
+    sinks = [([TableSink(text, bank, options.get("lag", 0), explain=explain)] if tables else [])
+             + ([alarms] if explain else []) for text, alarms, bank in zip(texts, raised, models)]
+    run = Fleet(model, len(paths), sinks=sinks, models=models, **options).run(records)
+    units = [Outcome(path, unit.summary.T, bank.modes[unit.summary.current], unit.alarms.raised,
                      unit.summary.diagnosis_error if unit.summary.labelled else None,
                      text.getvalue() if tables else None,
-                     tuple(evidence_report(model, alarms)) if explain else None)
-             for path, unit, text, alarms in zip(paths, run.units, texts, raised)]
+                     tuple(evidence_report(bank, alarms)) if explain else None)
+             for path, unit, text, alarms, bank in zip(paths, run.units, texts, raised, models)]
     return History(units, run.filter is not None, run.seconds)
 

@@ -14,10 +14,19 @@ optional Metropolis draws, and write the spec back with the fitted values (docs/
 
 The examples show fitted values no finer than the fit settles them: BFGS stops on a gradient
 (GTOL), so the last digits of an estimate move with the BLAS kernel a processor gets.
+
+`fit_units` fits one spec to each of many units' recordings on its own (a fleet of one design whose
+units each have their own numbers), in parallel, and `units_table` lays their values side by side;
+`jmlgdsl run --unit-specs` then diagnoses each unit under its own fitted spec (docs/fleet.md).
 """
 
 from __future__ import annotations
 
+import csv
+import io
+import math
+import os
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
 from ..data import Data, read_csv
@@ -29,7 +38,7 @@ from .estimate import Fit, maximise
 from .family import Family, FitError
 from .rewrite import fitted_text
 
-__all__ = ["fit", "Fit", "Family", "FitError"]
+__all__ = ["fit", "fit_units", "units_table", "Fit", "Family", "FitError"]
 
 
 def fit(spec, data, *, algorithm: str = "imm", samples: int = 0, starts: int = 1, seed=None,
@@ -63,3 +72,53 @@ def fit(spec, data, *, algorithm: str = "imm", samples: int = 0, starts: int = 1
                        + [f"warning: {w}" for w in result.warnings])
     result.text = fitted_text(spec, family.unknowns, result.estimate, result.se, header)
     return result
+
+
+def fit_units(spec, paths, *, jobs: int | None = None, done=None, **options) -> list[Fit]:
+    """`fit` of the spec to each recording in `paths` on its own (each a unit of the plant with its own
+    numbers), with the same options (`seed` too, so a unit's fit is the same whichever others come
+    with it), in `jobs` processes (default: every core). `done(i, fit)` hears of each unit's fit as it
+    ends. The fits in the order of `paths`; the first that fails raises its error, naming its file."""
+    spec = spec if isinstance(spec, Spec) else parse_file(spec)
+    paths = list(paths)
+    if not paths:
+        raise FitError("no data to fit to")
+    jobs = max(1, min(len(paths), jobs or os.cpu_count() or 1))
+    fits = [None] * len(paths)
+    if jobs == 1:
+        for i, path in enumerate(paths):
+            fits[i] = _fit_unit(spec, path, options)
+            if done:
+                done(i, fits[i])
+        return fits
+    with ProcessPoolExecutor(jobs) as pool:
+        futures = {pool.submit(_fit_unit, spec, path, options): i for i, path in enumerate(paths)}
+        for future in as_completed(futures):
+            i = futures[future]
+            fits[i] = future.result()
+            if done:
+                done(i, fits[i])
+    return fits
+
+
+def _fit_unit(spec: Spec, path, options: dict) -> Fit:
+    """One unit's fit; its errors name its file."""
+    try:
+        return fit(spec, path, **options)
+    except FitError as exc:
+        raise FitError(f"{path}: {exc}") from None
+
+
+def units_table(units, fits) -> str:
+    """Every unit's fitted values side by side, as CSV: a row per unit (its name in `units`), each
+    unknown's estimate and its standard error (`NAME`, `NAME_se`; empty where there is none), the
+    log-likelihood and the fit's warnings (empty: none)."""
+    names = fits[0].names
+    out = io.StringIO()
+    writer = csv.writer(out, lineterminator="\n")
+    writer.writerow(["unit", *(f"{n}{suffix}" for n in names for suffix in ("", "_se")), "loglik", "warnings"])
+    for unit, result in zip(units, fits):
+        cells = [c for v, e in zip(result.estimate, result.se) for c in (f"{v:.10g}", f"{e:.4g}" if math.isfinite(e) else "")]
+        writer.writerow([unit, *cells, f"{result.loglik:.10g}", "; ".join(result.warnings)])
+    return out.getvalue()
+

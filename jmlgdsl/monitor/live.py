@@ -22,6 +22,7 @@ from ..diagnosis import Diagnosis, fingerprint
 from ..diagnosis.fleet import Fleet, stepped_together
 from ..diagnosis.prediction import predictive_sd
 from ..infer import DEFAULT_ALGORITHM
+from ..infer.units import Stacked
 from ..errors import JmlgError
 from .assemble import Assembler, Event
 from .store import Commit, Store
@@ -78,15 +79,21 @@ class Monitor:
     state. The source then hands over (unit index, item) pairs (None: an item for every unit); a
     source of one plant hands over items. Without a lag the units' filters step together
     (jmlgdsl.diagnosis.fleet.Fleet): the rows that arrived since the last step, a row per unit at a
-    time, are stepped together when the input pauses and before every commit."""
+    time, are stepped together when the input pauses and before every commit. `banks` gives each
+    unit its own (model, spec text), its spec fitted to it (`jmlgdsl.diagnosis.fleet.unit_banks`;
+    default `model` and `spec` for every unit): its run records them, a restart with another is
+    refused, and the units still step together, each under its own numbers."""
 
     def __init__(self, model, store: Store, source, *, spec: str | None, options: dict, tags: dict,
-                 units=None, new_run: bool = False, log=None):
+                 units=None, new_run: bool = False, log=None, banks=None):
         self.model, self.store, self.source, self.log = model, store, source, log or (lambda text: None)
         self.options = recorded_options(model, options, source.name, tags)
         self.tags = tags
         self.named = units is not None
-        runs = open_runs(store, model, spec, self.options, units, new_run)
+        self.banks = banks or [(model, spec)] * (1 if units is None else len(units))
+        # the units' own banks as one, for their predictive bands (None: every unit has the model)
+        self.stacked = None if all(bank is model for bank, _ in self.banks) else Stacked([b for b, _ in self.banks])
+        runs = open_runs(store, model, spec, self.options, units, new_run, self.banks)
         self.units = [self._unit(run, i) for i, run in enumerate(runs)]
         self.fleet = None  # the units' diagnoses as one Fleet, when their filters step together
         if self.named and stepped_together(self.units[0].diagnosis.filter):
@@ -108,16 +115,17 @@ class Monitor:
         """A unit's part of the monitor for its run, resumed from the run's saved state."""
         watch = Watch(self, run.unit, run, index)
         saved = self.store.saved(run.id)
+        model = self.banks[index][0]
         if saved is None:
             options = self.options
             rule = AlarmRule(tuple(options["healthy"]), options["threshold"], options["persistence"])
             keys = ("algorithm", "particles", "seed", "resampling", "ess_threshold", "lag", "prefilter")
-            watch.diagnosis = Diagnosis(self.model, rule=rule, scored=False, explain=True, sinks=[watch],
+            watch.diagnosis = Diagnosis(model, rule=rule, scored=False, explain=True, sinks=[watch],
                                         **{k: options[k] for k in keys})
             watch.assembler = None if self.source.rows else Assembler(self.model, self.tags, options["grace"],
                                                                       options["stale"], options["max_gap"])
         else:
-            watch.diagnosis = Diagnosis.resume(saved.checkpoint, self.model, sinks=[watch])
+            watch.diagnosis = Diagnosis.resume(saved.checkpoint, model, sinks=[watch])
             # saved by this version with the checkpoint (Diagnosis.resume refuses another version's)
             state = pickle.loads(saved.monitor)
             watch.assembler, watch.previous = state["assembler"], state["previous"]
@@ -234,7 +242,8 @@ class Monitor:
             banded = [i for i, row in enumerate(rows) if row is not None and self.units[i].previous is not None]
             if banded:  # every unit's predictive band in one call, from its last estimate
                 last = [self.units[i].previous for i in banded]
-                sd = predictive_sd(model, np.array([s.mode_posterior for s in last]),
+                sd = predictive_sd(model if self.stacked is None else self.stacked.take(banded),
+                                   np.array([s.mode_posterior for s in last]),
                                    np.array([s.state_mean for s in last]), np.array([s.state_cov for s in last]),
                                    np.array([rows[i].u for i in banded]).reshape(len(banded), model.nu))
                 for i, band in zip(banded, sd):
@@ -306,7 +315,7 @@ class Watch:
         last, sd, self.band = self.previous, self.band, None
         if sd is None:
             sd = (self.nan_sd if last is None else
-                  predictive_sd(self.monitor.model, last.mode_posterior, last.state_mean, last.state_cov, done.row.u))
+                  predictive_sd(self.diagnosis.model, last.mode_posterior, last.state_mean, last.state_cov, done.row.u))
         self.results.append((done, sd))
         self.monitor.finished += 1
         self.previous = done.step
@@ -342,10 +351,13 @@ def recorded_options(model, options: dict, source: str, tags: dict) -> dict:
                 tags={name: dataclasses.asdict(tag) for name, tag in tags.items()})
 
 
-def open_runs(store, model, spec, options: dict, units=None, new_run: bool = False) -> list:
+def open_runs(store, model, spec, options: dict, units=None, new_run: bool = False, banks=None) -> list:
     """The run of each of a fleet's `units` (None: the one run of one plant), found again or begun;
-    `options` as recorded_options gives them."""
-    return [_open_run(store, model, spec, options, unit, new_run) for unit in ([None] if units is None else units)]
+    `options` as recorded_options gives them; `banks` each unit's own (model, spec text) (default:
+    `model` and `spec` for every unit)."""
+    names = [None] if units is None else units
+    banks = banks or [(model, spec)] * len(names)
+    return [_open_run(store, bank, text, options, unit, new_run) for unit, (bank, text) in zip(names, banks)]
 
 
 def _open_run(store, model, spec, options, unit, new_run):

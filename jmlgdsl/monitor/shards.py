@@ -42,10 +42,11 @@ def split(units: list, count: int) -> list[list]:
 class Shard:
     """A Monitor of some units of a fleet, as a Ray actor runs it: made (resumed from the store) when
     the actor starts or starts again, `run()` until `stop()`. `source` holds open_bus's keywords
-    (the URL, credentials, ...); the shard's MQTT client id is the fleet's with its index."""
+    (the URL, credentials, ...); the shard's MQTT client id is the fleet's with its index; `banks`
+    its units' own (model, spec text), as Monitor takes them."""
 
     def __init__(self, model, location: str, password: str | None, spec: str | None, options: dict, tags: dict,
-                 units: list, index: int, source: dict):
+                 units: list, index: int, source: dict, banks=None):
         recipe = dict(source)
         if urlsplit(recipe["url"]).scheme in ("mqtt", "mqtts"):  # a persistent session of its own
             recipe["client_id"] = f"{recipe.get('client_id') or 'jmlgdsl-' + model.name}-{index}"
@@ -54,7 +55,7 @@ class Shard:
                              "the shards of a cluster of machines share a PostgreSQL store (postgresql://...)")
         self.store = Store(location, password=password, create=False)  # made by the driver: never another here
         self.monitor = Monitor(model, self.store, open_bus(model=model, tags=tags, units=units, **recipe), spec=spec,
-                               options=options, tags=tags, units=units)
+                               options=options, tags=tags, units=units, banks=banks)
         self.stopping = threading.Event()
 
     def run(self) -> Stopped:
@@ -69,16 +70,19 @@ class Shard:
 
 def run_shards(ray, model, location: str, password: str | None, *, spec: str | None, options: dict, tags: dict,
                units: list, count: int, source: dict, new_run: bool = False,
-               stop: threading.Event | None = None) -> list[Stopped]:
+               stop: threading.Event | None = None, banks=None) -> list[Stopped]:
     """Monitor `units` in `count` shards on the joined Ray cluster until their data end or `stop` is
-    set; each shard's Stopped (of its last start). `source` holds open_bus's keywords."""
+    set; each shard's Stopped (of its last start). `source` holds open_bus's keywords; `banks` each
+    unit's own (model, spec text), as Monitor takes them."""
+    banks = banks or [(model, spec)] * len(units)
     with Store(location, password=password) as store:  # every unit's run made or checked here, once
         name = open_bus(model=model, tags=tags, units=units, **source).name
-        open_runs(store, model, spec, recorded_options(model, options, name, tags), units, new_run)
+        open_runs(store, model, spec, recorded_options(model, options, name, tags), units, new_run, banks)
     # started again whenever its process dies, its run() made again there; stop() is taken while run() runs
     actor = ray.remote(max_restarts=-1, max_task_retries=-1, max_concurrency=2, num_cpus=1)(Shard)
-    actors = [actor.remote(model, location, password, spec, options, tags, part, k, source)
-              for k, part in enumerate(split(units, min(count, len(units))))]
+    parts = split(list(range(len(units))), min(count, len(units)))
+    actors = [actor.remote(model, location, password, spec, options, tags, [units[i] for i in part], k, source,
+                           [banks[i] for i in part]) for k, part in enumerate(parts)]
     running = [a.run.remote() for a in actors]
     try:
         for _ in completed(ray, running, stop or threading.Event()):
