@@ -3,6 +3,7 @@ trusted: the labelling rounds, the checks on the peak and its curvature, and `fi
 
 import warnings
 from dataclasses import replace
+from types import SimpleNamespace
 
 import numpy as np
 from test_fit import DRYER, simulated
@@ -13,9 +14,14 @@ from jmlgdsl.compile import compile_text
 from jmlgdsl.data import write_columns
 from jmlgdsl.errors import SpecWarning
 from jmlgdsl.fitting import Family
+from jmlgdsl.fitting import labels as labels_module
 from jmlgdsl.fitting.convergence import misfit, not_at_peak, unmoved
+from jmlgdsl.fitting.estimate import released
+from jmlgdsl.fitting.labels import label_rounds
+from jmlgdsl.fitting.posterior import Cached, Posterior, bfgs
 from jmlgdsl.fitting.likelihood import loglik
 from jmlgdsl.lang.parse import parse_text
+from jmlgdsl.priors import Prior
 
 # Three tanks in a cascade with a leak, a clog and a biased sensor (examples/fit/tanks.jmlg, sampled
 # every 10 s so that a short record holds whole episodes); the unknowns' priors have medians 25 % and
@@ -101,3 +107,55 @@ def test_a_model_far_worse_on_the_data_than_on_its_own_simulations_is_named():
     noisy = replace(data, y=data.y + np.random.default_rng(0).normal(0, 0.5, data.y.shape))  # 7 times the noise
     (warning,) = misfit(model, [noisy], "imm", loglik(model, noisy))
     assert warning.startswith("the fitted model explains the data far worse than it expects to: log-likelihood ")
+
+
+class _Bowl(Posterior):
+    """A posterior with a known peak (a = 0.5, b = 0.3, both Uniform(0, 1)): the log-likelihood a bowl
+    in theta, so far out in z (b pushed against an edge) b's gradient vanishes as exp(-|z|)."""
+
+    def __init__(self):
+        priors = [Prior("Uniform", (0.0, 1.0)), Prior("Uniform", (0.0, 1.0))]
+        super().__init__(SimpleNamespace(priors=priors, names=["a", "b"]), [], "imm")
+
+    def loglik(self, theta):
+        self.evaluations += 1
+        return -1e3 * ((theta[0] - 0.5) ** 2 + (theta[1] - 0.3) ** 2)
+
+
+def test_an_unknown_pushed_against_an_edge_is_searched_again_from_its_median():
+    """BFGS from b at z = -30 fits a and leaves b where it is (no gradient there); `released` starts b
+    again at its median and climbs to the peak. A fit of three tanks' labelled record lost its leak
+    coefficient this way: pushed to zero while the flow coefficients were far off, it stayed there."""
+    objective = Cached(_Bowl())
+    stuck = bfgs(objective, np.array([0.0, -30.0]))
+    a, b = objective.post.theta(stuck.x)
+    assert abs(a - 0.5) < 1e-3 and b < 1e-9  # a fitted, b still at the edge
+    said = []
+    result = released(objective, stuck, said.append)
+    assert np.allclose(objective.post.theta(result.x), [0.5, 0.3], atol=1e-3)
+    assert said == ["b at an edge of its prior: searching again from its median"]
+    assert released(objective, result, said.append) is result and len(said) == 1  # nothing at an edge: as it was
+
+
+def test_labelling_rounds_that_cycle_stop_and_keep_the_best_round(tmp_path, monkeypatch):
+    """Labels that wander (modes at random, then 'normal' for every row, then other modes at random,
+    and others) stop the rounds once STALE_ROUNDS rounds in a row fit no better than the best, and the
+    start is the best round's fit, not the last one's."""
+    data_path = tmp_path / "tanks.csv"
+    tank_record(data_path)
+    family = Family(parse_text(UNKNOWN))
+    data = jmlgdsl.data.read_csv(data_path, family.model(family.medians()))
+    rng = np.random.default_rng(0)
+    normal = np.zeros(len(data.y), dtype=int)
+    flips = iter([rng.integers(0, 4, len(data.y)), normal] + [rng.integers(0, 4, len(data.y)) for _ in range(10)])
+    monkeypatch.setattr(labels_module, "most_probable_modes", lambda model, d: next(flips))
+    said = []
+    z = label_rounds(Posterior(family, [data], "imm"), np.array([p.to_z(p.median) for p in family.priors]),
+                     said.append)
+    assert [line.split(":")[0] for line in said] == [f"labelling round {k}" for k in range(1, 5)] + [
+        "the labels cycle"]
+    assert said[-1] == "the labels cycle: the start is round 2's"
+    values = [float(line.rsplit(" ", 1)[-1]) for line in said[:4]]
+    assert values[1] > max(values[0], values[2], values[3]) + 1
+    fitted_to_normal = -Cached(Posterior(family, [replace(data, modes=normal)], "imm"))(z)
+    assert f"{fitted_to_normal:.8g}" == said[1].rsplit(" ", 1)[-1]

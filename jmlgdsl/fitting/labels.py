@@ -26,6 +26,7 @@ from .likelihood import labelled
 from .posterior import Cached, Posterior, bfgs
 
 MAX_ROUNDS = 20  # labels that still change after this many rounds are left as they are
+STALE_ROUNDS = 2  # rounds in a row that fit their labels no better than the best round so far: the labels cycle
 # The logit coordinate of a Uniform unknown a round pushed against an edge comes back within this, where
 # the search that follows can still move it: d theta / d z shrinks as exp(-|z|) beyond.
 LOGIT_LIMIT = 4.0
@@ -41,7 +42,8 @@ def most_probable_modes(model: Model, data: Data) -> np.ndarray:
 
 def label_rounds(post: Posterior, z: np.ndarray, say) -> np.ndarray:
     """z after rounds of labelling the unlabelled rows of post's data by their most probable modes and
-    fitting to the data so labelled, until the labels repeat (or MAX_ROUNDS). Each round's smoother
+    fitting to the data so labelled, until the labels repeat, or cycle (STALE_ROUNDS rounds in a row
+    no better than the best: the z of the best round is kept), or MAX_ROUNDS. Each round's smoother
     pass and likelihood evaluations are counted in post.evaluations.
 
     Hard labels are biased where a fault's first rows look like the mode before it (a leak that has
@@ -49,7 +51,7 @@ def label_rounds(post: Posterior, z: np.ndarray, say) -> np.ndarray:
     it and may push its unknown against an edge of its prior. The rounds are a start, not the
     estimate: the search on the data's own likelihood that follows corrects such a bias, from within
     LOGIT_LIMIT of an edge."""
-    labels = None
+    labels, best, stale = None, (np.inf, z), 0
     for round_ in range(1, MAX_ROUNDS + 1):
         try:
             model = post.family.model(post.theta(z))
@@ -68,6 +70,12 @@ def label_rounds(post: Posterior, z: np.ndarray, say) -> np.ndarray:
         post.evaluations += step.evaluations
         say(f"labelling round {round_}: " + ("" if changed is None else f"{changed} rows relabelled, ")
             + f"log posterior with those labels {-objective(z):.8g}")
+        stale = stale + 1 if objective(z) > best[0] - ROUND_GAIN else 0
+        best = min(best, (objective(z), z), key=lambda b: b[0])
+        if stale >= STALE_ROUNDS:
+            say(f"the labels cycle: the start is round {round_ - stale}'s")
+            break
+    z = best[1]
     return np.array([np.clip(v, -LOGIT_LIMIT, LOGIT_LIMIT) if p.family == "Uniform" else v
                      for p, v in zip(post.family.priors, z)])
 
