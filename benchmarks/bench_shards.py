@@ -162,6 +162,8 @@ def main():
                   f"{found[f'{key}_us_beyond_diagnosis']:,} | {size / rows:,.0f} |", flush=True)
     found |= {"diagnosis_us_per_row": round(per_row * 1e6, 1), "memory_kib_per_unit": round(memory / 1024, 1),
               "sizing": sizing(found["process_rows_per_s"], found["process_store_bytes_per_row"], memory)}
+    if {"ray1_rows_per_s", "ray2_rows_per_s"} <= set(found):
+        found["two_shards_over_one"] = round(found["ray2_rows_per_s"] / found["ray1_rows_per_s"], 2)
     print("\n" + found["sizing"])
     record("fleet/monitor", found, "python benchmarks/bench_shards.py " + " ".join(sys.argv[1:]), path=args.ledger)
 
