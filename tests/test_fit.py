@@ -303,9 +303,10 @@ def test_a_spec_without_unknowns_or_an_unknown_filter_cannot_be_fitted():
 def test_more_starts_keep_the_highest_peak_and_repeat_with_the_seed():
     data = simulated(300)
     one = fit(parse_text(DRYER), data)
-    three = fit(parse_text(DRYER), data, starts=3, seed=5)
-    again = fit(parse_text(DRYER), data, starts=3, seed=5)
+    three = fit(parse_text(DRYER), data, starts=3, seed=5, jobs=2)  # two starts at a time, in processes
+    again = fit(parse_text(DRYER), data, starts=3, seed=5, jobs=1)  # one after the other, here
     np.testing.assert_array_equal(three.estimate, again.estimate)
+    assert three.notes == again.notes
     best = [n for n in three.notes if n.startswith("the best of 3 starts (their log posteriors: ")]
     assert len(best) == 1
     peaks = [float(v) for v in best[0].split(": ")[1].rstrip(")").split(", ")]
@@ -315,6 +316,8 @@ def test_more_starts_keep_the_highest_peak_and_repeat_with_the_seed():
         pytest.approx(max(peaks), rel=1e-7)
     with pytest.raises(FitError, match="samples must be 0 or more and starts 1 or more, got 0 and 0"):
         fit(parse_text(DRYER), data, starts=0)
+    with pytest.raises(FitError, match="jobs must be 1 or more, got 0"):
+        fit(parse_text(DRYER), data, starts=2, jobs=0)
 
 
 def test_posterior_draws_stay_in_the_support_and_repeat_with_the_seed():

@@ -11,7 +11,7 @@ diagnose each unit under its own spec.
   so; a unit spec of another plant, a missing folder and one data file are refused by their messages.
 - `monitor --units` with --unit-specs stores for each unit the table `run` writes under its spec, and
   its run records that spec; started again with other unit specs it is refused.
-- Refusals of the per-unit fit: two files of one name, --jobs without a folder, --jobs 0.
+- Refusals of the per-unit fit: two files of one name, --jobs 0 (with a folder and without).
 """
 
 import csv
@@ -128,9 +128,9 @@ def test_fit_units_refusals(units, tmp_path, capsys):
     (twin / "u1.csv").write_text(Path(files[0]).read_text())
     assert main(["fit", TEMPLATE, files[0], str(twin / "u1.csv"), "-o", f"{tmp_path / 'out'}/"]) == 2
     assert "two data files would write the same unit spec u1.jmlg" in capsys.readouterr().err
-    assert main(["fit", TEMPLATE, files[0], "--jobs", "2", "-o", str(tmp_path / "one.jmlg")]) == 2
-    assert "--jobs fits several units at a time: give -o a folder (DIR/)" in capsys.readouterr().err
     assert main(["fit", TEMPLATE, *files, "--jobs", "0", "-o", f"{tmp_path / 'out'}/"]) == 2
+    assert "--jobs must be 1 or more, got 0" in capsys.readouterr().err
+    assert main(["fit", TEMPLATE, files[0], "--jobs", "0", "-o", str(tmp_path / "one.jmlg")]) == 2
     assert "--jobs must be 1 or more, got 0" in capsys.readouterr().err
     assert not (tmp_path / "out").exists()
 

@@ -121,6 +121,9 @@ class _Bowl(Posterior):
         self.evaluations += 1
         return -1e3 * ((theta[0] - 0.5) ** 2 + (theta[1] - 0.3) ** 2)
 
+    def many(self, zs):
+        return np.array([self(z) for z in zs])
+
 
 def test_an_unknown_pushed_against_an_edge_is_searched_again_from_its_median():
     """BFGS from b at z = -30 fits a and leaves b where it is (no gradient there); `released` starts b

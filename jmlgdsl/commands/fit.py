@@ -30,16 +30,19 @@ def register(subparsers):
                         "the plant on its own, in parallel: DIR/NAME.jmlg for each NAME.csv, and DIR/units.csv, "
                         "every unit's values and standard errors side by side (for run --unit-specs DIR/)")
     p.add_argument("--jobs", type=int, metavar="N",
-                   help="with -o DIR/: fit N units at a time (default: one per core)")
+                   help="processes: with -o DIR/ the units fitted at a time, else the --starts searched at a time "
+                        "(default: one per core)")
     p.add_argument("--filter", default="imm", choices=list(ALGORITHMS),
                    help="the filter whose likelihood is used for unlabelled data (default imm: deterministic "
                         "and smooth in the unknowns; a particle filter's likelihood is noisy)")
     p.add_argument("--samples", type=int, default=0, metavar="N",
                    help="also draw N values from the posterior by random-walk Metropolis (one likelihood "
                         "evaluation each) and report their means and 95 %% intervals")
-    p.add_argument("--starts", type=int, default=1, metavar="N",
-                   help="search from the priors' medians and from N-1 draws of the priors, keeping the highest "
-                        "peak: a guard against local optima, at N times the cost (default 1)")
+    p.add_argument("--starts", type=int, metavar="N",
+                   help="searches to start, keeping the highest peak: from the priors' medians; for data without "
+                        "a mode column also there with every row first taken for the spec's first mode; the "
+                        "others from draws of the priors. A guard against local optima, run side by side on "
+                        "the cores (--jobs). Default 1 with labelled data, 2 without")
     p.add_argument("--seed", type=int, help="random seed for --samples and --starts (the same seed gives the same "
                                             "result)")
     p.add_argument("--no-label-rounds", dest="label_rounds", action="store_false",
@@ -59,16 +62,16 @@ def main(args) -> int:
     from ..fitting import fit
     from ..output import check_file
 
-    if args.output.endswith(("/", os.sep)) or os.path.isdir(args.output):
-        return units(args)
-    if args.jobs is not None:
+    if args.jobs is not None and args.jobs < 1:
         from ..errors import JmlgError
 
-        raise JmlgError("--jobs fits several units at a time: give -o a folder (DIR/)")
+        raise JmlgError(f"--jobs must be 1 or more, got {args.jobs}")
+    if args.output.endswith(("/", os.sep)) or os.path.isdir(args.output):
+        return units(args)
     check_file(args.output, inputs=[args.spec, *args.data])  # before the work: never over an input
     progress = None if args.quiet else (lambda text: print(text, file=sys.stderr, flush=True))
     result = fit(args.spec, args.data, algorithm=args.filter, samples=args.samples, starts=args.starts,
-                 seed=args.seed, label_rounds=args.label_rounds, progress=progress)
+                 seed=args.seed, label_rounds=args.label_rounds, progress=progress, jobs=args.jobs)
     print(result.report(), file=sys.stderr)
     result.write(args.output)
     if args.output != "-":
@@ -92,8 +95,6 @@ def units(args) -> int:
     twice = sorted({name for name in names if names.count(name) > 1})
     if twice:
         raise JmlgError(f"two data files would write the same unit spec {twice[0]}.jmlg; give files with different names")
-    if args.jobs is not None and args.jobs < 1:
-        raise JmlgError(f"--jobs must be 1 or more, got {args.jobs}")
     check_folder(args.output, [f"{name}.jmlg" for name in names] + ["units.csv"], inputs=[args.spec, *args.data])
     folder = Path(args.output)
 

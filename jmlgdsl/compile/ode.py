@@ -30,6 +30,9 @@ SETTLE_SPAN = 1e6  # how long (in the derivatives' unit) guesses are let settle 
 # warnings straight to the terminal, and a plant with no steady state to settle to makes dozens of them.
 SETTLE_METHOD = "BDF"
 RTOL, ATOL = 1e-9, 1e-12  # integration tolerances, far below the noise of any realistic plant
+# Settling only brings the root search near the steady state, which then finds it to its own precision:
+# integrated to RTOL it took a thousand times the root search, most of a fit of a nonlinear plant.
+SETTLE_RTOL, SETTLE_ATOL = 1e-4, 1e-8
 MAX_EVALUATIONS = 10_000  # an integration that needs more has run away (settling takes a few hundred)
 
 
@@ -88,11 +91,13 @@ def _jacobian(M: sp.Matrix, symbols: list) -> sp.Matrix:
 
 # ------------------------------------------------------------------ per-mode linearisation
 
-def linearise(plant: Plant, system: OdeSystem, report: Report) -> Model:
-    """Linearise every mode of the plant at its operating point and discretise with a zero-order hold."""
+def linearise(plant: Plant, system: OdeSystem, report: Report, guesses=None) -> Model:
+    """Linearise every mode of the plant at its operating point and discretise with a zero-order hold.
+    `guesses`: each mode's steady state at other values of the parameters (`steady_states`), tried
+    first where the root is searched for (a fit builds the plant at many values near each other)."""
     _, pvecs = mode_parameters(plant, system)
     u_bar = plant.layout.input_defaults
-    points, u_lins, per_mode = _operating_points(plant, system, pvecs, report)
+    points, u_lins, per_mode = _operating_points(plant, system, pvecs, report, guesses)
     report.raise_errors()
     dt = plant.dt / system.seconds_per_unit
     modes = []
@@ -133,7 +138,16 @@ def zoh(f_x: np.ndarray, f_u: np.ndarray, c: np.ndarray, dt: float):
     return E[:nx, :nx], E[:nx, nx:nx + nu], E[:nx, -1]
 
 
-def _operating_points(plant: Plant, system: OdeSystem, pvecs, report: Report):
+def steady_states(plant: Plant, system: OdeSystem, report: Report) -> list[np.ndarray] | None:
+    """Each mode's operating point where it is a steady state (`linearize` of each mode, the default),
+    as `linearise`'s guesses at other values of the parameters; None where the plant is linearised
+    elsewhere."""
+    _, pvecs = mode_parameters(plant, system)
+    points, _, per_mode = _operating_points(plant, system, pvecs, report)
+    return points if per_mode else None
+
+
+def _operating_points(plant: Plant, system: OdeSystem, pvecs, report: Report, guesses=None):
     """Where each mode is linearised: (points, input values there, whether each mode has its own
     steady state), as the checked `linearize` says (default: the steady state of each mode). A mode's
     inputs are the declared values shifted by the mode's own."""
@@ -142,20 +156,26 @@ def _operating_points(plant: Plant, system: OdeSystem, pvecs, report: Report):
         return [how.x] * K, [how.u] * K, False
     u_modes = [plant.layout.input_defaults + mode.shift for mode in plant.modes]
     if how.kind == "each":
-        return [steady_state(system, plant.initial, u, p, mode.name, mode.pos, report)
-                for mode, p, u in zip(plant.modes, pvecs, u_modes)], u_modes, True
+        return [steady_state(system, plant.initial, u, p, mode.name, mode.pos, report,
+                             None if guesses is None else guesses[k])
+                for k, (mode, p, u) in enumerate(zip(plant.modes, pvecs, u_modes))], u_modes, True
     k = how.mode
     x = steady_state(system, plant.initial, u_modes[k], pvecs[k], plant.modes[k].name, how.pos, report)
     return [x] * K, [u_modes[k]] * K, False
 
 
-def steady_state(system: OdeSystem, guess, u, p, mode: str, pos: Pos, report: Report) -> np.ndarray:
+def steady_state(system: OdeSystem, guess, u, p, mode: str, pos: Pos, report: Report, first=None) -> np.ndarray:
     """The state where every derivative vanishes, by Powell's hybrid method with the exact Jacobian,
-    from the guesses, else from where the plant settles when started at the guesses; a located error
-    says the largest residual left when neither converges."""
+    from `first` (a nearby steady state) when given, else from the guesses, else from where the plant
+    settles when started at the guesses; a located error says the largest residual left when none
+    converges."""
+    if first is not None:
+        x, residual = _root(system, first, u, p)
+        if _steady(x, residual):
+            return x
     x, residual = _root(system, guess, u, p)
     if not _steady(x, residual):
-        settled, _ = flow(system, guess, u, p, SETTLE_SPAN, SETTLE_METHOD)
+        settled, _ = flow(system, guess, u, p, SETTLE_SPAN, SETTLE_METHOD, SETTLE_RTOL, SETTLE_ATOL)
         if settled is not None:
             x_settled, residual_settled = _root(system, settled, u, p)
             if _steady(x_settled, residual_settled):
@@ -185,10 +205,11 @@ class _OverBudget(Exception):
     """Raised inside an integration that needs more than MAX_EVALUATIONS evaluations."""
 
 
-def flow(system: OdeSystem, x, u, p, span: float, method: str = "LSODA") -> tuple[np.ndarray | None, str]:
+def flow(system: OdeSystem, x, u, p, span: float, method: str = "LSODA", rtol: float = RTOL,
+         atol: float = ATOL) -> tuple[np.ndarray | None, str]:
     """Integrate the equations from x over `span` (in the derivatives' unit) with u held, by scipy's
-    `method` (LSODA, the fastest over a simulation's many short spans) with the exact Jacobian:
-    (end state, "") or (None, why the integration failed)."""
+    `method` (LSODA, the fastest over a simulation's many short spans) with the exact Jacobian, to
+    the tolerances given: (end state, "") or (None, why the integration failed)."""
     calls = itertools.count()
 
     def rate(_, state):
@@ -199,7 +220,7 @@ def flow(system: OdeSystem, x, u, p, span: float, method: str = "LSODA") -> tupl
     try:
         with np.errstate(all="ignore"):
             sol = solve_ivp(rate, (0.0, span), x, method=method, jac=lambda _, s: system.jacobian("f_x", s, u, p),
-                            rtol=RTOL, atol=ATOL)
+                            rtol=rtol, atol=atol)
     except _OverBudget:
         return None, f"the equations needed more than {MAX_EVALUATIONS} evaluations"
     end = sol.y[:, -1]

@@ -116,6 +116,10 @@ class Fleet:
         return self.filter.seconds if self.filter is not None else sum(u.filter.seconds for u in self.units)
 
 
+class FleetSpecError(JmlgError):
+    """A folder of unit specs that cannot serve the fleet."""
+
+
 def unit_banks(model: Model, folder, units) -> tuple[list[Model], list[str]]:
     """Each unit's own bank, from its spec FOLDER/<unit>.jmlg (the plant's spec fitted to that unit:
     `jmlgdsl fit SPEC u1.csv u2.csv ... -o FOLDER/`), and the units that have none there, which take
@@ -140,10 +144,6 @@ def unit_banks(model: Model, folder, units) -> tuple[list[Model], list[str]]:
                                  f"plant's spec with the unit's own numbers")
         banks.append(bank)
     return banks, missing
-
-
-class FleetSpecError(JmlgError):
-    """A folder of unit specs that cannot serve the fleet."""
 
 
 def stepped_together(f) -> bool:

@@ -41,21 +41,26 @@ from .rewrite import fitted_text
 __all__ = ["fit", "fit_units", "units_table", "Fit", "Family", "FitError"]
 
 
-def fit(spec, data, *, algorithm: str = "imm", samples: int = 0, starts: int = 1, seed=None,
-        label_rounds: bool = True, progress=None) -> Fit:
+def fit(spec, data, *, algorithm: str = "imm", samples: int = 0, starts: int | None = None, seed=None,
+        label_rounds: bool = True, progress=None, jobs: int | None = None) -> Fit:
     """Fit a spec's unknowns to data.
 
     spec: a .jmlg path or a parsed Spec. data: a CSV path, a jmlgdsl.data.Data, or a list of them
     (several recordings of the same plant). Rows whose every `mode` cell is filled give an exact
     likelihood; other recordings use the filter's (`algorithm`, IMM by default). `samples` > 0 adds
-    posterior draws by random-walk Metropolis; `starts` > 1 also starts the search from starts - 1 draws
-    of the priors and keeps the highest peak (both seeded by `seed`). Where some data are unlabelled, each
+    posterior draws by random-walk Metropolis. The search starts at the priors' medians; for
+    unlabelled data also there with every row first taken for the spec's first mode (two starts by
+    default: `starts` None); more `starts` add draws of the priors (seeded by `seed`, as the draws of
+    `samples` are). The highest peak is kept; up to `jobs` starts search at a time, in processes of
+    their own (default: one per core; the same peaks however many). Where some data are unlabelled, each
     start first goes through rounds of labelling them by their most probable modes (`label_rounds`
     False skips them: the search climbs the filter's likelihood from the start itself). The returned Fit has the estimates,
     standard errors, the fitted Model, `warnings` where the fit cannot be trusted (it did not converge,
     or its curvature is noise), and `text`, the spec rewritten with the fitted values and those warnings."""
-    if samples < 0 or starts < 1:
+    if samples < 0 or (starts is not None and starts < 1):
         raise FitError(f"samples must be 0 or more and starts 1 or more, got {samples} and {starts}")
+    if jobs is not None and jobs < 1:
+        raise FitError(f"jobs must be 1 or more, got {jobs}")
     if algorithm not in ALGORITHMS:
         raise FilterError(f"unknown filter {algorithm!r}; choose from {', '.join(ALGORITHMS)}")
     spec = spec if isinstance(spec, Spec) else parse_file(spec)
@@ -65,7 +70,7 @@ def fit(spec, data, *, algorithm: str = "imm", samples: int = 0, starts: int = 1
                   for d in (data if isinstance(data, (list, tuple)) else [data])]
     if not recordings:
         raise FitError("no data to fit to")
-    result = maximise(family, recordings, algorithm, samples, seed, progress, starts, label_rounds)
+    result = maximise(family, recordings, algorithm, samples, seed, progress, starts, label_rounds, jobs)
     sources = ", ".join(Path(d.source).name for d in recordings)
     header = "\n".join([f"Fitted by 'jmlgdsl fit' to {sources}: log-likelihood {result.loglik_start:.6g} "
                         f"at the priors' medians, {result.loglik:.6g} fitted."]
@@ -77,13 +82,15 @@ def fit(spec, data, *, algorithm: str = "imm", samples: int = 0, starts: int = 1
 def fit_units(spec, paths, *, jobs: int | None = None, done=None, **options) -> list[Fit]:
     """`fit` of the spec to each recording in `paths` on its own (each a unit of the plant with its own
     numbers), with the same options (`seed` too, so a unit's fit is the same whichever others come
-    with it), in `jobs` processes (default: every core). `done(i, fit)` hears of each unit's fit as it
-    ends. The fits in the order of `paths`; the first that fails raises its error, naming its file."""
+    with it), in `jobs` processes (default: every core; each unit's starts then one after the other).
+    `done(i, fit)` hears of each unit's fit as it ends. The fits in the order of `paths`; the first that
+    fails raises its error, naming its file."""
     spec = spec if isinstance(spec, Spec) else parse_file(spec)
     paths = list(paths)
     if not paths:
         raise FitError("no data to fit to")
     jobs = max(1, min(len(paths), jobs or os.cpu_count() or 1))
+    options = dict(options, jobs=1)  # the units side by side, not their starts
     fits = [None] * len(paths)
     if jobs == 1:
         for i, path in enumerate(paths):

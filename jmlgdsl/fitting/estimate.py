@@ -14,8 +14,11 @@ from __future__ import annotations
 
 import itertools
 import math
+import os
 import time
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
@@ -94,13 +97,14 @@ class Fit:
 
 
 def maximise(family: Family, datasets, algorithm: str = "imm", samples: int = 0, seed=None, progress=None,
-             starts: int = 1, rounds: bool = True) -> Fit:
+             starts: int | None = None, rounds: bool = True, jobs: int | None = None) -> Fit:
     """The maximum a posteriori values of the family's unknowns given the datasets (jmlgdsl.data.Data),
-    with Laplace standard errors; `samples` > 0 adds that many Metropolis draws. The search starts at
-    the priors' medians and, with `starts` > 1, also at starts - 1 draws from the priors, keeping the
-    highest peak found; where some data are unlabelled, each start first goes through rounds of
-    labelling (jmlgdsl.fitting.labels) unless `rounds` is False. `progress(text)` hears of each round
-    and optimiser iteration."""
+    with Laplace standard errors; `samples` > 0 adds that many Metropolis draws. The search starts
+    (`starts`, `_begins`) at the priors' medians, for unlabelled data also at the medians with every
+    row taken for the first mode, then at draws from the priors, keeping the highest peak found; where
+    some data are unlabelled, each start first goes through rounds of labelling
+    (jmlgdsl.fitting.labels) unless `rounds` is False. Default: one start for labelled data, two for
+    unlabelled. `progress(text)` hears of each round and optimiser iteration."""
     start = time.perf_counter()
     rng = generator(seed)
     post = Posterior(family, datasets, algorithm)
@@ -113,7 +117,9 @@ def maximise(family: Family, datasets, algorithm: str = "imm", samples: int = 0,
     for note in alike:
         say(f"note: {note}")
     objective = Cached(post)
-    results = _search(post, objective, z0, starts, rng, say, rounds and not all(map(labelled, datasets)))
+    rounds = rounds and not all(map(labelled, datasets))
+    starts = (2 if rounds else 1) if starts is None else starts
+    results = _search(post, objective, _begins(post, z0, starts, rng, rounds), say, rounds, jobs)
     z_start, result = min(results, key=lambda r: r[1].fun)
     z = result.x
     say("curvature at the estimate (Laplace)")
@@ -149,25 +155,77 @@ def maximise(family: Family, datasets, algorithm: str = "imm", samples: int = 0,
                warnings, post.evaluations, time.perf_counter() - start, draws, acceptance)
 
 
-def _search(post: Posterior, objective: Cached, z0: np.ndarray, starts: int, rng: np.random.Generator,
-            say, rounds: bool) -> list:
-    """BFGS from z0 and from starts - 1 draws of the priors, each after rounds of labelling if `rounds`:
-    (the start, scipy's result) per start."""
+class Start(NamedTuple):
+    """Where one search begins: the unknowns' values (in z), and whether its first labelling round
+    takes every unlabelled row for the spec's first mode instead of the smoother's labels."""
+
+    z: np.ndarray
+    healthy: bool = False
+
+    def describe(self, i: int) -> str:
+        return ("the priors' medians" + (", every row first taken for the first mode" if self.healthy else "")
+                if i < 2 else "drawn from the priors")
+
+
+def _begins(post: Posterior, z0: np.ndarray, starts: int, rng: np.random.Generator, rounds: bool) -> list[Start]:
+    """The starts: the priors' medians; with labelling rounds, the medians again with every row first
+    taken for the first mode (a record is mostly normal operation: a start that a look-alike fault,
+    such as a biased sensor over a shifted level, cannot capture from the first round); then draws
+    from the priors."""
+    begins = [Start(z0)] + ([Start(z0, healthy=True)] if rounds and starts > 1 else [])
+    return begins + [Start(np.array([p.to_z(p.draw(rng)) for p in post.family.priors]))
+                     for _ in range(starts - len(begins))]
+
+
+def _search(post: Posterior, objective: Cached, begins: list[Start], say, rounds: bool,
+            jobs: int | None = None) -> list:
+    """BFGS from each start, after rounds of labelling if `rounds`, and `released` from the edges: (the
+    start's z, scipy's result) per start. With several starts, up to `jobs` of them (default: one per
+    core) search side by side in their own processes, each exactly as it would alone, so the peaks do
+    not depend on how many run at once; what each start said (its rounds, its iterations) is told
+    when it ends, each line after its start's number."""
+    starts = len(begins)
+    jobs = max(1, min(starts, jobs or os.cpu_count() or 1))
+    if jobs == 1:
+        results = []
+        for i, begin in enumerate(begins):
+            if starts > 1:
+                say(f"start {i + 1} of {starts} ({begin.describe(i)})")
+            results.append((begin.z, _climb(post, objective, begin, rounds, say)))
+        return results
+    say(f"{starts} starts, {jobs} at a time: " + "; ".join(b.describe(i) for i, b in enumerate(begins)))
+    with ProcessPoolExecutor(jobs) as pool:
+        futures = [pool.submit(_start, post.family.spec, post.datasets, post.algorithm, begin, rounds)
+                   for begin in begins]
+        results = []
+        for i, (begin, future) in enumerate(zip(begins, futures)):
+            result, evaluations, said = future.result()
+            post.evaluations += evaluations
+            for line in said:
+                say(f"start {i + 1}: {line}")
+            say(f"start {i + 1} of {starts}: log posterior {-result.fun:.8g} after {evaluations} likelihood evaluations")
+            results.append((begin.z, result))
+    return results
+
+
+def _climb(post: Posterior, objective: Cached, begin: Start, rounds: bool, say):
+    """One start's search: the labelling rounds (never below the start), BFGS, `released`."""
     iterations = itertools.count(1)
 
-    def report_iteration(z):
-        say(f"iteration {next(iterations)}: log posterior {-objective(z):.8g}")
+    def report_iteration(v):
+        say(f"iteration {next(iterations)}: log posterior {-objective(v):.8g}")
 
-    results = []
-    for i in range(starts):
-        z_start = z0 if i == 0 else np.array([p.to_z(p.draw(rng)) for p in post.family.priors])
-        if starts > 1:
-            say(f"start {i + 1} of {starts}" + (" (the priors' medians)" if i == 0 else " (drawn from the priors)"))
-        z = z_start
-        if rounds:
-            z = min((label_rounds(post, z_start, say), z_start), key=objective)  # never below the start
-        results.append((z_start, released(objective, bfgs(objective, z, report_iteration), say, report_iteration)))
-    return results
+    z = begin.z
+    if rounds:
+        z = min((label_rounds(post, z, say, begin.healthy), z), key=objective)
+    return released(objective, bfgs(objective, z, report_iteration), say, report_iteration)
+
+
+def _start(spec, datasets, algorithm: str, begin: Start, rounds: bool):
+    """One start searched in a process of its own: (scipy's result, likelihood evaluations, what it said)."""
+    post = Posterior(Family(spec), datasets, algorithm)
+    said = []
+    return _climb(post, Cached(post), begin, rounds, said.append), post.evaluations, said
 
 
 def released(objective: Cached, result, say, callback=None):
@@ -210,18 +268,23 @@ def hessian(f, z: np.ndarray, f0: float) -> tuple[np.ndarray, np.ndarray]:
     diagonal, gradient = _diagonal(f, z, f0, step)
     H = np.diag(diagonal)
     E = np.diag(step)
-    for i in range(d):
-        for j in range(i + 1, d):
-            ei, ej = E[i], E[j]
-            H[i, j] = H[j, i] = (f(z + ei + ej) - f(z + ei - ej) - f(z - ei + ej) + f(z - ei - ej)) \
-                / (4 * step[i] * step[j])
+    pairs = [(i, j) for i in range(d) for j in range(i + 1, d)]
+    corners = _many(f, [z + a * E[i] + b * E[j] for i, j in pairs for a, b in ((1, 1), (1, -1), (-1, 1), (-1, -1))])
+    for (i, j), (pp, pm, mp, mm) in zip(pairs, corners.reshape(len(pairs), 4)):
+        H[i, j] = H[j, i] = (pp - pm - mp + mm) / (4 * step[i] * step[j])
     return H, gradient
+
+
+def _many(f, points) -> np.ndarray:
+    """f at several points: together where f can (`Cached.many`), else one after the other."""
+    return f.many(points) if hasattr(f, "many") else np.array([f(v) for v in points])
 
 
 def _diagonal(f, z: np.ndarray, f0: float, step: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(d2 f / d z_i^2, d f / d z_i) by central differences with the given steps."""
-    up = np.array([f(z + e) for e in np.diag(step)])
-    down = np.array([f(z - e) for e in np.diag(step)])
+    d = len(z)
+    values = _many(f, [z + e for e in np.diag(step)] + [z - e for e in np.diag(step)])
+    up, down = values[:d], values[d:]
     with np.errstate(invalid="ignore"):
         return (up - 2 * f0 + down) / step ** 2, (up - down) / (2 * step)
 

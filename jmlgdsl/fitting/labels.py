@@ -40,11 +40,17 @@ def most_probable_modes(model: Model, data: Data) -> np.ndarray:
     return guess if data.modes is None else np.where(data.modes >= 0, data.modes, guess)
 
 
-def label_rounds(post: Posterior, z: np.ndarray, say) -> np.ndarray:
+def first_mode(data: Data) -> np.ndarray:
+    """(T,) each row's own label where it has one, else the spec's first mode (index 0)."""
+    return np.zeros(len(data.y), dtype=int) if data.modes is None else np.where(data.modes >= 0, data.modes, 0)
+
+
+def label_rounds(post: Posterior, z: np.ndarray, say, healthy: bool = False) -> np.ndarray:
     """z after rounds of labelling the unlabelled rows of post's data by their most probable modes and
     fitting to the data so labelled, until the labels repeat, or cycle (STALE_ROUNDS rounds in a row
     no better than the best: the z of the best round is kept), or MAX_ROUNDS. Each round's smoother
-    pass and likelihood evaluations are counted in post.evaluations.
+    pass and likelihood evaluations are counted in post.evaluations. `healthy`: the first round labels
+    every unlabelled row with the spec's first mode instead (a record is mostly normal operation).
 
     Hard labels are biased where a fault's first rows look like the mode before it (a leak that has
     not yet reached a measured level): the fit then blames the rows labelled with the fault for all of
@@ -53,13 +59,16 @@ def label_rounds(post: Posterior, z: np.ndarray, say) -> np.ndarray:
     LOGIT_LIMIT of an edge."""
     labels, best, stale = None, (np.inf, z), 0
     for round_ in range(1, MAX_ROUNDS + 1):
-        try:
-            model = post.family.model(post.theta(z))
-            with np.errstate(all="ignore"):
-                new = [d.modes if labelled(d) else most_probable_modes(model, d) for d in post.datasets]
-        except (JmlgError, np.linalg.LinAlgError, ValueError):
-            break  # the values make no model, or the smoother overflows: keep the last fit
-        post.evaluations += sum(not labelled(d) for d in post.datasets)
+        if healthy and labels is None:
+            new = [first_mode(d) for d in post.datasets]
+        else:
+            try:
+                model = post.family.model(post.theta(z))
+                with np.errstate(all="ignore"):
+                    new = [d.modes if labelled(d) else most_probable_modes(model, d) for d in post.datasets]
+            except (JmlgError, np.linalg.LinAlgError, ValueError):
+                break  # the values make no model, or the smoother overflows: keep the last fit
+            post.evaluations += sum(not labelled(d) for d in post.datasets)
         changed = None if labels is None else sum(int((a != b).sum()) for a, b in zip(new, labels))
         if changed == 0:
             break

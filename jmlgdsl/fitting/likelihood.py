@@ -2,16 +2,22 @@
 
 Data whose every row names its mode have an exact likelihood: one Kalman filter that follows the
 labelled modes (a mode sequence is a linear-Gaussian model), plus the log-probability of that
-sequence under the chain. Unlabelled data take a filter's likelihood, IMM by default."""
+sequence under the chain. Unlabelled data take a filter's likelihood, IMM by default; `logliks`
+takes the likelihoods of several models at once (the points of a finite-difference gradient), under
+IMM as the units of one vectorised filter."""
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 
 from ..data import Data
+from ..errors import JmlgError
 from ..infer import kalman
 from ..infer.engine import offsets
 from ..infer.online import Filter
+from ..infer.units import Units, stackable
 from ..model import Model
 
 
@@ -29,6 +35,33 @@ def loglik(model: Model, data: Data, algorithm: str = "imm", seed=0) -> float:
     for y, u in zip(data.y, data.u):
         f.step(y, u)
     return f.loglik
+
+
+def logliks(models, data: Data, algorithm: str = "imm", seed=0) -> list[float]:
+    """`loglik` of each of `models` on one recording (-inf for None: values that make no model, and for
+    a model whose filter fails). Under IMM on unlabelled data, models of one shape are filtered side
+    by side as the units of one vectorised filter (jmlgdsl.infer.units: each unit exactly as alone),
+    one pass over the record for all of them."""
+    out = [-math.inf] * len(models)
+    valid = [i for i, m in enumerate(models) if m is not None]
+    banks = [models[i] for i in valid]
+    if len(banks) > 1 and algorithm == "imm" and not labelled(data) and stackable(banks):
+        try:
+            fleet = Units(banks[0], len(banks), models=banks)
+            n = len(banks)
+            for y, u in zip(data.y, data.u):
+                fleet.step(np.broadcast_to(y, (n, len(y))), np.broadcast_to(u, (n, len(u))))
+            for i, value in zip(valid, fleet.loglik):
+                out[i] = float(value)
+            return out
+        except (JmlgError, np.linalg.LinAlgError, ValueError):
+            pass  # one model's filter failed: each on its own, below, so the others keep their values
+    for i in valid:
+        try:
+            out[i] = loglik(models[i], data, algorithm, seed)
+        except (JmlgError, np.linalg.LinAlgError, ValueError):
+            pass
+    return out
 
 
 def labelled_loglik(model: Model, y: np.ndarray, u: np.ndarray, modes: np.ndarray) -> float:

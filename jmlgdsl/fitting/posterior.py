@@ -10,7 +10,7 @@ from scipy.optimize import minimize
 
 from ..errors import JmlgError
 from .family import Family
-from .likelihood import loglik
+from .likelihood import loglik, logliks
 
 GRADIENT_STEP = 1e-6  # forward-difference step in z (relative change of a positive unknown)
 GTOL = 1e-3  # BFGS stops when no z-gradient entry exceeds this (far below one posterior sd's worth)
@@ -39,14 +39,35 @@ class Posterior:
 
     def __call__(self, z) -> float:
         theta = self.theta(z)
-        value = self.loglik(theta) + sum(p.logpdf(t) for p, t in zip(self.family.priors, theta))
+        return self._negative(theta, self.loglik(theta))
+
+    def _negative(self, theta, loglik: float) -> float:
+        """-log p(theta | data) up to a constant, from log p(data | theta); inf where it is not finite."""
+        value = loglik + sum(p.logpdf(t) for p, t in zip(self.family.priors, theta))
         return -value if math.isfinite(value) else math.inf
 
+    def many(self, zs) -> np.ndarray:
+        """The objective at several points, their likelihoods computed together (`logliks`: under IMM,
+        one pass over each record for all of them), each the value `self(z)` gives."""
+        thetas = [self.theta(z) for z in zs]
+        self.evaluations += len(zs)
+        models = []
+        for theta in thetas:
+            try:
+                models.append(self.family.model(theta))
+            except (JmlgError, np.linalg.LinAlgError, ValueError):
+                models.append(None)
+        with np.errstate(all="ignore"):
+            per_data = [logliks(models, d, self.algorithm) for d in self.datasets]
+        return np.array([self._negative(theta, sum(values[i] for values in per_data))
+                         for i, theta in enumerate(thetas)])
+
     def gradient(self, z, f0=None) -> np.ndarray:
-        """Forward differences in z."""
+        """Forward differences in z, the shifted points' likelihoods computed together (`many`)."""
         f0 = self(z) if f0 is None else f0
         steps = np.eye(len(z)) * GRADIENT_STEP
-        return np.array([(self(z + s) - f0) / GRADIENT_STEP for s in steps])
+        with np.errstate(invalid="ignore"):  # inf - inf: no gradient where no model, as with Python's floats
+            return (self.many([z + s for s in steps]) - f0) / GRADIENT_STEP
 
 
 class Cached:
@@ -61,6 +82,15 @@ class Cached:
         if key not in self.values:
             self.values[key] = self.post(z)
         return self.values[key]
+
+    def many(self, zs) -> np.ndarray:
+        """The objective at several points, those not asked before computed together (Posterior.many)."""
+        new = list({z.tobytes(): z for z in zs if z.tobytes() not in self.values}.values())
+        if len(new) == 1:
+            self(new[0])
+        elif new:
+            self.values.update(zip((z.tobytes() for z in new), self.post.many(new)))
+        return np.array([self.values[z.tobytes()] for z in zs])
 
 
 def bfgs(objective: Cached, z: np.ndarray, callback=None):
