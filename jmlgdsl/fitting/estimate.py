@@ -156,15 +156,17 @@ def maximise(family: Family, datasets, algorithm: str = "imm", samples: int = 0,
 
 
 class Start(NamedTuple):
-    """Where one search begins: the unknowns' values (in z), and whether its first labelling round
-    takes every unlabelled row for the spec's first mode instead of the smoother's labels."""
+    """Where one search begins: the unknowns' values (in z), whether they were drawn from the priors
+    (else the medians), and whether its first labelling round takes every unlabelled row for the
+    spec's first mode instead of the smoother's labels."""
 
     z: np.ndarray
+    drawn: bool = False
     healthy: bool = False
 
-    def describe(self, i: int) -> str:
-        return ("the priors' medians" + (", every row first taken for the first mode" if self.healthy else "")
-                if i < 2 else "drawn from the priors")
+    def describe(self) -> str:
+        return ("drawn from the priors" if self.drawn else "the priors' medians") + (
+            ", every row first taken for the first mode" if self.healthy else "")
 
 
 def _begins(post: Posterior, z0: np.ndarray, starts: int, rng: np.random.Generator, rounds: bool) -> list[Start]:
@@ -173,7 +175,7 @@ def _begins(post: Posterior, z0: np.ndarray, starts: int, rng: np.random.Generat
     such as a biased sensor over a shifted level, cannot capture from the first round); then draws
     from the priors."""
     begins = [Start(z0)] + ([Start(z0, healthy=True)] if rounds and starts > 1 else [])
-    return begins + [Start(np.array([p.to_z(p.draw(rng)) for p in post.family.priors]))
+    return begins + [Start(np.array([p.to_z(p.draw(rng)) for p in post.family.priors]), drawn=True)
                      for _ in range(starts - len(begins))]
 
 
@@ -190,10 +192,10 @@ def _search(post: Posterior, objective: Cached, begins: list[Start], say, rounds
         results = []
         for i, begin in enumerate(begins):
             if starts > 1:
-                say(f"start {i + 1} of {starts} ({begin.describe(i)})")
+                say(f"start {i + 1} of {starts} ({begin.describe()})")
             results.append((begin.z, _climb(post, objective, begin, rounds, say)))
         return results
-    say(f"{starts} starts, {jobs} at a time: " + "; ".join(b.describe(i) for i, b in enumerate(begins)))
+    say(f"{starts} starts, {jobs} at a time: " + "; ".join(b.describe() for b in begins))
     with ProcessPoolExecutor(jobs) as pool:
         futures = [pool.submit(_start, post.family.spec, post.datasets, post.algorithm, begin, rounds)
                    for begin in begins]
