@@ -125,7 +125,7 @@ def unit_banks(model: Model, folder, units) -> tuple[list[Model], list[str]]:
     `jmlgdsl fit SPEC u1.csv u2.csv ... -o FOLDER/`), and the units that have none there, which take
     the plant's `model`. A unit spec that is not of the plant's shape (other modes, outputs, inputs or
     states, another gate) is a FleetSpecError naming it: it cannot be a copy of the plant's spec."""
-    from .. import load
+    from ..compile.lower import compile_file
 
     folder = Path(folder)
     if not folder.is_dir():
@@ -137,7 +137,7 @@ def unit_banks(model: Model, folder, units) -> tuple[list[Model], list[str]]:
             banks.append(model)
             missing.append(unit)
             continue
-        bank = load(path)
+        bank = compile_file(path)
         if not stackable([model, bank]):
             raise FleetSpecError(f"{path}: unit {unit}'s spec is not of the plant {model.name}'s shape (modes "
                                  f"{', '.join(bank.modes)}; outputs {', '.join(bank.outputs)}): a unit spec is the "
