@@ -35,6 +35,7 @@ def written(tmp_path, text, name="d.csv", newline="\n"):
 def data_warnings(path, model=None):
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
+        warnings.simplefilter("ignore", ResourceWarning)  # a file another test left open, collected now
         read_csv(path, model or dryer())
     return [str(w.message) for w in caught if issubclass(w.category, DataWarning)]
 

@@ -285,6 +285,7 @@ def test_an_ode_plant_is_re_linearised_at_each_try_and_its_parameter_recovered(t
 def test_the_bundled_specs_with_unknowns_compile_warning_of_them(name, unknowns, alike):
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
+        warnings.simplefilter("ignore", ResourceWarning)  # a file another test left open, collected now
         jmlgdsl.load(f"examples/fit/{name}.jmlg")
     messages = [str(w.message).split("warning: ")[1] for w in caught]
     assert [m.split(" is unknown")[0] for m in messages if " is unknown: " in m] == unknowns
