@@ -7,6 +7,7 @@ a quarter of a second of its commit.
     GET  /api/rows?after=T | ?first=A&last=B&limit=N | (nothing: the live end)
     GET  /api/alarms               the alarms with their ISA-18.2 states
     GET  /api/evidence?alarm=ID    each sensor's share of the evidence behind an alarm
+    GET  /api/fleet                a fleet's units worst first: each one's mode now and open alarms
     GET  /api/stream?after=T       server-sent events: `rows` (as /api/rows) and `alarms` (when they change)
     POST /api/alarms/ID/acknowledge | /shelve | /unshelve   JSON {"who": ..., "reason": ...}
 
@@ -167,6 +168,8 @@ def _handler(page: Page):
                     self._json(views.alarms(page.store(), page.run(query.get("unit"))))
                 elif parts.path == "/api/evidence":
                     self._json(views.evidence(page.store(), page.run(query.get("unit")), int(query.get("alarm", 0))))
+                elif parts.path == "/api/fleet":
+                    self._json(views.fleet(page.store(), page.unit))
                 elif parts.path == "/api/stream":
                     self._stream(int(self.headers.get("Last-Event-ID") or query.get("after") or 0), query.get("unit"))
                 else:

@@ -1,5 +1,5 @@
 """What the operator's page shows, as JSON built from a monitor's store: the run, a window of rows,
-the alarms with their ISA-18.2 states, and the evidence behind an alarm.
+the alarms with their ISA-18.2 states, the evidence behind an alarm, and a fleet's units worst first.
 
 The store keeps vectors as JSON arrays already (finite numbers, null for NaN), so a window of rows is
 written by joining the stored texts, not by parsing and writing them again: a page of 1,500 rows
@@ -102,3 +102,36 @@ def evidence(store: Store, run: Run, alarm: int) -> dict:
                 total[name] = total.get(name, 0.0) + value
     outputs = sorted(({"name": n, "nats": v} for n, v in total.items()), key=lambda o: -o["nats"])
     return {"alarm": alarm, "mode": found.mode, "rows": rows, "outputs": outputs}
+
+
+# What makes a unit need an operator, worst first (the overview's order): an alarm state, or a fault
+# mode the alarm rule has not (yet) raised an alarm for.
+ATTENTION = ("active, unacknowledged", "active, acknowledged", "fault mode", "cleared, unacknowledged")
+
+
+def fleet(store: Store, opened: str | None) -> dict:
+    """Every unit of a fleet's store, worst first, as an operator of many units scans them: each
+    unit's latest run's modes and healthy modes, its newest row (t, time, the most probable mode and
+    its probability), its open alarms (active, or cleared and not yet acknowledged;
+    newest first) and how many are shelved, and what it needs attention for (the first of ATTENTION
+    that applies, or None). Worst first: by ATTENTION, then by how many alarms in that state, then in
+    the fleet's order. `opened` is the unit the page was started on (None: the overview is the page's
+    first view)."""
+    ranked = []
+    for order, name in enumerate(store.units()):
+        run = store.run(unit=name)
+        newest = store.db.execute("SELECT r.t, s.time, r.map_mode, r.posterior FROM result r JOIN sample s "
+                                  "ON s.run = r.run AND s.t = r.t WHERE r.run = ? ORDER BY r.t DESC LIMIT 1",
+                                  (run.id,)).fetchone()
+        t, time, mode, posterior = newest or (None, None, None, None)
+        healthy = run.options.get("healthy", [])
+        listed = alarms(store, run)
+        open_ = [a for a in listed if a["state"] in ATTENTION]
+        states = [a["state"] for a in open_] + ([] if mode is None or mode in healthy else ["fault mode"])
+        attention = next((s for s in ATTENTION if s in states), None)
+        rank = (ATTENTION.index(attention) if attention else len(ATTENTION), -states.count(attention), order)
+        ranked.append((rank, {"unit": name, "plant": run.plant, "modes": run.modes, "healthy": healthy, "t": t,
+                              "time": time, "mode": mode, "attention": attention, "alarms": open_,
+                              "probability": None if mode is None else json.loads(posterior)[run.modes.index(mode)],
+                              "shelved": sum(a["state"] == "shelved" for a in listed)}))
+    return {"opened": opened, "units": [unit for _, unit in sorted(ranked, key=lambda pair: pair[0])]}
