@@ -19,8 +19,9 @@ def register(subparsers):
     p.add_argument("store", help=STORE_HELP)
     which = p.add_mutually_exclusive_group()
     which.add_argument("--run", type=int, metavar="N", help="which run of the store (default the latest)")
-    which.add_argument("--unit", metavar="NAME", help="a fleet's store: the latest run of this unit (the page "
-                                                      "lists the others)")
+    which.add_argument("--unit", metavar="NAME", help="a fleet's store: open on the latest run of this unit "
+                                                      "(without it, a fleet's page opens on every unit, worst "
+                                                      "first)")
     add_store_password_options(p)
     add_page_options(p, default="127.0.0.1:8050")
     p.set_defaults(func=main)

@@ -4,8 +4,9 @@
 It shows the most probable mode and how sure the model is, a strip of every mode's probability over
 time, each sensor's reading against the filter's one-step prediction with a band of two standard
 deviations, and the alarms to deal with in their ISA-18.2 states (acknowledge, shelve with a reason),
-with the evidence per sensor behind the selected one. Any past window of the store can be shown
-(scroll to zoom, drag to pan); new rows arrive within a quarter of a second of their commit.
+with the evidence per sensor behind the selected one; clock times in the browser's local time. Any
+past window of the store can be shown (scroll to zoom, drag to pan); new rows arrive within a
+quarter of a second of their commit. A fleet's page opens on every unit, worst first.
 
     >>> import jmlgdsl, json, os, tempfile, urllib.request
     >>> from jmlgdsl.monitor import CsvSource, Monitor, Store, monitor_options
