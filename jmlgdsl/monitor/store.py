@@ -23,7 +23,8 @@ reading not measured):
             what operators did with the alarms (ISA-18.2), oldest first
     event   id, run, at (UTC ISO wall-clock time), time (the data time it concerns), kind, tag, detail
     state   run, rows (diagnosed so far), checkpoint (the Diagnosis), monitor (the row assembler),
-            position (JSON: where the source resumes), saved (UTC ISO time)
+            position (JSON: where the source resumes), saved (UTC ISO time); the checkpoint and the
+            monitor's state are sealed (jmlgdsl.sealed: data only, with a checksum)
 
 A store of an older schema (1: before y_sd, evidence, the alarm's mode, descriptions, units and
 actions; 2: before the run's unit) is brought to schema 3 when it is opened; the columns it lacks
@@ -153,6 +154,7 @@ class Saved:
     checkpoint: bytes
     monitor: bytes | None
     position: dict | None
+    at: str  # when it was committed (UTC ISO time)
 
 
 UPGRADES = {"1": (("run", "descriptions"), ("run", "units"), ("result", "y_sd"), ("result", "evidence_mode"),
@@ -269,8 +271,10 @@ class Store:
 
     def saved(self, run: int) -> Saved | None:
         """The state last committed for a run (None before its first commit)."""
-        row = self.db.execute("SELECT rows, checkpoint, monitor, position FROM state WHERE run = ?", (run,)).fetchone()
-        return None if row is None else Saved(row[0], row[1], row[2], None if row[3] is None else json.loads(row[3]))
+        row = self.db.execute("SELECT rows, checkpoint, monitor, position, saved FROM state WHERE run = ?",
+                              (run,)).fetchone()
+        return None if row is None else Saved(row[0], row[1], row[2], None if row[3] is None else json.loads(row[3]),
+                                              row[4])
 
     # ------------------------------------------------------------------ the one write
     def save(self, commits: list[Commit]):
