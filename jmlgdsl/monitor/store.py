@@ -105,6 +105,7 @@ class Run:
 
 
 ACTIONS = ("acknowledge", "shelve", "unshelve")
+LONGEST = {"who": 100, "reason": 1000}  # characters of an action's name of who acts, and of its reason
 
 
 @dataclass(frozen=True)
@@ -333,6 +334,11 @@ class Store:
             raise StoreError(f"run {run} has no alarm {alarm}")
         if kind not in ACTIONS:
             raise StoreError(f"unknown action {kind!r}; one of {', '.join(ACTIONS)}")
+        for name, text in (("who", who), ("reason", reason)):
+            if text is not None and (not isinstance(text, str) or len(text) > LONGEST[name]
+                                     or not text.isprintable()):
+                raise StoreError(f"{'who acts' if name == 'who' else 'the reason'} is one line of at most "
+                                 f"{LONGEST[name]} printable characters")
         if not who.strip():
             raise StoreError("say who acts (a name or initials)")
         if kind == "acknowledge" and found.acknowledged:
