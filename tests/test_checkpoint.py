@@ -3,6 +3,8 @@ one: every algorithm, with and without a lag, with the alarm rule's persistence,
 scoring and the evidence per sensor on. Saved state from another model or another version is refused
 by name."""
 
+import hashlib
+import json
 import os
 import pickle
 import subprocess
@@ -17,6 +19,7 @@ from jmlgdsl.diagnosis.alarms import AlarmRule
 from jmlgdsl.data import iter_rows, open_source
 from jmlgdsl.diagnosis import CheckpointError, Diagnosis, Kept
 from jmlgdsl.diagnosis import pipeline
+from jmlgdsl import sealed
 from jmlgdsl.infer import ALGORITHMS
 
 SPEC = ROOT / "specs" / "dryer.jmlg"
@@ -115,7 +118,9 @@ def test_a_checkpoint_is_refused_by_another_model_or_version():
     with pytest.raises(CheckpointError, match=r"^the checkpoint was saved from another model \(plant 'dryer', "
                                               r"fingerprint [0-9a-f]{12}\) than this one \(plant 'dryer', "):
         Diagnosis.resume(saved, other)
-    older = saved.replace(f'"version": "{jmlgdsl.__version__}"'.encode(), b'"version": "0.0.1"')
+    state = sealed.unseal(saved, pipeline.SAVED_KINDS, {"model": model})
+    older = sealed.seal(state, {**sealed.header_of(saved), "version": "0.0.1"}, pipeline.SAVED_KINDS,
+                           {"model": model})
     with pytest.raises(CheckpointError, match=rf"^the checkpoint was saved by jmlgdsl 0.0.1 \(format "
                                               rf"{pipeline.CHECKPOINT_FORMAT}\); this is "
                                               rf"jmlgdsl {jmlgdsl.__version__}, which cannot resume it"):
@@ -123,6 +128,56 @@ def test_a_checkpoint_is_refused_by_another_model_or_version():
     with pytest.raises(CheckpointError, match="^not a jmlgdsl checkpoint$"):
         Diagnosis.resume(b"t,temp\n1,50\n", model)
     assert Diagnosis.resume(saved, jmlgdsl.load(SPEC)).summary.T == 10  # the same spec, loaded again
+
+
+def test_a_pickled_checkpoint_of_an_earlier_version_is_refused_unread(tmp_path):
+    """Format 2 checkpoints were pickles: one that a store's writer crafted to run code on resume
+    is refused before a byte of the pickle is read."""
+    model = jmlgdsl.load(SPEC)
+    marker = tmp_path / "ran"
+
+    class Payload:
+        def __reduce__(self):
+            return (open, (str(marker), "w"))
+
+    identity = {"format": 2, "version": jmlgdsl.__version__, "plant": model.name,
+                "model": pipeline.fingerprint(model)}
+    crafted = b"jmlgdsl-checkpoint\n" + json.dumps(identity).encode() + b"\n" + pickle.dumps({"x": Payload()})
+    with pytest.raises(CheckpointError, match=r"^a checkpoint of an earlier jmlgdsl, saved as a Python pickle: "
+                                              r"it is not read \(reading a pickle can run"):
+        Diagnosis.resume(crafted, model)
+    assert not marker.exists()
+
+
+@pytest.mark.parametrize("node", [{"record": "subprocess.Popen", "fields": {}}, {"function": "os.system"},
+                                  {"record": "jmlgdsl.infer.online.Filter", "fields": {"__class__": 1}},
+                                  {"ndarray": ["|O", [1], 0]}, {"generator": "os.system", "state": None}])
+def test_a_checkpoint_that_names_what_a_diagnosis_is_not_made_of_is_refused(node):
+    """Saved state only ever makes the classes the diagnosis is made of: a checkpoint whose checksum
+    matches but that names another class, a function, an object array or a dunder field is refused."""
+    model = jmlgdsl.load(SPEC)
+    identity = pipeline._identity(model)
+    body = json.dumps(identity).encode() + b"\n" + json.dumps({"dict": [["filter", node]]}).encode() + b"\n"
+    crafted = sealed.MAGIC + b"sha256 " + hashlib.sha256(body).hexdigest().encode() + b"\n" + body
+    with pytest.raises(CheckpointError, match=r"^a jmlgdsl checkpoint that does not read back \(sealed state"):
+        Diagnosis.resume(crafted, model)
+
+
+def test_a_damaged_checkpoint_is_refused_by_its_checksum():
+    model = jmlgdsl.load(SPEC)
+    d = diagnosis(model, "la-rbpf", 3, [])
+    for row in rows(20):
+        d.feed(row)
+    saved = d.checkpoint()
+    rng = np.random.default_rng(3)
+    for at in rng.choice(np.arange(len(sealed.MAGIC), len(saved)), 40, replace=False):
+        damaged = bytearray(saved)
+        damaged[at] ^= 1 << int(rng.integers(8))
+        with pytest.raises(CheckpointError, match=r"^a damaged jmlgdsl checkpoint \(damaged sealed state: its "
+                                                  r"checksum does not match its contents\)$"):
+            Diagnosis.resume(bytes(damaged), model)
+    resumed = Diagnosis.resume(saved, model)  # the same bytes undamaged
+    assert resumed.filter.rng is resumed.filter.engine.rng  # one generator, shared as it was
 
 
 def test_a_checkpoint_leaves_the_model_out():

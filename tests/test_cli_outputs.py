@@ -80,3 +80,14 @@ def test_run_warns_about_an_output_in_another_unit(files, capsys, tmp_path):
     assert "warning: output 'temp': its residuals are about" in err and "times the model's noise" in err
     assert main(["run", str(spec), str(data)]) == 0
     assert "residuals are about" not in capsys.readouterr().err  # data in the spec's unit: no warning
+
+
+def test_simulate_says_what_it_wrote_as_compile_does(files, capsys, tmp_path):
+    spec, _ = files
+    out = tmp_path / "sim.csv"
+    assert main(["simulate", str(spec), "--steps", "7", "--seed", "1", "-o", str(out)]) == 0
+    assert capsys.readouterr().out == f"wrote {out} (7 rows, 4 modes)\n"
+    assert main(["compile", str(spec), "-o", str(tmp_path / "m.npz")]) == 0
+    assert capsys.readouterr().out.startswith(f"wrote {tmp_path / 'm.npz'} (4 modes")
+    assert main(["simulate", str(spec), "--steps", "7", "--seed", "1"]) == 0
+    assert capsys.readouterr().out.startswith("time,")  # to standard output: the data alone

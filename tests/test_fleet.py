@@ -3,14 +3,13 @@ per sensor is, bit for bit, what diagnosing it alone gives, through missing read
 gate leaves out and units that stop early; and a fleet's filter saved unit by unit (Units.state) and
 put back into a new one (Units.restore) goes on as if it had never stopped."""
 
-import pickle
-
 import numpy as np
 import pytest
 from infer_models import random_model
 from test_units_batched import fleet_data
 
 import jmlgdsl
+from jmlgdsl import sealed
 from jmlgdsl.data import Row
 from jmlgdsl.diagnosis import Diagnosis
 from jmlgdsl.diagnosis.fleet import Fleet
@@ -62,9 +61,9 @@ def test_a_fleet_filter_saved_unit_by_unit_goes_on_bit_for_bit():
     uninterrupted = steps(whole, range(T))
     first = Units(model, 5, "imm")
     steps(first, range(60))
-    saved = pickle.dumps([first.state(i) for i in range(5)])  # as a monitor's store keeps them
+    saved = sealed.seal([first.state(i) for i in range(5)], {})  # as a monitor's store keeps them
     second = Units(model, 5, "imm")
-    for i, state in enumerate(pickle.loads(saved)):
+    for i, state in enumerate(sealed.unseal(saved)):
         second.restore(i, state)
     for a, b in zip(steps(second, range(60, T)), uninterrupted[60:]):
         for field in a._fields:

@@ -151,3 +151,12 @@ def test_modes_in_blocks_override_parameters():
     block = replace('modes normal, leak "a leak": k = 0.6', 'modes normal, leak\nmode leak { k = 0.6 }')
     a, b = compile_text(BASE), compile_text(block)
     assert a.A[1, 0, 0] == b.A[1, 0, 0] != a.A[0, 0, 0]
+
+
+def test_a_number_that_makes_the_equations_infinite_is_a_located_error():
+    """10.8 -> 1e+308 in the CSTR's feed concentration makes its derivatives infinite: the steady-state
+    search says so at each mode, where scipy's integrator raised 'array must not contain infs or NaNs'."""
+    text = (ROOT / "specs" / "cstr10.jmlg").read_text().replace("10.8", "1e+308")
+    found = shared_errors_of(text, "cstr10.jmlg")
+    assert found and found[0].message.startswith("no steady state found for mode 'normal': der(CA) is still inf")
+    assert (found[0].file, found[0].line, found[0].column) == ("cstr10.jmlg", 36, 3)

@@ -32,9 +32,14 @@ def main(args) -> int:
     import threading
 
     from ..monitor import Store, StoreError
+    from ..monitor.store import damaged
 
     password = store_password(args)
     with Store(args.store, create=False, password=password) as store:
+        damage = store.damage()
+        if damage:
+            print(f"warning: {damaged(args.store, damage)}; the page shows the rows that can be read",
+                  file=sys.stderr)
         if store.run(args.run, unit=args.unit) is None:
             raise StoreError(f"{args.store}: the store holds no run " + (f"of unit {args.unit}; its units: "
                              f"{', '.join(store.units()) or 'none'}" if args.unit else "yet"))

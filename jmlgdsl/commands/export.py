@@ -22,15 +22,20 @@ def register(subparsers):
 
 
 def main(args) -> int:
+    import sys
 
     from ..data import open_target
     from ..errors import DataError
     from ..monitor import Store
+    from ..monitor.store import damaged
     from ..output import check_file
 
     check_file(args.output, inputs=[args.store])
     check_file(args.samples, inputs=[args.store, args.output], option="--samples")
     with Store(args.store, create=False, password=store_password(args)) as store:
+        damage = store.damage()
+        if damage:
+            print(f"warning: {damaged(args.store, damage)}; the rows that can be read are exported", file=sys.stderr)
         run = store.run(args.run, unit=args.unit)
         if run is None:
             raise DataError(f"{args.store}: the store holds no run " + (f"of unit {args.unit}; its units: "
@@ -42,6 +47,11 @@ def main(args) -> int:
             if path is None:
                 continue
             with open_target(path) as out:  # whole, or not at all
-                if not write(run, out):
-                    raise DataError(f"{args.store}: run {run.id} holds no diagnosed rows yet")
+                written = write(run, out)
+                if not written.rows:
+                    raise DataError(f"{args.store}: run {run.id} holds no diagnosed rows yet" if not written.damaged
+                                    else f"{args.store}: no row of run {run.id} can be read: {written.left_out()}")
+            if written.damaged:
+                print(f"warning: {args.store}: run {run.id}: {written.left_out()} of {path}; {written.rows} rows "
+                      "exported", file=sys.stderr)
     return 0

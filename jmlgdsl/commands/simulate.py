@@ -65,6 +65,7 @@ def main(args) -> int:
     import jmlgdsl
 
     from ..data import write_columns
+    from ..names import plural
     from ..output import check_count, check_file
     from ..simulate import simulate, step_bytes
 
@@ -85,4 +86,6 @@ def main(args) -> int:
     else:
         sim = simulate(model, args.steps, seed=args.seed, modes=args.modes, u=u)
     write_columns(args.output, sim.columns())
+    if args.output != "-":  # as compile -o says what it wrote; standard output holds the data itself
+        print(f"wrote {args.output} ({plural(len(sim.modes), 'row')}, {plural(model.K, 'mode')})")
     return 0

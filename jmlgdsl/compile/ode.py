@@ -223,6 +223,8 @@ def flow(system: OdeSystem, x, u, p, span: float, method: str = "LSODA", rtol: f
                             rtol=rtol, atol=atol)
     except _OverBudget:
         return None, f"the equations needed more than {MAX_EVALUATIONS} evaluations"
+    except ValueError:  # scipy's check of a derivative or Jacobian that is not finite (a number such as 1e308)
+        return None, "the equations gave a value that is not finite (inf or NaN)"
     end = sol.y[:, -1]
     if not sol.success or not np.all(np.isfinite(end)):
         return None, sol.message if not sol.success else "the state left the equations' domain (NaN or inf)"

@@ -5,24 +5,26 @@ the alarm rule's persistence counter, the summary, the truth scoring, the scale 
 for) the evidence per sensor of the rows held back. Each finished row goes to the sinks
 (`collect(row)`): a result table, a figure's record, a store.
 `checkpoint()` saves that whole state as bytes and `Diagnosis.resume` restores it in any process,
-which then continues bit for bit as the uninterrupted diagnosis would.
+which then continues bit for bit as the uninterrupted diagnosis would. The bytes hold data only
+(jmlgdsl.sealed: numbers, arrays and records of the diagnosis's own classes, with a checksum), so a
+checkpoint read back from a store that others can write cannot make the process run code.
 """
 
 from __future__ import annotations
 
 import functools
 import hashlib
-import io
 import json
-import pickle
 from collections import deque
 from dataclasses import dataclass
 
-from .alarms import AlarmRule
+from ..sealed import SealedError, header_of, is_sealed, seal, unseal
+from .alarms import AlarmRule, AlarmStream
 from ..data import Row
 from .evidence import Evidence
 from ..errors import JmlgError
 from ..infer import DEFAULT_ALGORITHM, Filter
+from ..infer.online import SAVED_KINDS as FILTER_KINDS
 from ..infer.result import Step, Summary
 from ..model import Model
 from .prefilter import MovingAverage
@@ -31,8 +33,10 @@ from .scale import ScaleCheck
 from .truth import Truth
 
 MAX_SEGMENTS = 30  # mode segments the summary lists; the rest are counted
-CHECKPOINT = b"jmlgdsl-checkpoint\n"  # the first line of every checkpoint
-CHECKPOINT_FORMAT = 2
+CHECKPOINT_FORMAT = 3  # 3: data only (jmlgdsl.sealed); 2 and before: a Python pickle, never read back
+PICKLED = b"jmlgdsl-checkpoint\n"  # how a checkpoint of format 2 or before begins
+# the classes a diagnosis's state is made of: the only ones reading a checkpoint back may make
+SAVED_KINDS = (*FILTER_KINDS, Row, AlarmRule, AlarmStream, Evidence, MovingAverage, ScaleCheck, Truth, Summary)
 
 
 class CheckpointError(JmlgError):
@@ -127,24 +131,22 @@ class Diagnosis:
         covariance graph, random generator), fixed-lag window, pre-filter, alarm counter, summary,
         truth and the rows held back. The model and the sinks are not in it: `resume` is given them."""
         state = {key: value for key, value in vars(self).items() if key not in ("model", "sinks")}
-        buffer = io.BytesIO()
-        buffer.write(CHECKPOINT)
-        buffer.write(json.dumps(_identity(self.model)).encode() + b"\n")
-        _Pickler(buffer, self.model).dump(state)
-        return buffer.getvalue()
+        return seal(state, _identity(self.model), SAVED_KINDS, {"model": self.model})
 
     @classmethod
-    def resume(cls, saved: bytes, model: Model, sinks=()) -> "Diagnosis":
+    def resume(cls, checkpoint: bytes, model: Model, sinks=()) -> "Diagnosis":
         """The diagnosis saved by `checkpoint`, continuing with `model` (the one it was saved with)
-        and new sinks; a CheckpointError when the bytes are not such a state, or were saved from
-        another model or by another version of jmlgdsl."""
-        stream = io.BytesIO(saved)
-        if stream.readline() != CHECKPOINT:
+        and new sinks; a CheckpointError when the bytes are not such a state, are damaged (their
+        checksum does not match), or were saved from another model or by another version of jmlgdsl."""
+        if bytes(checkpoint[:len(PICKLED)]) == PICKLED:
+            raise CheckpointError("a checkpoint of an earlier jmlgdsl, saved as a Python pickle: it is not read "
+                                  "(reading a pickle can run any code its writer put in it)")
+        if not is_sealed(checkpoint):
             raise CheckpointError("not a jmlgdsl checkpoint")
         try:
-            identity = json.loads(stream.readline())
-        except ValueError:
-            raise CheckpointError("a damaged jmlgdsl checkpoint (its header is not readable)") from None
+            identity = header_of(checkpoint)
+        except SealedError as exc:
+            raise CheckpointError(f"a damaged jmlgdsl checkpoint ({exc})") from None
         here = _identity(model)
         if identity.get("format") != here["format"] or identity.get("version") != here["version"]:
             raise CheckpointError(f"the checkpoint was saved by jmlgdsl {identity.get('version')} (format "
@@ -153,8 +155,14 @@ class Diagnosis:
             raise CheckpointError(f"the checkpoint was saved from another model (plant {identity.get('plant')!r}, "
                                   f"fingerprint {str(identity.get('model'))[:12]}) than this one (plant "
                                   f"{model.name!r}, fingerprint {here['model'][:12]})")
+        try:
+            state = unseal(checkpoint, SAVED_KINDS, {"model": model})
+        except SealedError as exc:
+            raise CheckpointError(f"a jmlgdsl checkpoint that does not read back ({exc})") from None
+        if not isinstance(state, dict) or not all(isinstance(key, str) for key in state):
+            raise CheckpointError("a jmlgdsl checkpoint that holds no diagnosis")
         diagnosis = cls.__new__(cls)
-        vars(diagnosis).update(_Unpickler(stream, model).load(), model=model, sinks=list(sinks))
+        vars(diagnosis).update(state, model=model, sinks=list(sinks))
         return diagnosis
 
 
@@ -168,28 +176,6 @@ def fingerprint(model: Model) -> str:
 def _identity(model: Model) -> dict:
     """What a checkpoint says of itself: its format, the version that wrote it and its model."""
     return {"format": CHECKPOINT_FORMAT, "version": VERSION, "plant": model.name, "model": fingerprint(model)}
-
-
-class _Pickler(pickle.Pickler):
-    """Pickles a state that refers to `model` by reference: the model is the caller's to give back."""
-
-    def __init__(self, stream, model):
-        super().__init__(stream, protocol=pickle.HIGHEST_PROTOCOL)
-        self.model = model
-
-    def persistent_id(self, obj):
-        return "model" if obj is self.model else None
-
-
-class _Unpickler(pickle.Unpickler):
-    def __init__(self, stream, model):
-        super().__init__(stream)
-        self.model = model
-
-    def persistent_load(self, pid):
-        if pid != "model":
-            raise CheckpointError("a damaged jmlgdsl checkpoint")
-        return self.model
 
 
 def diagnose(model: Model, rows, *, sinks=(), **options) -> Diagnosis:

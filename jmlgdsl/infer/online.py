@@ -16,8 +16,9 @@ import numpy as np
 from ..errors import DataError
 from ..model import Model
 from ..seeds import generator
+from . import covariances
 from .algorithms import ALGORITHMS, DEFAULT_ALGORITHM
-from .engine import FilterError, Gate, Resampler, offsets
+from .engine import FilterError, Gate, Genealogy, Resampler, offsets
 from .lagged import Genealogies, ImmWindow
 from .resample import SCHEMES
 from .result import Result, Step
@@ -149,6 +150,12 @@ class Filter:
         self._flagged = np.zeros_like(self._flagged) if flagged is None else np.where(flagged, self._flagged + 1, 0)
         self._watching = flagged is not None
         self._gate = Gate.of(self.model.outlier_gate, self._flagged < MAX_REJECTIONS)
+
+
+# What a Filter's state is made of: the classes and functions its saved state (jmlgdsl.sealed) may
+# hold, and the only ones reading it back may make.
+SAVED_KINDS = (Filter, Step, Gate, Genealogy, Resampler, Genealogies, ImmWindow, covariances.CovarianceGraph,
+               covariances._Growing, covariances._Rows, *(a.engine for a in ALGORITHMS.values()), *SCHEMES.values())
 
 
 def _overflow(t, est) -> FilterError:

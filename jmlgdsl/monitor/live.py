@@ -10,22 +10,24 @@ from __future__ import annotations
 import collections
 import dataclasses
 import json
-import pickle
 import queue
 import threading
 import time as clock
 
 import numpy as np
 
+from ..sealed import SealedError, header_of, seal, unseal
 from ..diagnosis.alarms import AlarmRule
-from ..diagnosis import Diagnosis, fingerprint
+from ..diagnosis import CheckpointError, Diagnosis, fingerprint
 from ..diagnosis.fleet import Fleet, stepped_together
 from ..diagnosis.prediction import predictive_sd
 from ..infer import DEFAULT_ALGORITHM
+from ..infer.result import Step
 from ..infer.units import Stacked
 from ..errors import JmlgError
 from .assemble import Assembler, Event
 from .store import Commit, Store
+from ..version import VERSION
 
 IDLE = 0.1  # seconds without input before the monitor commits and moves the wall clock on
 QUEUE = 10_000  # items a source may hand over ahead of the diagnosis
@@ -40,6 +42,10 @@ LEAD = 16
 # Seconds a fleet's row may wait for the other units' rows of its sample, so that their filters step
 # together (a commit steps every row first).
 GATHER = 0.02
+# The monitor's own saved state beside a unit's checkpoint (its assembler, its last estimate, its part
+# of a fleet's filter), sealed (jmlgdsl.sealed) with these kinds in it and this header.
+MONITOR_KINDS = (Assembler, Step)
+MONITOR_STATE = {"monitor": 1, "version": VERSION}
 
 
 class MonitorError(JmlgError):
@@ -125,11 +131,16 @@ class Monitor:
             watch.assembler = None if self.source.rows else Assembler(self.model, self.tags, options["grace"],
                                                                       options["stale"], options["max_gap"])
         else:
-            watch.diagnosis = Diagnosis.resume(saved.checkpoint, model, sinks=[watch])
-            # saved by this version with the checkpoint (Diagnosis.resume refuses another version's)
-            state = pickle.loads(saved.monitor)
-            watch.assembler, watch.previous = state["assembler"], state["previous"]
-            watch.filter_state = state.get("filter")
+            try:
+                watch.diagnosis = Diagnosis.resume(saved.checkpoint, model, sinks=[watch])
+                # sealed by this version with the checkpoint (Diagnosis.resume refuses another version's)
+                if header_of(saved.monitor or b"") != MONITOR_STATE:
+                    raise SealedError("the monitor's part of it is of another kind or version")
+                state = unseal(saved.monitor, MONITOR_KINDS)
+                watch.assembler, watch.previous = state["assembler"], state["previous"]
+                watch.filter_state = state.get("filter")
+            except (CheckpointError, SealedError, TypeError, KeyError) as exc:
+                raise MonitorError(unresumable(self.store, run, saved, exc)) from None
             watch.rows, watch.position = saved.rows, saved.position
         watch.resumed = saved is not None
         return watch
@@ -341,7 +352,16 @@ class Watch:
         if fleet is not None:
             state["filter"] = fleet.filter.state(self.index)
         return Commit(self.run.id, self.samples, self.results, self.events, self.rows, self.diagnosis.checkpoint(),
-                      pickle.dumps(state), self.position)
+                      seal(state, MONITOR_STATE, MONITOR_KINDS), self.position)
+
+
+def unresumable(store, run, saved, reason) -> str:
+    """Why a run cannot be resumed from the state the store holds for it, and what to do."""
+    whose = "" if run.unit is None else f" of unit {run.unit}"
+    return (f"the store {store.path} cannot resume run {run.id}{whose} from its saved state (after row "
+            f"{saved.rows}, saved {saved.at}): {reason}. A store keeps one saved state a run, the last one "
+            f"committed, so there is no earlier one to go back to; the run's rows stay readable ('jmlgdsl "
+            f"export'). Start a new run with --new-run (a new prior: the first rows may alarm while it settles)")
 
 
 def recorded_options(model, options: dict, source: str, tags: dict) -> dict:

@@ -23,7 +23,8 @@ reading not measured):
             what operators did with the alarms (ISA-18.2), oldest first
     event   id, run, at (UTC ISO wall-clock time), time (the data time it concerns), kind, tag, detail
     state   run, rows (diagnosed so far), checkpoint (the Diagnosis), monitor (the row assembler),
-            position (JSON: where the source resumes), saved (UTC ISO time)
+            position (JSON: where the source resumes), saved (UTC ISO time); the checkpoint and the
+            monitor's state are sealed (jmlgdsl.sealed: data only, with a checksum)
 
 A store of an older schema (1: before y_sd, evidence, the alarm's mode, descriptions, units and
 actions; 2: before the run's unit) is brought to schema 3 when it is opened; the columns it lacks
@@ -40,16 +41,17 @@ from __future__ import annotations
 
 import csv
 import hashlib
-import itertools
 import json
 import math
 from dataclasses import dataclass
 from datetime import datetime, timezone
+from typing import NamedTuple
 
 import numpy as np
 
 from ..infer.result import Step
 from ..infer.table import TableWriter
+from ..names import plural, spans
 from ..version import VERSION
 from .databases import StoreError, connect
 
@@ -104,6 +106,7 @@ class Run:
 
 
 ACTIONS = ("acknowledge", "shelve", "unshelve")
+LONGEST = {"who": 100, "reason": 1000}  # characters of an action's name of who acts, and of its reason
 
 
 @dataclass(frozen=True)
@@ -153,6 +156,7 @@ class Saved:
     checkpoint: bytes
     monitor: bytes | None
     position: dict | None
+    at: str  # when it was committed (UTC ISO time)
 
 
 UPGRADES = {"1": (("run", "descriptions"), ("run", "units"), ("result", "y_sd"), ("result", "evidence_mode"),
@@ -171,8 +175,34 @@ def vector(values) -> str:
                            for v in np.asarray(values, float).tolist()) + "]"
 
 
-def unvector(text) -> np.ndarray:
-    return np.array([math.nan if v is None else v for v in json.loads(text)], dtype=float)
+def unvector(text, size: int) -> np.ndarray:
+    """A vector of `size` numbers that `vector` wrote; a ValueError for text it did not write."""
+    values = json.loads(text)
+    if not isinstance(values, list) or len(values) != size or not all(
+            v is None or type(v) in (int, float) for v in values):
+        raise ValueError(f"not a vector of {size} numbers")
+    return np.array([math.nan if v is None else v for v in values], dtype=float)
+
+
+def damaged(path: str, damage: list[str]) -> str:
+    """What a damaged store says of itself, and what to do."""
+    found = "; ".join(line for problem in damage for line in problem.splitlines() if not line.startswith("***"))
+    return (f"{path}: the store's file is damaged (SQLite's check: {found}); 'sqlite3 {path} .recover' copies what "
+            "it can into a new file, or restore the file from a backup")
+
+
+class Exported(NamedTuple):
+    """What an export wrote: its rows, and the t of the rows left out because they could not be read."""
+
+    rows: int
+    damaged: list
+
+    def left_out(self) -> str:
+        """What the export left out, in words ('' for nothing)."""
+        if not self.damaged:
+            return ""
+        return (f"{plural(len(self.damaged), 'row')} could not be read and "
+                f"{'is' if len(self.damaged) == 1 else 'are'} left out (t {spans(self.damaged)})")
 
 
 class Store:
@@ -188,11 +218,13 @@ class Store:
         try:
             if self._meta_schema() != str(SCHEMA_VERSION):
                 self._make(create)
-        except StoreError:
+        except (StoreError, self.db.errors) as exc:
+            damage = self.db.damage()
             self.db.close()
-            raise
-        except self.db.errors as exc:
-            self.db.close()
+            if damage:
+                raise StoreError(damaged(self.path, damage)) from None
+            if isinstance(exc, StoreError):
+                raise
             raise StoreError(f"{self.path}: not a usable jmlgdsl store ({exc})") from None
 
     def _meta_schema(self) -> str | None:
@@ -234,7 +266,18 @@ class Store:
 
     # ------------------------------------------------------------------ runs
     def run(self, id: int | None = None, unit: str | None = None) -> Run | None:
-        """A run by id, or the latest (of a fleet's `unit`, when given); None when the store has none."""
+        """A run by id, or the latest (of a fleet's `unit`, when given); None when the store has none.
+        A record that cannot be read (a damaged store) is a StoreError that names the runs that can."""
+        try:
+            return self._run(id, unit)
+        except (self.db.errors, ValueError, TypeError) as exc:
+            which = f"run {id}" if id is not None else "the latest run" + (f" of unit {unit}" if unit else "")
+            readable = self.readable_runs()
+            raise StoreError(f"{self.path}: the record of {which} cannot be read, the store is damaged ({_short(exc)}); "
+                             + (f"runs that read: {', '.join(map(str, readable))} (--run N)" if readable else
+                                "no run's record reads")) from None
+
+    def _run(self, id, unit) -> Run | None:
         query = ("SELECT id, plant, model_sha256, options, modes, states, outputs, inputs, descriptions, units, unit "
                  "FROM run ")
         if id is not None:
@@ -247,7 +290,26 @@ class Store:
             row = self.db.execute(query + "ORDER BY id DESC LIMIT 1").fetchone()
         if row is None:
             return None
-        return Run(row[0], row[1], row[2], json.loads(row[3]), *(json.loads(v or "{}") for v in row[4:10]), row[10])
+        found = Run(row[0], row[1], row[2], json.loads(row[3]), *(json.loads(v or "{}") for v in row[4:10]), row[10])
+        if not all(isinstance(names, list) and all(isinstance(n, str) for n in names)
+                   for names in (found.modes, found.states, found.outputs, found.inputs)):
+            raise ValueError("its lists of names are not lists of names")
+        return found
+
+    def readable_runs(self) -> list[int]:
+        """The runs whose records read back whole."""
+        try:
+            ids = [row[0] for row in self.db.execute("SELECT id FROM run ORDER BY id")]
+        except self.db.errors:
+            return []
+        readable = []
+        for id in ids:
+            try:
+                self._run(id, None)
+                readable.append(id)
+            except (self.db.errors, ValueError, TypeError):
+                pass
+        return readable
 
     def units(self) -> list[str]:
         """The units of a fleet that have runs in the store, in the order their first runs began."""
@@ -269,8 +331,19 @@ class Store:
 
     def saved(self, run: int) -> Saved | None:
         """The state last committed for a run (None before its first commit)."""
-        row = self.db.execute("SELECT rows, checkpoint, monitor, position FROM state WHERE run = ?", (run,)).fetchone()
-        return None if row is None else Saved(row[0], row[1], row[2], None if row[3] is None else json.loads(row[3]))
+        try:
+            row = self.db.execute("SELECT rows, checkpoint, monitor, position, saved FROM state WHERE run = ?",
+                                  (run,)).fetchone()
+            if row is None:
+                return None
+            stored = self.db.execute("SELECT coalesce(max(t), 0) FROM sample WHERE run = ?", (run,)).fetchone()[0]
+            if row[0] != stored:
+                raise ValueError(f"it counts {row[0]!r} rows diagnosed where the run's rows end at {stored}")
+            return Saved(row[0], row[1], row[2], None if row[3] is None else json.loads(row[3]), row[4])
+        except (self.db.errors, ValueError) as exc:
+            raise StoreError(f"{self.path}: the saved state of run {run} cannot be read, the store is damaged "
+                             f"({_short(exc)}); the run's rows that read can be exported ('jmlgdsl export'); start a new "
+                             f"run with --new-run") from None
 
     # ------------------------------------------------------------------ the one write
     def save(self, commits: list[Commit]):
@@ -329,6 +402,11 @@ class Store:
             raise StoreError(f"run {run} has no alarm {alarm}")
         if kind not in ACTIONS:
             raise StoreError(f"unknown action {kind!r}; one of {', '.join(ACTIONS)}")
+        for name, text in (("who", who), ("reason", reason)):
+            if text is not None and (not isinstance(text, str) or len(text) > LONGEST[name]
+                                     or not text.isprintable()):
+                raise StoreError(f"{'who acts' if name == 'who' else 'the reason'} is one line of at most "
+                                 f"{LONGEST[name]} printable characters")
         if not who.strip():
             raise StoreError("say who acts (a name or initials)")
         if kind == "acknowledge" and found.acknowledged:
@@ -373,38 +451,100 @@ class Store:
         """{kind: number} of a run's events."""
         return dict(self.db.execute("SELECT kind, count(*) FROM event WHERE run = ? GROUP BY kind", (run,)))
 
-    def write_table(self, run: Run, stream):
-        """The result table of a run's finished rows, as `jmlgdsl run -o` writes it for the same rows."""
-        lag = run.options.get("lag", 0)
-        writer = None
+    def write_table(self, run: Run, stream) -> Exported:
+        """The result table of a run's finished rows, as `jmlgdsl run -o` writes it for the same rows;
+        rows that cannot be read (a damaged store) are left out and named."""
+        lag, writer, exported = run.options.get("lag", 0), None, Exported(0, [])
         query = ("SELECT r.t, s.time, r.posterior, r.state_mean, r.y_pred, r.residual, r.loglik, r.ess, r.alarm "
-                 "FROM result r JOIN sample s ON s.run = r.run AND s.t = r.t WHERE r.run = ? ORDER BY r.t")
-        for t, time, posterior, mean, pred, residual, loglik, ess, alarm in self.db.execute(query, (run.id,)):
+                 "FROM result r JOIN sample s ON s.run = r.run AND s.t = r.t WHERE r.run = ? AND r.t > ? ORDER BY r.t")
+        K, nx, ny = len(run.modes), len(run.states), len(run.outputs)
+
+        def step(row):
+            t, time, posterior, mean, pred, residual, loglik, ess, alarm = row
+            if alarm not in (0, 1):
+                raise ValueError(f"an alarm of {alarm!r}")
+            return Step(t, unvector(posterior, K), unvector(mean, nx), None, unvector(pred, ny),
+                        unvector(residual, ny), _number(loglik), _number(ess)), _time(time), alarm
+
+        for found, time, alarm in self.readable(query, run, step, exported.damaged):
             if writer is None:
                 writer = TableWriter(stream, _Names(run), time is not None, lag=lag)
-            writer.write(Step(t, unvector(posterior), unvector(mean), None, unvector(pred), unvector(residual),
-                              _nan(loglik), _nan(ess)), time, alarm)
-        return writer is not None
+            writer.write(found, time, alarm)
+            exported = exported._replace(rows=exported.rows + 1)
+        return exported
 
-    def write_samples(self, run: Run, stream):
+    def write_samples(self, run: Run, stream) -> Exported:
         """The rows a run diagnosed as a data file (`time`, outputs, inputs and the labels they carry),
-        every number in its shortest exact form, so `jmlgdsl run` on it diagnoses the same rows."""
-        rows = self.db.execute("SELECT time, y, u, mode, anomaly, changepoint FROM sample WHERE run = ? ORDER BY t",
-                               (run.id,))
-        first = rows.fetchone()
-        if first is None:
+        every number in its shortest exact form, so `jmlgdsl run` on it diagnoses the same rows; rows
+        that cannot be read (a damaged store) are left out and named."""
+        exported, writer = Exported(0, []), None
+        query = "SELECT t, time, y, u, mode, anomaly, changepoint FROM sample WHERE run = ? AND t > ? ORDER BY t"
+        ny, nu = len(run.outputs), len(run.inputs)
+        labels = [name for name in ("mode", "anomaly", "changepoint") if self._labelled(run, name)]
+
+        def cells(row):
+            _, time, y, u, *marks = row
+            known = dict(zip(("mode", "anomaly", "changepoint"), marks))
+            if not (known["mode"] is None or known["mode"] in run.modes) or not all(
+                    known[name] in (None, 0, 1) for name in ("anomaly", "changepoint")):
+                raise ValueError("labels that are not a mode's name or 0/1")
+            return _time(time), [_cell(v) for v in np.concatenate([unvector(y, ny), unvector(u, nu)])] + [
+                "" if known[name] is None else known[name] for name in labels]
+
+        for time, row in self.readable(query, run, cells, exported.damaged):
+            if writer is None:
+                writer, timed = csv.writer(stream, lineterminator="\n"), time is not None
+                writer.writerow((["time"] if timed else []) + run.outputs + run.inputs + labels)
+            writer.writerow(([repr(time)] if timed else []) + row)
+            exported = exported._replace(rows=exported.rows + 1)
+        return exported
+
+    def _labelled(self, run: Run, name: str) -> bool:
+        """Whether a run's rows carry a label (mode, anomaly, changepoint); not, when that cannot be read."""
+        try:
+            return self.db.execute(f"SELECT 1 FROM sample WHERE run = ? AND {name} IS NOT NULL LIMIT 1",
+                                   (run.id,)).fetchone() is not None
+        except self.db.errors:
             return False
-        labels = [i for i, name in ((3, "mode"), (4, "anomaly"), (5, "changepoint"))
-                  if self.db.execute(f"SELECT 1 FROM sample WHERE run = ? AND {name} IS NOT NULL LIMIT 1",
-                                     (run.id,)).fetchone()]
-        timed = first[0] is not None
-        writer = csv.writer(stream, lineterminator="\n")
-        writer.writerow((["time"] if timed else []) + run.outputs + run.inputs
-                        + [("mode", "anomaly", "changepoint")[i - 3] for i in labels])
-        for row in itertools.chain([first], rows):
-            cells = ([repr(row[0])] if timed else []) + [_cell(v) for v in json.loads(row[1]) + json.loads(row[2])]
-            writer.writerow(cells + ["" if row[i] is None else row[i] for i in labels])
-        return True
+
+    def readable(self, query: str, run: Run, decode, damaged: list, after: int = 0):
+        """decode(row) of each row of a run that `query` gives (its parameters the run and a t to read
+        after, its rows in order of t, t first), but of a row that cannot be read (a damaged page, text
+        that is not UTF-8, a cell the store did not write): that one's t goes to `damaged` instead.
+        A run's rows are t = 1, 2, ...: a row that does not read is stepped over, up to the last the
+        run's state counts. `after`: the t to read after (0: from the first row)."""
+        t, end = after, self._end(run)
+        while True:
+            try:
+                for row in self.db.execute(query, (run.id, t)):
+                    damaged += range(t + 1, row[0])  # rows a damaged page hides without an error
+                    t = row[0]
+                    try:
+                        value = decode(row)
+                    except (ValueError, TypeError):
+                        damaged.append(t)
+                        continue
+                    yield value
+                return
+            except self.db.errors:
+                if t >= end:
+                    return
+                t += 1
+                damaged.append(t)
+
+    def _end(self, run: Run) -> int:
+        """The last row of a run that its state or its rows name (0 when neither reads)."""
+        ends = []
+        for query in ("SELECT rows FROM state WHERE run = ?", "SELECT max(t) FROM sample WHERE run = ?"):
+            try:
+                ends += [v for v in self.db.execute(query, (run.id,)).fetchone() or () if isinstance(v, int)]
+            except self.db.errors:
+                pass
+        return max(ends, default=0)
+
+    def damage(self) -> list[str]:
+        """What a check of the store's file finds wrong with it (SQLite's quick check); [] for nothing."""
+        return self.db.damage()
 
 
 def _evidence(evidence, modes) -> tuple:
@@ -417,12 +557,29 @@ def _real(value) -> float | None:
     return None if math.isnan(value) else float(value)
 
 
-def _nan(value) -> float:
-    return math.nan if value is None else value
+def _short(exc: Exception) -> str:
+    """An error's text on one line, cut short (SQLite's decoding errors quote the whole cell)."""
+    text = " ".join(str(exc).split())
+    return text if len(text) <= 120 else text[:117] + "..."
+
+
+def _number(value) -> float:
+    """A REAL column's number (NULL: NaN); a ValueError for anything else."""
+    if value is None:
+        return math.nan
+    if type(value) not in (int, float):
+        raise ValueError(f"not a number: {value!r:.40}")
+    return float(value)
+
+
+def _time(value) -> float | None:
+    """A row's time (NULL: none); a ValueError for anything else."""
+    return None if value is None else _number(value)
 
 
 def _cell(value) -> str:
-    return "" if value is None else repr(float(value))
+    """A data file's cell: empty for a reading not measured."""
+    return "" if math.isnan(value) else repr(float(value))
 
 
 class _Names:

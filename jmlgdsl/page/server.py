@@ -15,11 +15,19 @@ The server binds to 127.0.0.1 unless told otherwise, and any other address needs
 environment variable or a file). With a token, actions need it (`Authorization: Bearer TOKEN`);
 reading the page does not. An action must come as JSON from the page's own origin, which a form or
 script on another site cannot send without the browser asking first (and the server never agrees),
-so a page elsewhere cannot act for an operator whose browser has the page open.
+so a page elsewhere cannot act for an operator whose browser has the page open. A page on the
+loopback answers only to its own address (`Host` 127.0.0.1, [::1] or localhost, at its port): a
+name of another site that a DNS server points at 127.0.0.1 (DNS rebinding) gets 421, so a page the
+operator visits cannot read or act through such a name.
+
+Every request is checked before it is used: the numbers of a query (whole numbers of at most 19
+digits), the body of an action (a JSON object of at most 64 KiB with only `who` and `reason`, each a
+string or null, no NaN), and what is refused is a 400 with its reason, never a closed connection.
 """
 
 from __future__ import annotations
 
+import contextlib
 import hmac
 import ipaddress
 import json
@@ -45,7 +53,11 @@ STATIC = {"/": ("index.html", "text/html; charset=utf-8"), "/page.js": ("page.js
           "/page.css": ("page.css", "text/css; charset=utf-8")}
 HEADERS = {"Content-Security-Policy": "default-src 'self'; img-src 'self' data:; frame-ancestors 'none'",
            "X-Content-Type-Options": "nosniff", "Referrer-Policy": "no-referrer", "Cache-Control": "no-store"}
-ACTION = re.compile(r"^/api/alarms/(\d+)/(acknowledge|shelve|unshelve)$")
+ACTION = re.compile(r"/api/alarms/([0-9]{1,19})/(acknowledge|shelve|unshelve)", re.ASCII)
+HOST = re.compile(r"[A-Za-z0-9.\-]+(:[0-9]{1,5})?|\[[0-9A-Fa-f:.]+\](:[0-9]{1,5})?", re.ASCII)  # a name or IP, a port
+WHOLE = re.compile(r"-?[0-9]{1,19}", re.ASCII)  # a query's number (an SQLite or PostgreSQL BIGINT holds 19 digits)
+MAX_BODY = 65536  # bytes of an action's body
+BODY_FIELDS = ("who", "reason")  # what an action's body may hold
 
 
 class PageError(JmlgError):
@@ -99,7 +111,22 @@ class Page:
     @property
     def url(self) -> str:
         host, port = self.server.server_address[:2]
-        return f"http://{host}:{port}/"
+        return f"http://{'[' + host + ']' if ':' in host else host}:{port}/"
+
+    def answers_to(self, host: str) -> bool:
+        """Whether a request's Host names this page: on the loopback, only its own address (an IP of
+        the loopback, or localhost) at its port; bound elsewhere (with a token), any name, since the
+        names the plant's network gives the machine are not known here."""
+        bound, port = self.server.server_address[:2]
+        if not loopback(bound):
+            return True
+        if not HOST.fullmatch(host):
+            return False
+        try:
+            found = urlsplit("//" + host)
+            return (found.port or 80) == port and loopback(found.hostname or "")
+        except ValueError:  # a port out of range, a bracket unclosed
+            return False
 
     def start(self) -> "Page":
         self.thread = threading.Thread(target=self.server.serve_forever, name="page", daemon=True)
@@ -153,9 +180,11 @@ def _handler(page: Page):
                 page.release()
 
         def do_GET(self):
+            if not self._own_host():
+                return
             parts = urlsplit(self.path)
-            query = {k: v[-1] for k, v in parse_qs(parts.query).items()}
             try:
+                query = _query(parts.query)
                 if parts.path in STATIC:
                     name, kind = STATIC[parts.path]
                     self._send(HTTPStatus.OK, resources.files(__package__).joinpath("static", name).read_bytes(), kind)
@@ -167,33 +196,51 @@ def _handler(page: Page):
                 elif parts.path == "/api/alarms":
                     self._json(views.alarms(page.store(), page.run(query.get("unit"))))
                 elif parts.path == "/api/evidence":
-                    self._json(views.evidence(page.store(), page.run(query.get("unit")), int(query.get("alarm", 0))))
+                    self._json(views.evidence(page.store(), page.run(query.get("unit")),
+                                              _whole(query, "alarm", 0)))
                 elif parts.path == "/api/fleet":
                     self._json(views.fleet(page.store(), page.unit))
                 elif parts.path == "/api/stream":
-                    self._stream(int(self.headers.get("Last-Event-ID") or query.get("after") or 0), query.get("unit"))
+                    after = _whole({"Last-Event-ID": self.headers.get("Last-Event-ID")}, "Last-Event-ID", None)
+                    self._stream(_whole(query, "after", 0) if after is None else after, query.get("unit"))
                 else:
-                    self._error(HTTPStatus.NOT_FOUND, f"no page {parts.path}")
+                    self._error(HTTPStatus.NOT_FOUND, f"no page {parts.path[:200]}")
             except (ValueError, StoreError) as exc:
                 self._error(HTTPStatus.BAD_REQUEST, str(exc))
+            except Exception as exc:  # a store damaged under the page: an answer that says so, not a dropped line
+                self._failed(exc)
 
         def do_POST(self):
+            if not self._own_host():
+                return
             parts = urlsplit(self.path)
-            found = ACTION.match(parts.path)
+            found = ACTION.fullmatch(parts.path)
             if found is None:
-                return self._error(HTTPStatus.NOT_FOUND, f"no action {self.path}")
+                return self._error(HTTPStatus.NOT_FOUND, f"no action {parts.path[:200]}")
             if self.headers.get_content_type() != "application/json" or not self._same_origin():
                 return self._error(HTTPStatus.FORBIDDEN, "actions come as JSON from the page itself")
             if page.token is not None and not hmac.compare_digest(
                     self.headers.get("Authorization", "").encode(), f"Bearer {page.token}".encode()):
                 return self._error(HTTPStatus.UNAUTHORIZED, "this page needs its token to act on alarms")
             try:
-                body = json.loads(self.rfile.read(min(int(self.headers.get("Content-Length") or 0), 65536)) or b"{}")
-                store, run = page.store(), page.run(parse_qs(parts.query).get("unit", [None])[-1])
-                store.act(run.id, int(found[1]), found[2], str(body.get("who", "")), body.get("reason"))
+                body = _action(self.rfile, self.headers.get("Content-Length"))
+                store, run = page.store(), page.run(_query(parts.query).get("unit"))
+                store.act(run.id, int(found[1]), found[2], body.get("who") or "", body.get("reason"))
                 self._json(views.alarms(store, run))
             except (ValueError, StoreError) as exc:
                 self._error(HTTPStatus.BAD_REQUEST, str(exc))
+            except Exception as exc:
+                self._failed(exc)
+
+        def _own_host(self) -> bool:
+            """Whether the request names this page's own address; a 421 when it does not."""
+            host = self.headers.get("Host", "")
+            if page.answers_to(host):
+                return True
+            self._error(HTTPStatus.MISDIRECTED_REQUEST, f"this page answers to {urlsplit(page.url).netloc} (or "
+                        f"localhost at its port), not to {host[:100]!r}: a name that points at this machine "
+                        "is not this page's own")
+            return False
 
         def _same_origin(self) -> bool:
             origin = self.headers.get("Origin")
@@ -202,12 +249,12 @@ def _handler(page: Page):
         def _stream(self, after: int, unit: str | None):
             """Rows after `after` as they are stored, and the alarms whenever they change, until the
             page goes away or the server stops."""
+            store, run, seen, quiet = page.store(), page.run(unit), None, time.monotonic()
             self.send_response(HTTPStatus.OK)
             self.send_header("Content-Type", "text/event-stream")
             for key, value in HEADERS.items():
                 self.send_header(key, value)
             self.end_headers()
-            store, run, seen, quiet = page.store(), page.run(unit), None, time.monotonic()
             try:
                 while not page.stopping.is_set():
                     found = views.rows(store, run, after=after, limit=STREAM_ROWS)
@@ -229,6 +276,9 @@ def _handler(page: Page):
                         page.stopping.wait(POLL)
             except (BrokenPipeError, ConnectionResetError):
                 pass  # the page was closed
+            except Exception as exc:  # the stream ends with why; the browser asks again
+                with contextlib.suppress(OSError):
+                    self._event("failure", json.dumps({"error": _failure(exc)}))
 
         def _event(self, name: str, data: str, id: int | None = None):
             self.wfile.write((f"event: {name}\n" + (f"id: {id}\n" if id is not None else "")
@@ -237,6 +287,9 @@ def _handler(page: Page):
 
         def _json(self, value):
             self._send(HTTPStatus.OK, json.dumps(value).encode(), "application/json")
+
+        def _failed(self, exc: Exception):
+            self._error(HTTPStatus.INTERNAL_SERVER_ERROR, _failure(exc))
 
         def _error(self, status, message: str):
             self._send(status, json.dumps({"error": message}).encode(), "application/json")
@@ -253,6 +306,63 @@ def _handler(page: Page):
     return Handler
 
 
+def _failure(exc: Exception) -> str:
+    """What a request that failed inside the page says: the store may be damaged."""
+    return (f"the page could not answer ({type(exc).__name__}: {exc}): the store may be damaged ('jmlgdsl export' "
+            "says which rows are readable)")
+
+
 def _window(query: dict) -> dict:
     """The rows a query asks for (views.rows's keywords)."""
-    return {key: int(query[key]) for key in ("after", "first", "last", "limit") if key in query}
+    return {key: _whole(query, key, None) for key in ("after", "first", "last", "limit") if key in query}
+
+
+def _query(text: str) -> dict:
+    """A query's parameters, the last of each name; a ValueError for one that is not printable text
+    of at most 200 characters."""
+    try:
+        query = {k: v[-1] for k, v in parse_qs(text, errors="strict").items()}
+    except UnicodeDecodeError:
+        raise ValueError("the query is not UTF-8 text") from None
+    for key, value in query.items():
+        if len(key) > 200 or len(value) > 200 or not (key + value).isprintable():
+            raise ValueError(f"the query's {key[:40]!r} is not a short printable text")
+    return query
+
+
+def _whole(values: dict, key: str, default):
+    """values[key] as a whole number (`default` when absent); a ValueError for anything else."""
+    text = values.get(key)
+    if text is None:
+        return default
+    if not WHOLE.fullmatch(text) or not -2 ** 63 <= int(text) < 2 ** 63:
+        raise ValueError(f"{key} must be a whole number of at most 19 digits, not {text[:40]!r}")
+    return int(text)
+
+
+def _action(stream, length) -> dict:
+    """An action's body: a JSON object of at most MAX_BODY bytes holding only BODY_FIELDS, each a
+    string or null; a ValueError for anything else."""
+    if length is None or not re.fullmatch(r"[0-9]{1,19}", length, re.ASCII):
+        raise ValueError("an action needs its Content-Length")
+    if int(length) > MAX_BODY:
+        raise ValueError(f"an action's body is at most {MAX_BODY} bytes, not {int(length)}")
+    raw = stream.read(int(length))
+    try:
+        body = json.loads(raw or b"{}", parse_constant=_no_constant)
+    except RecursionError:
+        raise ValueError("an action's body is a JSON object of strings, not nested values") from None
+    except ValueError as exc:
+        raise ValueError(f"an action's body is not JSON ({exc})") from None
+    if not isinstance(body, dict):
+        raise ValueError(f"an action's body is a JSON object, not {type(body).__name__}")
+    for key, value in body.items():
+        if key not in BODY_FIELDS:
+            raise ValueError(f"an action's body holds only {' and '.join(BODY_FIELDS)}, not {key[:40]!r}")
+        if value is not None and not isinstance(value, str):
+            raise ValueError(f"an action's {key} is a string, not {type(value).__name__}")
+    return body
+
+
+def _no_constant(name):
+    raise ValueError(f"{name} is not a value an action takes")

@@ -8,6 +8,7 @@ costs one query.
 
 from __future__ import annotations
 
+import itertools
 import json
 from typing import NamedTuple
 
@@ -40,26 +41,40 @@ def rows(store: Store, run: Run, *, after: int | None = None, first: int | None 
     """A window of finished rows as JSON columns (t, time, map_mode, alarm, posterior, y, y_pred,
     y_sd, evidence_mode, evidence): the rows after t = `after` (the live feed, at most `limit`), or
     those with `first` <= t <= `last`, thinned to at most `limit` by taking every k-th; with none of
-    them, the last LIVE_ROWS rows."""
+    them, the last LIVE_ROWS rows. Rows of a damaged store that cannot be read are left out."""
     limit = max(1, min(int(limit), MAX_ROWS))
-    where, params = "r.run = ?", [run.id]
+    high, step, most = None, 1, None
     if after is not None:
-        where += " AND r.t > ?"
-        params.append(int(after))
-        order = f"ORDER BY r.t LIMIT {limit}"
+        low, most = int(after) + 1, limit
     elif first is not None or last is not None:
         low, high = int(first or 1), int(last) if last is not None else _last_t(store, run)
         step = max(1, -(-(high - low + 1) // limit))
-        where += " AND r.t BETWEEN ? AND ? AND (r.t - ?) % ? = 0"
-        params += [low, high, low, step]
-        order = "ORDER BY r.t"
     else:
-        where += " AND r.t > ?"
-        params.append(_last_t(store, run) - LIVE_ROWS)
-        order = "ORDER BY r.t"
-    found = store.db.execute(
-        "SELECT r.t, s.time, r.map_mode, r.alarm, r.posterior, s.y, r.y_pred, r.y_sd, r.evidence_mode, r.evidence "
-        f"FROM result r JOIN sample s ON s.run = r.run AND s.t = r.t WHERE {where} {order}", params).fetchall()
+        low = _last_t(store, run) - LIVE_ROWS + 1
+    where, params = "r.run = ? AND r.t >= ?", [run.id, low]
+    if high is not None:
+        where += " AND r.t <= ? AND (r.t - ?) % ? = 0"
+        params += [high, low, step]
+    try:
+        found = store.db.execute(f"{ROWS} WHERE {where} ORDER BY r.t" + (f" LIMIT {most}" if most else ""),
+                                 params).fetchall()
+        text = _columns(found)
+        json.loads(text)  # a cell edited by hand, or damaged, would break the page's JSON
+    except (store.db.errors, ValueError, TypeError):
+        readable = store.readable(f"{ROWS} WHERE r.run = ? AND r.t > ? ORDER BY r.t", run, _checked, [], low - 1)
+        window = itertools.takewhile(lambda row: high is None or row[0] <= high,
+                                     (row for row in readable if (row[0] - low) % step == 0))
+        found = list(itertools.islice(window, most))
+        text = _columns(found)
+    return Rows(text, len(found), found[-1][0] if found else None)
+
+
+ROWS = ("SELECT r.t, s.time, r.map_mode, r.alarm, r.posterior, s.y, r.y_pred, r.y_sd, r.evidence_mode, r.evidence "
+        "FROM result r JOIN sample s ON s.run = r.run AND s.t = r.t")
+
+
+def _columns(found) -> str:
+    """Rows of the ROWS query as the page's JSON columns, the stored vectors' texts joined as they are."""
     columns = list(zip(*found)) or [()] * 10
     plain = [json.dumps(list(c)) for c in columns[:4]]
     vectors = ["[" + ",".join("null" if v is None else v for v in c) + "]" for c in columns[4:8]]
@@ -67,7 +82,18 @@ def rows(store: Store, run: Run, *, after: int | None = None, first: int | None 
     parts = [f'"{n}":{v}' for n, v in zip(names, plain + vectors)]
     parts.append(f'"evidence_mode":{json.dumps(list(columns[8]))}')
     parts.append('"evidence":[' + ",".join("null" if v is None else v for v in columns[9]) + "]")
-    return Rows("{" + ",".join(parts) + "}", len(found), found[-1][0] if found else None)
+    return "{" + ",".join(parts) + "}"
+
+
+def _checked(row):
+    """A row of the ROWS query whose cells are what the store writes; a ValueError otherwise."""
+    t, time, mode, alarm, *_ = row
+    if not (isinstance(mode, str) and alarm in (0, 1) and (time is None or type(time) in (int, float))):
+        raise ValueError("a row the store did not write")
+    for i in (4, 5, 6, 7, 9):
+        if row[i] is not None and not (isinstance(row[i], str) and isinstance(json.loads(row[i]), list)):
+            raise ValueError("a vector the store did not write")
+    return row
 
 
 def _last_t(store: Store, run: Run) -> int:
@@ -92,16 +118,26 @@ def evidence(store: Store, run: Run, alarm: int) -> dict:
         return {"alarm": alarm, "rows": 0, "outputs": []}
     end = found.cleared_t - 1 if found.cleared_t is not None else _last_t(store, run)
     total, rows = {}, 0
-    for mode, text in store.db.execute("SELECT evidence_mode, evidence FROM result WHERE run = ? AND t BETWEEN ? AND ? "
-                                       "AND evidence IS NOT NULL", (run.id, found.raised_t, end)):
-        if mode != found.mode:
+    readable = store.readable("SELECT t, evidence_mode, evidence FROM result WHERE run = ? AND t > ? ORDER BY t", run,
+                              _evidence, [], found.raised_t - 1)  # rows of a damaged store that do not read: left out
+    for _, mode, terms in itertools.takewhile(lambda row: row[0] <= end, readable):
+        if mode != found.mode or terms is None:
             continue
         rows += 1
-        for name, value in zip(run.outputs, json.loads(text)):
+        for name, value in zip(run.outputs, terms):
             if value is not None:
                 total[name] = total.get(name, 0.0) + value
     outputs = sorted(({"name": n, "nats": v} for n, v in total.items()), key=lambda o: -o["nats"])
     return {"alarm": alarm, "mode": found.mode, "rows": rows, "outputs": outputs}
+
+
+def _evidence(row):
+    """(t, evidence_mode, the evidence's terms or None) of a row; a ValueError for cells the store did not write."""
+    t, mode, text = row
+    terms = None if text is None else json.loads(text)
+    if terms is not None and not (isinstance(terms, list) and all(v is None or type(v) in (int, float) for v in terms)):
+        raise ValueError("evidence the store did not write")
+    return t, mode, terms
 
 
 # What makes a unit need an operator, worst first (the overview's order): an alarm state, or a fault
