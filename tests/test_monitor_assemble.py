@@ -79,9 +79,66 @@ def test_stale_tags_go_missing_and_come_back_fresh():
 def test_a_long_gap_is_skipped_not_filled():
     a = assembler(max_gap=10.0)
     rows, events = feed(a, [("temp", 50.0, 1.0), ("current", 15.0, 1.0), ("current", 15.0, 30.0),
-                            ("temp", 51.0, 30.0)])
+                            ("temp", 51.0, 30.0), ("temp", 51.0, 31.0)])
     assert [r[0] for r in rows] == [1.0, 30.0]
-    assert [e[0] for e in events] == ["gap"]
+    # 29 s ahead of the stream: held until three messages showed it had moved on there
+    assert [e[0] for e in events] == ["ahead", "ahead", "jump", "gap"]
+
+
+def test_the_row_clock_moves_on_evidence_not_on_one_message():
+    stream = [[("temp", 50.0 + t, float(t)), ("current", 15.0, float(t))] for t in range(1, 41)]
+    now = 1e4  # the wall clock: every stamp here is behind it
+    a = assembler()
+    alone = [a.add(message, now)[0] for message in stream]
+    # one message far ahead of the stream (within the wall clock) is held, then dropped as the stream
+    # goes on where it was: the same rows, one event
+    a, events = assembler(), []
+    rows = []
+    for t, message in enumerate(stream, start=1):
+        r, e = a.add(message, now)
+        rows.append(r)
+        events += e
+        if t == 20:
+            r, e = a.add([("temp", 99.0, 5000.0), ("current", 99.0, 5000.0)], now)
+            assert r == []
+            events += e
+    assert [[row.time for row in r] for r in rows] == [[row.time for row in r] for r in alone]
+    assert [(e.kind, e.time) for e in events] == [("ahead", 5000.0)]
+    assert "came 4980 s ahead of the stream (its newest reading is for 20 s): held" in events[0].detail
+    # the stream that follows it there, three messages in a row, has moved on: they are used
+    rows, events = [], []
+    for t in (5000.0, 5001.0, 5002.0, 5003.0):
+        r, e = a.add([("temp", 50.0, t), ("current", 15.0, t)], now)
+        rows += [row.time for row in r]
+        events += [e.kind for e in e]
+    assert events == ["ahead", "ahead", "jump", "gap"] and rows == [5000.0, 5001.0, 5002.0, 5003.0]
+
+
+def test_a_reading_stamped_past_the_wall_clock_is_not_used():
+    a = assembler()
+    a.add([("temp", 50.0, 1000.0), ("current", 15.0, 1000.0)], 1000.0)
+    rows, events = a.add([("temp", 50.0, 1061.0), ("current", 15.0, 1061.0)], 1000.5)
+    assert rows == [] and [(e.kind, e.tag, e.time) for e in events] == [("future", None, 1061.0)]
+    assert "arrived at 1000.5 s, 60.5 s before its own time: not used" in events[0].detail
+    assert a.watermark == 1000.0
+
+
+def test_a_reading_without_its_own_time_in_a_stamped_stream(tmp_path):
+    a = assembler()
+    a.add([("temp", 50.0, 1.0), ("current", 15.0, 1.0)], 1e9)
+    rows, events = a.add([("temp", 50.6, None)], 1e9 + 1)
+    assert rows == [] and [(e.kind, e.tag) for e in events] == [("malformed", "temp")]
+    assert "without a time of its own, in a stream whose readings carry theirs" in events[0].detail
+    # a tag that says it takes its arrival time is read at it; a stream of arrival times throughout too
+    path = tmp_path / "tags.toml"
+    path.write_text('[tags.current]\ntime = "arrival"\n')
+    a = Assembler(MODEL, read_tags(path, MODEL))
+    a.add([("temp", 50.0, 100.0)], 100.0)
+    rows, events = a.add([("current", 16.0, None)], 100.2)
+    assert events == [] and [(row.time, *row.y, *row.u) for row in rows] == [(100.0, 50.0, 16.0)]
+    a = assembler()
+    a.add([("temp", 50.0, None)], 100.0)
+    assert a.add([("temp", 51.0, None)], 101.0)[1] == [] and 101 in a.open
 
 
 @pytest.mark.parametrize("payload, name, reason", [

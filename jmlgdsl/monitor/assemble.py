@@ -16,6 +16,16 @@ as an event and dropped, never reordered into a row already diagnosed: a reading
 than its tag's previous one whose row is still open (out_of_order: it is used). Slots without any
 reading are a gap; a gap longer than `max_gap` seconds is skipped (its rows are not diagnosed, the
 clock restarts after it) rather than filled with rows of nothing.
+
+The row clock moves on evidence, not on one message. A reading stamped more than AHEAD seconds past
+the wall clock it arrived at is `future`: not used (a device whose clock is wrong, a test publisher).
+In a stream whose readings carry their own times, a message more than `horizon` (the grace and
+HORIZON sample times) past the stream's newest reading is `ahead`: held aside, and used only when
+the stream follows it, FOLLOWED such messages in a row within `horizon` of each other with no
+reading in between where the stream was (a `jump`: the source came back after an outage); a reading
+where the stream was drops what is held. A reading without a time of its own in such a stream is
+`malformed`, unless its tag says it takes its arrival time. So no single message, however stamped,
+makes the rows after it `late`.
 """
 
 from __future__ import annotations
@@ -27,12 +37,16 @@ import numpy as np
 
 from ..data import Row
 
+AHEAD = 60.0  # seconds a reading may be stamped past the wall clock it arrives at
+HORIZON = 10  # sample times (beyond the grace) a message may be stamped past the stream's newest reading
+FOLLOWED = 3  # messages ahead of the stream, in a row, that show it has moved on
+
 
 @dataclass(frozen=True)
 class Event:
     """Something the store keeps beside the rows: its kind, the tag (or None) and what happened."""
 
-    kind: str  # connect, disconnect, gap, stale, fresh, late, duplicate, out_of_order, malformed, ...
+    kind: str  # connect, disconnect, gap, stale, fresh, late, future, ahead, jump, duplicate, out_of_order, malformed, ...
     tag: str | None
     detail: str
     time: float | None = None  # the data time it concerns, seconds
@@ -48,6 +62,16 @@ def _late(readings) -> Event:
         return Event("late", names[0], f"a reading for {when} came after its row was diagnosed", low)
     return Event("late", names[0] if len(names) == 1 else None,
                  f"{len(readings)} readings ({', '.join(names)}) for {when} came after their rows were diagnosed", low)
+
+
+def _future(readings, arrival) -> Event:
+    """One event for the readings of one message stamped past the wall clock they arrived at."""
+    names = list(dict.fromkeys(name for name, _ in readings))
+    high = max(t for _, t in readings)
+    return Event("future", names[0] if len(names) == 1 else None,
+                 f"a reading for {high:g} s arrived at {arrival:g} s, {high - arrival:g} s before its own time: not "
+                 f"used (more than {AHEAD:g} s ahead of this computer's clock); check the clock of what stamps it",
+                 high)
 
 
 class Assembler:
@@ -69,21 +93,67 @@ class Assembler:
         self.last = {}  # name -> (time, value) of its reading in the newest row out that had one
         self.stale = set()
         self.gap = 0  # rows without any reading so far, up to the newest row out
+        self.own_time = {name: tag.time == "source" for name, tag in tags.items()}
+        self.horizon = self.grace + HORIZON * self.dt
         self.watermark = -math.inf  # the newest reading's time
         self.wall = True  # every reading so far took its arrival time: the wall clock may close rows
+        self.ahead = []  # messages held ahead of the stream, [[(name, value, time)]], in a row
 
-    def add(self, readings, arrival: bool = False):
-        """The readings of one message, [(name, value, time)], taken in together; the rows and events
-        they complete: (rows, events). `arrival`: their times are their arrival's."""
-        self.wall &= arrival
-        events, late = [], []
-        for name, value, time in readings:
-            if self.next_slot is not None and round(time / self.dt) < self.next_slot:
+    def add(self, readings, arrival: float | None = None):
+        """The readings of one message, [(name, value, its own time or None)], taken in together, and
+        the wall-clock time it arrived (None: not known; each reading then carries its time); the rows
+        and events they complete: (rows, events)."""
+        own = [stamp is not None and self.own_time[name] for name, _, stamp in readings]
+        self.wall &= not any(own)
+        events, late, future, ahead, taken, bare = [], [], [], [], False, []
+        for (name, value, stamp), mine in zip(readings, own):
+            time = stamp if mine else arrival
+            if not mine and self.own_time[name] and not self.wall:
+                bare.append(name)
+            elif arrival is not None and time > arrival + AHEAD:
+                future.append((name, time))
+            elif self.next_slot is not None and round(time / self.dt) < self.next_slot:
                 late.append((name, time))
+            elif self.next_slot is not None and not self.wall and time > self.watermark + self.horizon:
+                ahead.append((name, value, time))
             else:
                 events += self._take(name, value, time)
+                taken = True
+        if bare:
+            events.append(Event("malformed", bare[0] if len(bare) == 1 else None,
+                                f"a reading of {', '.join(bare)} without a time of its own, in a stream whose "
+                                "readings carry theirs: not used (publish {\"t\": ..., \"v\": ...}, or set "
+                                "time = \"arrival\" for the tag in the tag file)"))
+        if future:
+            events.append(_future(future, arrival))
+        if taken:
+            self.ahead = []  # the stream goes on where it was: what was held ahead of it was not followed
+        if ahead:
+            events += self._ahead(ahead)
         rows, closing = self._close() if self.next_slot is not None else ([], [])
         return rows, ([_late(late)] if late else []) + events + closing
+
+    def _ahead(self, readings):
+        """Hold a message's readings that are ahead of the stream; once FOLLOWED messages in a row are,
+        within the horizon of each other, take them all in: the stream has moved on."""
+        low = min(t for _, _, t in readings)
+        if self.ahead and abs(low - max(t for message in self.ahead for _, _, t in message)) > self.horizon:
+            self.ahead = []  # not the same place: what was held is not followed by this one
+        self.ahead.append(readings)
+        if len(self.ahead) < FOLLOWED:
+            names = list(dict.fromkeys(name for name, _, _ in readings))
+            return [Event("ahead", names[0] if len(names) == 1 else None,
+                          f"a reading{'s' * (len(readings) > 1)} for {low:g} s came {low - self.watermark:g} s ahead "
+                          f"of the stream (its newest reading is for {self.watermark:g} s): held, and used only if "
+                          f"{FOLLOWED - 1} more messages follow it there", low)]
+        held, self.ahead = self.ahead, []
+        events = [Event("jump", None, f"{len(held)} messages in a row came ahead of the stream: it moved on from "
+                                      f"{self.watermark:g} s to {min(t for _, _, t in held[0]):g} s, and their "
+                                      "readings are used", low)]
+        for message in held:
+            for reading in message:
+                events += self._take(*reading)
+        return events
 
     def _take(self, name, value, time):
         slot = round(time / self.dt)

@@ -213,10 +213,8 @@ class Monitor:
             watches[0].feed(row)
         elif kind == "readings":
             _, readings, arrival, token = item
-            own = [stamp is not None and self.tags[name].time == "source" for name, _, stamp in readings]
             watches[0].assembled(*watches[0].assembler.add(
-                [(name, self.tags[name].value(value), stamp if mine else arrival)
-                 for (name, value, stamp), mine in zip(readings, own)], not any(own)))
+                [(name, self.tags[name].value(value), stamp) for name, value, stamp in readings], arrival))
             watches[0].dirty = True  # the assembler holds the readings: it is saved before they are acknowledged
             self.tokens.append(token)
         elif kind == "malformed":
