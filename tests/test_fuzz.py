@@ -183,7 +183,7 @@ def test_any_payload_is_readings_or_one_malformed(payload, name):
         return
     assert readings and all(n in ("temp", "current") for n, _, _ in readings)
     assert all(math.isnan(v) or abs(v) < 1e100 for _, v, _ in readings)
-    assert all(t is None or math.isfinite(t) for _, _, t in readings)
+    assert all(t is None or math.isfinite(t if isinstance(t, float) else t.timestamp()) for _, _, t in readings)
 
 
 # Specs -----------------------------------------------------------------------------------------

@@ -2,6 +2,7 @@
 missing readings, and late, duplicate, out-of-order, stale and malformed readings are counted as
 events with their tag, never reordered into rows already diagnosed."""
 
+import datetime
 import math
 
 import pytest
@@ -53,10 +54,10 @@ def test_the_late_readings_of_one_message_are_one_event():
     a.add([("temp", 50.5, 2.0), ("current", 16.0, 2.0)])
     rows, events = a.add([("temp", 50.0, 1.0), ("current", 16.0, 1.0), ("temp", 50.5, 2.0), ("temp", 51.0, 3.0)])
     assert [(e.kind, e.tag, e.time, e.detail) for e in events] == [
-        ("late", None, 1.0, "3 readings (temp, current) for 1-2 s came after their rows were diagnosed")]
+        ("late", None, 1.0, "3 readings (temp, current) for 1 s to 2 s came after their rows were diagnosed")]
     assert a.open == {3: {"temp": 51.0}}  # the reading that was not late is taken
     _, events = a.add([("temp", 50.0, 1.0), ("temp", 50.5, 2.0)])
-    assert [(e.tag, e.detail) for e in events] == [("temp", "2 readings (temp) for 1-2 s came after their rows "
+    assert [(e.tag, e.detail) for e in events] == [("temp", "2 readings (temp) for 1 s to 2 s came after their rows "
                                                             "were diagnosed")]
 
 
@@ -141,6 +142,35 @@ def test_a_reading_without_its_own_time_in_a_stamped_stream(tmp_path):
     assert a.add([("temp", 51.0, None)], 101.0)[1] == [] and 101 in a.open
 
 
+def test_events_write_times_as_the_source_writes_them():
+    """ISO 8601 for a source that stamps its readings so, seconds in full for one that writes seconds;
+    never a float cut to six digits ('1.79575e+09 s')."""
+    iso, seconds = assembler(stale=3.0), assembler(stale=3.0)
+    for t in range(1795747080, 1795747090):
+        stamp = datetime.datetime.fromtimestamp(t, datetime.timezone.utc)
+        iso.add([("temp", 50.0, stamp)] + [("current", 15.0, stamp)] * (t < 1795747082), 1795747100.0)
+        _, events = seconds.add([("temp", 50.0, float(t))] + [("current", 15.0, float(t))] * (t < 1795747082),
+                                1795747100.0)
+        if events:
+            stale = events
+    assert [e.detail for e in stale] == ["no reading since 1795747081 s; missing from 1795747085 s"]
+    assert [e.detail for e in iso.add([("temp", 50.0, 1795747081.5)], 1795747100.0)[1]] == [
+        "a reading for 2026-11-27T02:38:01.500Z came after its row was diagnosed"]
+
+
+def test_readings_older_than_the_first_say_once_why_they_are_late():
+    # an OPC UA server's current values on connecting, then the plant's readings stamped before them
+    a = assembler()
+    a.add([("temp", 50.0, 100.0), ("current", 15.0, 100.0)], 1e4)
+    a.add([("temp", 50.0, 101.0), ("current", 15.0, 101.0)], 1e4)
+    details = [e.detail for t in (60.0, 61.0) for e in a.add([("temp", 50.0, t), ("current", 15.0, t)], 1e4)[1]]
+    assert details[0].startswith("2 readings (temp, current) for 60 s came after their rows were diagnosed; they "
+                                 "are older than the first reading of the run (for 100 s), which started its row "
+                                 "clock")
+    assert 'time = "arrival"' in details[0]
+    assert details[1] == "2 readings (temp, current) for 61 s came after their rows were diagnosed"
+
+
 @pytest.mark.parametrize("payload, name, reason", [
     (b"hot", "temp", "temp: payload 'hot' is neither a number nor JSON"),
     (b"NaN", "temp", "temp: payload 'NaN' is not a number or"),
@@ -162,7 +192,7 @@ def test_payloads():
     names = ["temp", "current"]
     assert decode(b" 50.25 ", "temp", names) == [("temp", 50.25, None)]
     assert decode(b'{"t": 12.5, "v": 50}', "temp", names) == [("temp", 50.0, 12.5)]
-    assert decode(b'{"t": "1970-01-01T00:00:10Z", "v": null}', "temp", names)[0][2] == 10.0
+    assert decode(b'{"t": "1970-01-01T00:00:10Z", "v": null}', "temp", names)[0][2].timestamp() == 10.0
     assert decode(b'{"t": 3, "current": 15, "temp": 50.1, "other": 1}', None, names) == [
         ("temp", 50.1, 3.0), ("current", 15.0, 3.0)]
 
@@ -214,3 +244,4 @@ def test_a_monitor_logs_the_first_late_message_of_a_batch_and_counts_the_rest(tm
     late = [line for line in logged if line.startswith("late:")]
     assert late == ["late: temp: a reading for 1 s came after its row was diagnosed",
                     "late: 39 more messages came after their rows were diagnosed (each an event in the store)"]
+

@@ -32,9 +32,10 @@ class Malformed(ValueError):
     """A payload that is not a reading; its message says which tag and shows the payload."""
 
 
-def decode(payload: bytes, name: str | None, names) -> list[tuple[str, float, float | None]]:
+def decode(payload: bytes, name: str | None, names) -> list[tuple[str, float, float | datetime | None]]:
     """(name, value, time or None) for each reading in a payload: of tag `name`, or with name None an
-    object keyed by the spec's `names` (keys it does not know are left alone)."""
+    object keyed by the spec's `names` (keys it does not know are left alone). A time is seconds, or
+    a datetime where the payload writes an ISO 8601 time stamp."""
     who = name or "sample"
     if len(payload) > MAX_PAYLOAD:
         raise Malformed(f"{who}: payload {shown(payload)} of {len(payload):,} bytes is longer than a reading can "
@@ -125,14 +126,17 @@ def number(value, name, text) -> float:
     return number
 
 
-def _time(value, name, text) -> float | None:
-    """Seconds from a number or an ISO 8601 time stamp; None when absent."""
+def _time(value, name, text) -> float | datetime | None:
+    """Seconds from a number, or the time (aware, UTC unless it says otherwise) of an ISO 8601 time
+    stamp, so that what is said of it can be written as the source writes it; None when absent."""
     if value is None:
         return None
     if isinstance(value, str):
         try:
             stamp = datetime.fromisoformat(value.replace("Z", "+00:00"))
-            return (stamp if stamp.tzinfo else stamp.replace(tzinfo=timezone.utc)).timestamp()
+            stamp = stamp if stamp.tzinfo else stamp.replace(tzinfo=timezone.utc)
+            stamp.timestamp()  # one that has no place in seconds since 1970 is no time a reading has
+            return stamp
         except (ValueError, OverflowError):
             raise Malformed(f"{name}: payload {shown(text)}: t {shown(value)} is not an ISO 8601 time stamp") \
                 from None
