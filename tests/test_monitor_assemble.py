@@ -245,3 +245,46 @@ def test_a_monitor_logs_the_first_late_message_of_a_batch_and_counts_the_rest(tm
     assert late == ["late: temp: a reading for 1 s came after its row was diagnosed",
                     "late: 39 more messages came after their rows were diagnosed (each an event in the store)"]
 
+
+def test_a_stalled_diagnosis_is_an_event_once_until_a_row_comes(tmp_path, monkeypatch):
+    # messages keep arriving, every one late: no row is diagnosed, and that is said once, with why;
+    # a row re-arms it
+    import threading
+    import time
+
+    from jmlgdsl.monitor import Monitor, Store, live, monitor_options
+
+    monkeypatch.setattr(live, "STALL", 0.05)  # sample times: 0.05 s of the dryer's 1 s
+    monkeypatch.setattr(live, "STALL_LEAST", 0.0)
+
+    class Stuck:
+        rows, name = False, "test://stuck"
+
+        def start(self, put, position):  # a thread of its own, as a bus's client has
+            threading.Thread(target=self.publish, args=(put,), daemon=True).start()
+
+        def publish(self, put):
+            for t in range(1, 4):
+                put(("readings", [("temp", 50.0, float(t)), ("current", 15.0, float(t))], 0.0, t))
+            for first in (True, False):
+                for k in range(20):  # the first row's readings again and again
+                    time.sleep(0.01)
+                    put(("readings", [("temp", 50.0, 1.0)], 0.0, 100 + k))
+                if first:
+                    put(("readings", [("temp", 50.0, 4.0), ("current", 15.0, 4.0)], 0.0, 4))
+            put(("end",))
+
+        def acknowledge(self, tokens):
+            pass
+
+        def stop(self):
+            pass
+
+    logged = []
+    with Store(tmp_path / "s.db") as store:
+        stopped = Monitor(MODEL, store, Stuck(), spec=None, options=monitor_options(), tags=read_tags(None, MODEL),
+                          log=logged.append).run()
+        details = [detail for (detail,) in store.db.execute("SELECT detail FROM event WHERE kind = 'stall'")]
+    assert stopped.events["stall"] == 2 and len(details) == 2
+    assert details[0].startswith("no row diagnosed for 0 s while ") and "messages arrived (late " in details[0]
+    assert sum(line.startswith("stall: no row diagnosed") for line in logged) == 2
