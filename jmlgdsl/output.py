@@ -1,6 +1,9 @@
 """Outputs that never cost data: every file is written under a temporary name in its own folder and
 renamed into place only when complete, and a target is checked before any work starts (not one of
 the inputs, its folder there and writable, its suffix one the format can take). '-' is standard output.
+A symbolic link is written through, at the file it names (renamed into place there, the link kept); a
+character device or a pipe (/dev/null, a FIFO, /dev/stdout) is written directly, as a stream, since
+renaming over it would put a file in its place; a block device or a socket is refused by name.
 A request too large for memory is refused up front too, saying how much it would need.
 """
 
@@ -8,6 +11,7 @@ from __future__ import annotations
 
 import errno
 import os
+import stat
 import sys
 import tempfile
 from contextlib import contextmanager
@@ -25,6 +29,40 @@ def _same(a: Path, b: Path) -> bool:
         return os.path.samefile(a, b)
     except OSError:
         return a.resolve() == b.resolve()
+
+
+def _followed(path: Path) -> tuple[Path, bool]:
+    """The file `path` names once its symbolic links are followed, and whether one of them is an open
+    descriptor's (/dev/stdout, /proc/self/fd/1): such a link names the open file itself, wherever it is
+    (a redirected output), so it is written in place, after what it holds (`>> file`), never renamed
+    over."""
+    for _ in range(40):  # the kernel's own limit on links in a row
+        path = Path(os.path.realpath(path.parent)) / path.name
+        if not path.is_symlink():
+            return path, False
+        if path.parts[1:2] == ("proc",):
+            return path, True
+        path = path.parent / os.readlink(path)
+    raise JmlgError(f"cannot write {path}: {os.strerror(errno.ELOOP)}")
+
+
+def _destination(path) -> tuple[Path, bool]:
+    """Where `path` is written, and whether directly (True: a stream opened on it) or through a
+    temporary file renamed onto it (False: a regular file or a new one, at the end of its links).
+    A block device, a socket or anything else that is neither is refused by name."""
+    followed, descriptor = _followed(Path(path))
+    try:
+        mode = os.stat(path).st_mode  # through the links, as the write would go
+    except (FileNotFoundError, NotADirectoryError):
+        return followed, False
+    if stat.S_ISREG(mode):
+        return (Path(path), True) if descriptor else (followed, False)
+    if stat.S_ISCHR(mode) or stat.S_ISFIFO(mode):
+        return Path(path), True
+    kind = "a block device (a disk)" if stat.S_ISBLK(mode) else "a socket" if stat.S_ISSOCK(mode) else \
+        "a folder" if stat.S_ISDIR(mode) else "not a file"
+    raise JmlgError(f"cannot write {path}: it is {kind}; give a file, a pipe or a character device such as "
+                    "/dev/stdout")
 
 
 def _writable_folder(folder: Path, path):
@@ -65,8 +103,10 @@ def check_file(path, inputs=(), suffixes=None, option="-o") -> None:
         raise JmlgError(f"{what}: the file name must end in {', '.join(suffixes)}")
     if path.is_dir():
         raise JmlgError(f"{what}: {path} is a folder; give a file name")
-    _writable_folder(path.parent, path)
-    if path.exists() and not os.access(path, os.W_OK):
+    target, direct = _destination(path)
+    if not direct:
+        _writable_folder(target.parent, path)
+    if target.exists() and not os.access(target, os.W_OK):
         raise JmlgError(f"cannot write {path}: {os.strerror(errno.EACCES)} (the file is read-only)")
     _not_an_input(path, inputs, what)
 
@@ -128,8 +168,12 @@ def _commit(temporary: Path, target: Path):
 @contextmanager
 def replacing(path):
     """A temporary path to write `path` through: renamed onto `path` when the block completes, removed
-    if it raises, so `path` holds either its old content or the whole new one."""
-    target = Path(path)
+    if it raises, so `path` holds either its old content or the whole new one. Through a symbolic link
+    the file it names is replaced; a pipe or a character device is itself the path written to."""
+    target, direct = _destination(path)
+    if direct:
+        yield target
+        return
     try:
         fd, temporary = _temporary(target)
     except OSError as exc:
@@ -153,5 +197,10 @@ def writing(path):
         yield sys.stdout
         sys.stdout.flush()
         return
-    with replacing(path) as temporary, open(temporary, "w", encoding="utf-8", newline="") as stream:
+    target, direct = _destination(path)
+    if direct:  # a pipe, a device or an open descriptor: written as it comes, after what it holds
+        with open(target, "a", encoding="utf-8", newline="") as stream:
+            yield stream
+        return
+    with replacing(target) as temporary, open(temporary, "w", encoding="utf-8", newline="") as stream:
         yield stream

@@ -1,6 +1,13 @@
 """run, learn and prbs check their outputs and numbers before any work (issue 14, items 12, 15-17)."""
 
+import os
+import stat
+import subprocess
+import threading
+from pathlib import Path
+
 import pytest
+from conftest import jmlgdsl_command
 from infer_models import dryer
 
 from jmlgdsl.cli import main
@@ -91,3 +98,82 @@ def test_simulate_says_what_it_wrote_as_compile_does(files, capsys, tmp_path):
     assert capsys.readouterr().out.startswith(f"wrote {tmp_path / 'm.npz'} (4 modes")
     assert main(["simulate", str(spec), "--steps", "7", "--seed", "1"]) == 0
     assert capsys.readouterr().out.startswith("time,")  # to standard output: the data alone
+
+
+@pytest.fixture(scope="module")
+def tables(files, tmp_path_factory):
+    """The argument lists of `run` and of `export` of a monitor's store of the same rows, and the table
+    both write."""
+    spec, data = files
+    folder = tmp_path_factory.mktemp("tables")
+    store = str(folder / "plant.db")
+    assert main(["monitor", str(spec), "--source", str(data), "--store", store, "--no-follow"]) == 0
+    assert main(["run", str(spec), str(data), "-o", str(folder / "expected.csv")]) == 0
+    expected = (folder / "expected.csv").read_text()
+    assert expected.count("\n") == 41
+    return {"run": ["run", str(spec), str(data)], "export": ["export", store]}, expected
+
+
+@pytest.mark.parametrize("command", ["run", "export"])
+def test_an_output_through_a_link_writes_the_file_it_names(tables, tmp_path, command):
+    argv, expected = tables
+    target, link = tmp_path / "real.csv", tmp_path / "link.csv"
+    target.write_text("old\n")
+    link.symlink_to(target.name)  # relative, as `ln -s real.csv link.csv` makes it
+    assert main([*argv[command], "-o", str(link)]) == 0
+    assert link.is_symlink() and os.readlink(link) == "real.csv" and target.read_text() == expected
+    assert sorted(os.listdir(tmp_path)) == ["link.csv", "real.csv"]
+
+
+@pytest.mark.parametrize("command", ["run", "export"])
+def test_an_output_onto_a_pipe_streams_into_it(tables, tmp_path, command):
+    argv, expected = tables
+    fifo = tmp_path / "pipe.csv"
+    os.mkfifo(fifo)
+    received = []
+    reader = threading.Thread(target=lambda: received.append(fifo.read_text()), daemon=True)  # as `cat pipe`
+    reader.start()
+    assert main([*argv[command], "-o", str(fifo)]) == 0
+    reader.join(10)
+    assert stat.S_ISFIFO(os.stat(fifo).st_mode) and received == [expected]
+
+
+@pytest.mark.parametrize("command", ["run", "export"])
+def test_an_output_onto_a_device_leaves_the_device(tables, tmp_path, command):
+    """A character device receives the table and stays a device. A superuser's test makes its own
+    null device (the system's one, replaced by a file, would be every process's loss); others write
+    /dev/null, whose folder they cannot write in."""
+    argv, _ = tables
+    device = Path("/dev/null")
+    if os.geteuid() == 0:
+        device = tmp_path / "null"
+        os.mknod(device, stat.S_IFCHR | 0o666, os.makedev(1, 3))
+    before = os.stat(device)
+    assert main([*argv[command], "-o", str(device)]) == 0
+    after = os.stat(device)
+    assert stat.S_ISCHR(after.st_mode) and (after.st_ino, after.st_rdev) == (before.st_ino, before.st_rdev)
+
+
+def test_an_output_onto_a_descriptor_link_is_written_there(tables, tmp_path):
+    """A link to an open descriptor, as /dev/stdout is (made here in the test's folder, so that no
+    version of the command can replace the system's): the file behind it receives the table after
+    what it holds, never replaced."""
+    argv, expected = tables
+    out, link = tmp_path / "out.csv", tmp_path / "stdout"
+    link.symlink_to("/proc/self/fd/1")
+    out.write_text("old\n")
+    with open(out, "a") as stream:  # `>> out.csv`: the old line stays, the table follows it
+        done = subprocess.run([*jmlgdsl_command(), *argv["export"], "-o", str(link)], stdout=stream,
+                              stderr=subprocess.PIPE, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    assert out.read_text() == "old\n" + expected and link.is_symlink()
+
+
+def test_an_output_onto_a_socket_is_refused_by_name(tables, tmp_path, capsys):
+    import socket
+
+    argv, _ = tables
+    path = tmp_path / "s.csv"
+    with socket.socket(socket.AF_UNIX) as server:
+        server.bind(str(path))
+        refused([*argv["export"], "-o", str(path)], capsys, "it is a socket")

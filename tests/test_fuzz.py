@@ -8,6 +8,8 @@ afresh each time (`JMLGDSL_FUZZ=1 python -m pytest tests/test_fuzz.py`).
 
 import contextlib
 import io
+import json
+import math
 import os
 import signal
 import tempfile
@@ -29,6 +31,7 @@ from jmlgdsl.compile.lower import compile_text
 from jmlgdsl.data import read_csv
 from jmlgdsl.errors import DataError, SpecError
 from jmlgdsl.infer import FilterError
+from jmlgdsl.monitor.payload import Malformed, decode
 
 ROOT = Path(__file__).resolve().parents[1]
 LONG = os.environ.get("JMLGDSL_FUZZ") == "1"
@@ -143,6 +146,44 @@ def test_run_on_any_file_succeeds_or_says_why(content):
 @given(DATA)
 def test_plot_of_any_file_succeeds_or_says_why(content):
     assert_clean(*command(["plot", written(content, "result.csv"), "-o", FOLDER / "figure.png"]))
+
+
+# Data-bus payloads -----------------------------------------------------------------------------
+
+KEYS = st.sampled_from(["t", "v", "temp", "current", "other", ""])
+SCALARS = st.one_of(
+    st.none(), st.booleans(), st.floats(allow_nan=True, allow_infinity=True), st.integers(-10**60, 10**60),
+    st.text(max_size=12), st.sampled_from(["2020-03-09T11:14:34Z", "9999-12-31T23:59:59-14:00", "0001-01-01",
+                                           "2020-03-09 11:14:34+99:00", "1e400"]))
+JSON = st.recursive(SCALARS, lambda inner: st.lists(inner, max_size=4) | st.dictionaries(KEYS, inner, max_size=4),
+                    max_leaves=12)
+
+
+def _nested(depth):
+    return ("[" * depth + "]" * depth).encode()
+
+
+PAYLOADS = st.one_of(
+    st.binary(max_size=64),
+    JSON.map(lambda value: json.dumps(value).encode()),
+    st.builds(lambda digits, key: f'{{"t": {"9" * digits}, "{key}": 50}}'.encode(), st.integers(1, 500), KEYS),
+    st.builds(lambda depth, tail: _nested(depth)[:depth] + tail, st.integers(1, 6000), st.binary(max_size=4)),
+    st.sampled_from([b"1" * 100_000, b"\xed\xa0\x80", b'{"v": "\\ud800"}', b"-" + b"9" * 400, b"1e999999"]))
+
+
+@budget(300)
+@given(PAYLOADS, st.sampled_from(["temp", None]))
+def test_any_payload_is_readings_or_one_malformed(payload, name):
+    """A payload of a data bus is readings of known names with finite values and times, or Malformed
+    with a short printable message: never another exception, whatever its nesting, size or numbers."""
+    try:
+        readings = decode(payload, name, ["temp", "current"])
+    except Malformed as exc:
+        assert len(str(exc)) < 400 and str(exc).isprintable(), str(exc)
+        return
+    assert readings and all(n in ("temp", "current") for n, _, _ in readings)
+    assert all(math.isnan(v) or abs(v) < 1e100 for _, v, _ in readings)
+    assert all(t is None or math.isfinite(t if isinstance(t, float) else t.timestamp()) for _, _, t in readings)
 
 
 # Specs -----------------------------------------------------------------------------------------

@@ -2,6 +2,7 @@
 missing readings, and late, duplicate, out-of-order, stale and malformed readings are counted as
 events with their tag, never reordered into rows already diagnosed."""
 
+import datetime
 import math
 
 import pytest
@@ -53,10 +54,10 @@ def test_the_late_readings_of_one_message_are_one_event():
     a.add([("temp", 50.5, 2.0), ("current", 16.0, 2.0)])
     rows, events = a.add([("temp", 50.0, 1.0), ("current", 16.0, 1.0), ("temp", 50.5, 2.0), ("temp", 51.0, 3.0)])
     assert [(e.kind, e.tag, e.time, e.detail) for e in events] == [
-        ("late", None, 1.0, "3 readings (temp, current) for 1-2 s came after their rows were diagnosed")]
+        ("late", None, 1.0, "3 readings (temp, current) for 1 s to 2 s came after their rows were diagnosed")]
     assert a.open == {3: {"temp": 51.0}}  # the reading that was not late is taken
     _, events = a.add([("temp", 50.0, 1.0), ("temp", 50.5, 2.0)])
-    assert [(e.tag, e.detail) for e in events] == [("temp", "2 readings (temp) for 1-2 s came after their rows "
+    assert [(e.tag, e.detail) for e in events] == [("temp", "2 readings (temp) for 1 s to 2 s came after their rows "
                                                             "were diagnosed")]
 
 
@@ -79,9 +80,95 @@ def test_stale_tags_go_missing_and_come_back_fresh():
 def test_a_long_gap_is_skipped_not_filled():
     a = assembler(max_gap=10.0)
     rows, events = feed(a, [("temp", 50.0, 1.0), ("current", 15.0, 1.0), ("current", 15.0, 30.0),
-                            ("temp", 51.0, 30.0)])
+                            ("temp", 51.0, 30.0), ("temp", 51.0, 31.0)])
     assert [r[0] for r in rows] == [1.0, 30.0]
-    assert [e[0] for e in events] == ["gap"]
+    # 29 s ahead of the stream: held until three messages showed it had moved on there
+    assert [e[0] for e in events] == ["ahead", "ahead", "jump", "gap"]
+
+
+def test_the_row_clock_moves_on_evidence_not_on_one_message():
+    stream = [[("temp", 50.0 + t, float(t)), ("current", 15.0, float(t))] for t in range(1, 41)]
+    now = 1e4  # the wall clock: every stamp here is behind it
+    a = assembler()
+    alone = [a.add(message, now)[0] for message in stream]
+    # one message far ahead of the stream (within the wall clock) is held, then dropped as the stream
+    # goes on where it was: the same rows, one event
+    a, events = assembler(), []
+    rows = []
+    for t, message in enumerate(stream, start=1):
+        r, e = a.add(message, now)
+        rows.append(r)
+        events += e
+        if t == 20:
+            r, e = a.add([("temp", 99.0, 5000.0), ("current", 99.0, 5000.0)], now)
+            assert r == []
+            events += e
+    assert [[row.time for row in r] for r in rows] == [[row.time for row in r] for r in alone]
+    assert [(e.kind, e.time) for e in events] == [("ahead", 5000.0)]
+    assert "came 4980 s ahead of the stream (its newest reading is for 20 s): held" in events[0].detail
+    # the stream that follows it there, three messages in a row, has moved on: they are used
+    rows, events = [], []
+    for t in (5000.0, 5001.0, 5002.0, 5003.0):
+        r, e = a.add([("temp", 50.0, t), ("current", 15.0, t)], now)
+        rows += [row.time for row in r]
+        events += [e.kind for e in e]
+    assert events == ["ahead", "ahead", "jump", "gap"] and rows == [5000.0, 5001.0, 5002.0, 5003.0]
+
+
+def test_a_reading_stamped_past_the_wall_clock_is_not_used():
+    a = assembler()
+    a.add([("temp", 50.0, 1000.0), ("current", 15.0, 1000.0)], 1000.0)
+    rows, events = a.add([("temp", 50.0, 1061.0), ("current", 15.0, 1061.0)], 1000.5)
+    assert rows == [] and [(e.kind, e.tag, e.time) for e in events] == [("future", None, 1061.0)]
+    assert "arrived at 1000.5 s, 60.5 s before its own time: not used" in events[0].detail
+    assert a.watermark == 1000.0
+
+
+def test_a_reading_without_its_own_time_in_a_stamped_stream(tmp_path):
+    a = assembler()
+    a.add([("temp", 50.0, 1.0), ("current", 15.0, 1.0)], 1e9)
+    rows, events = a.add([("temp", 50.6, None)], 1e9 + 1)
+    assert rows == [] and [(e.kind, e.tag) for e in events] == [("malformed", "temp")]
+    assert "without a time of its own, in a stream whose readings carry theirs" in events[0].detail
+    # a tag that says it takes its arrival time is read at it; a stream of arrival times throughout too
+    path = tmp_path / "tags.toml"
+    path.write_text('[tags.current]\ntime = "arrival"\n')
+    a = Assembler(MODEL, read_tags(path, MODEL))
+    a.add([("temp", 50.0, 100.0)], 100.0)
+    rows, events = a.add([("current", 16.0, None)], 100.2)
+    assert events == [] and [(row.time, *row.y, *row.u) for row in rows] == [(100.0, 50.0, 16.0)]
+    a = assembler()
+    a.add([("temp", 50.0, None)], 100.0)
+    assert a.add([("temp", 51.0, None)], 101.0)[1] == [] and 101 in a.open
+
+
+def test_events_write_times_as_the_source_writes_them():
+    """ISO 8601 for a source that stamps its readings so, seconds in full for one that writes seconds;
+    never a float cut to six digits ('1.79575e+09 s')."""
+    iso, seconds = assembler(stale=3.0), assembler(stale=3.0)
+    for t in range(1795747080, 1795747090):
+        stamp = datetime.datetime.fromtimestamp(t, datetime.timezone.utc)
+        iso.add([("temp", 50.0, stamp)] + [("current", 15.0, stamp)] * (t < 1795747082), 1795747100.0)
+        _, events = seconds.add([("temp", 50.0, float(t))] + [("current", 15.0, float(t))] * (t < 1795747082),
+                                1795747100.0)
+        if events:
+            stale = events
+    assert [e.detail for e in stale] == ["no reading since 1795747081 s; missing from 1795747085 s"]
+    assert [e.detail for e in iso.add([("temp", 50.0, 1795747081.5)], 1795747100.0)[1]] == [
+        "a reading for 2026-11-27T02:38:01.500Z came after its row was diagnosed"]
+
+
+def test_readings_older_than_the_first_say_once_why_they_are_late():
+    # an OPC UA server's current values on connecting, then the plant's readings stamped before them
+    a = assembler()
+    a.add([("temp", 50.0, 100.0), ("current", 15.0, 100.0)], 1e4)
+    a.add([("temp", 50.0, 101.0), ("current", 15.0, 101.0)], 1e4)
+    details = [e.detail for t in (60.0, 61.0) for e in a.add([("temp", 50.0, t), ("current", 15.0, t)], 1e4)[1]]
+    assert details[0].startswith("2 readings (temp, current) for 60 s came after their rows were diagnosed; they "
+                                 "are older than the first reading of the run (for 100 s), which started its row "
+                                 "clock")
+    assert 'time = "arrival"' in details[0]
+    assert details[1] == "2 readings (temp, current) for 61 s came after their rows were diagnosed"
 
 
 @pytest.mark.parametrize("payload, name, reason", [
@@ -105,7 +192,7 @@ def test_payloads():
     names = ["temp", "current"]
     assert decode(b" 50.25 ", "temp", names) == [("temp", 50.25, None)]
     assert decode(b'{"t": 12.5, "v": 50}', "temp", names) == [("temp", 50.0, 12.5)]
-    assert decode(b'{"t": "1970-01-01T00:00:10Z", "v": null}', "temp", names)[0][2] == 10.0
+    assert decode(b'{"t": "1970-01-01T00:00:10Z", "v": null}', "temp", names)[0][2].timestamp() == 10.0
     assert decode(b'{"t": 3, "current": 15, "temp": 50.1, "other": 1}', None, names) == [
         ("temp", 50.1, 3.0), ("current", 15.0, 3.0)]
 
@@ -157,3 +244,47 @@ def test_a_monitor_logs_the_first_late_message_of_a_batch_and_counts_the_rest(tm
     late = [line for line in logged if line.startswith("late:")]
     assert late == ["late: temp: a reading for 1 s came after its row was diagnosed",
                     "late: 39 more messages came after their rows were diagnosed (each an event in the store)"]
+
+
+def test_a_stalled_diagnosis_is_an_event_once_until_a_row_comes(tmp_path, monkeypatch):
+    # messages keep arriving, every one late: no row is diagnosed, and that is said once, with why;
+    # a row re-arms it
+    import threading
+    import time
+
+    from jmlgdsl.monitor import Monitor, Store, live, monitor_options
+
+    monkeypatch.setattr(live, "STALL", 0.05)  # sample times: 0.05 s of the dryer's 1 s
+    monkeypatch.setattr(live, "STALL_LEAST", 0.0)
+
+    class Stuck:
+        rows, name = False, "test://stuck"
+
+        def start(self, put, position):  # a thread of its own, as a bus's client has
+            threading.Thread(target=self.publish, args=(put,), daemon=True).start()
+
+        def publish(self, put):
+            for t in range(1, 4):
+                put(("readings", [("temp", 50.0, float(t)), ("current", 15.0, float(t))], 0.0, t))
+            for first in (True, False):
+                for k in range(20):  # the first row's readings again and again
+                    time.sleep(0.01)
+                    put(("readings", [("temp", 50.0, 1.0)], 0.0, 100 + k))
+                if first:
+                    put(("readings", [("temp", 50.0, 4.0), ("current", 15.0, 4.0)], 0.0, 4))
+            put(("end",))
+
+        def acknowledge(self, tokens):
+            pass
+
+        def stop(self):
+            pass
+
+    logged = []
+    with Store(tmp_path / "s.db") as store:
+        stopped = Monitor(MODEL, store, Stuck(), spec=None, options=monitor_options(), tags=read_tags(None, MODEL),
+                          log=logged.append).run()
+        details = [detail for (detail,) in store.db.execute("SELECT detail FROM event WHERE kind = 'stall'")]
+    assert stopped.events["stall"] == 2 and len(details) == 2
+    assert details[0].startswith("no row diagnosed for 0 s while ") and "messages arrived (late " in details[0]
+    assert sum(line.startswith("stall: no row diagnosed") for line in logged) == 2

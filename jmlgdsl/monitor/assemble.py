@@ -16,38 +16,78 @@ as an event and dropped, never reordered into a row already diagnosed: a reading
 than its tag's previous one whose row is still open (out_of_order: it is used). Slots without any
 reading are a gap; a gap longer than `max_gap` seconds is skipped (its rows are not diagnosed, the
 clock restarts after it) rather than filled with rows of nothing.
+
+The row clock moves on evidence, not on one message. A reading stamped more than AHEAD seconds past
+the wall clock it arrived at is `future`: not used (a device whose clock is wrong, a test publisher).
+In a stream whose readings carry their own times, a message more than `horizon` (the grace and
+HORIZON sample times) past the stream's newest reading is `ahead`: held aside, and used only when
+the stream follows it, FOLLOWED such messages in a row within `horizon` of each other with no
+reading in between where the stream was (a `jump`: the source came back after an outage); a reading
+where the stream was drops what is held. A reading without a time of its own in such a stream is
+`malformed`, unless its tag says it takes its arrival time. So no single message, however stamped,
+makes the rows after it `late`.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
+from datetime import datetime, timezone
 
 import numpy as np
 
 from ..data import Row
+
+AHEAD = 60.0  # seconds a reading may be stamped past the wall clock it arrives at
+HORIZON = 10  # sample times (beyond the grace) a message may be stamped past the stream's newest reading
+FOLLOWED = 3  # messages ahead of the stream, in a row, that show it has moved on
 
 
 @dataclass(frozen=True)
 class Event:
     """Something the store keeps beside the rows: its kind, the tag (or None) and what happened."""
 
-    kind: str  # connect, disconnect, gap, stale, fresh, late, duplicate, out_of_order, malformed, ...
+    kind: str  # connect, disconnect, gap, stale, fresh, late, future, ahead, jump, duplicate, out_of_order, malformed, ...
     tag: str | None
     detail: str
     time: float | None = None  # the data time it concerns, seconds
 
 
-def _late(readings) -> Event:
+def clock_time(seconds: float) -> str:
+    """Seconds since 1970 as an ISO 8601 time, UTC ('2026-11-27T02:35:18Z'; with the fraction of a
+    second where there is one); a time beyond the calendar's years as seconds."""
+    try:
+        stamp = datetime.fromtimestamp(seconds, timezone.utc)
+    except (OverflowError, OSError, ValueError):
+        return f"{seconds!r} s"
+    fraction = stamp.microsecond
+    timespec = "seconds" if not fraction else "milliseconds" if fraction % 1000 == 0 else "microseconds"
+    return stamp.isoformat(timespec=timespec).replace("+00:00", "Z")
+
+
+def _late(readings, at) -> Event:
     """One event for the readings of one message that came after their rows were diagnosed (a
-    message of many tags, or one delivered again after a reconnection, is one event, not one a tag)."""
+    message of many tags, or one delivered again after a reconnection, is one event, not one a tag);
+    `at` writes a time."""
     names = list(dict.fromkeys(name for name, _ in readings))
     low, high = min(t for _, t in readings), max(t for _, t in readings)
-    when = f"{low:g} s" if low == high else f"{low:g}-{high:g} s"
+    when = at(low) if low == high else f"{at(low)} to {at(high)}"
     if len(readings) == 1:
         return Event("late", names[0], f"a reading for {when} came after its row was diagnosed", low)
     return Event("late", names[0] if len(names) == 1 else None,
                  f"{len(readings)} readings ({', '.join(names)}) for {when} came after their rows were diagnosed", low)
+
+
+def _future(readings, arrival, at) -> Event:
+    """One event for the readings of one message stamped past the wall clock they arrived at; `at`
+    writes a time."""
+    names = list(dict.fromkeys(name for name, _ in readings))
+    high = max(t for _, t in readings)
+    return Event("future", names[0] if len(names) == 1 else None,
+                 f"a reading for {at(high)} arrived at {at(arrival)}, {high - arrival:g} s before its own time: not "
+                 f"used (more than {AHEAD:g} s ahead of this computer's clock); check the clock of what stamps it",
+                 high)
 
 
 class Assembler:
@@ -64,38 +104,116 @@ class Assembler:
         self.stale_after = {name: tag.stale or default_stale for name, tag in tags.items()}
         self.max_gap = float(max_gap)
         self.next_slot = None  # the oldest slot not yet out as a row (None: no reading yet)
+        self.origin = None  # the slot of the reading that started the row clock
+        self.explained = False  # whether a late event has said why readings older than that one are late
         self.open = {}  # slot -> {name: value}
         self.newest = {}  # name -> the time of its newest reading
         self.last = {}  # name -> (time, value) of its reading in the newest row out that had one
         self.stale = set()
         self.gap = 0  # rows without any reading so far, up to the newest row out
+        self.own_time = {name: tag.time == "source" for name, tag in tags.items()}
+        self.horizon = self.grace + HORIZON * self.dt
         self.watermark = -math.inf  # the newest reading's time
         self.wall = True  # every reading so far took its arrival time: the wall clock may close rows
+        self.ahead = []  # messages held ahead of the stream, [[(name, value, time)]], in a row
+        self.iso = False  # the source writes its times as clock times (ISO 8601 text, OPC UA's stamps)
 
-    def add(self, readings, arrival: bool = False):
-        """The readings of one message, [(name, value, time)], taken in together; the rows and events
-        they complete: (rows, events). `arrival`: their times are their arrival's."""
-        self.wall &= arrival
-        events, late = [], []
-        for name, value, time in readings:
-            if self.next_slot is not None and round(time / self.dt) < self.next_slot:
+    def at(self, time: float) -> str:
+        """A time as the source writes it, for events: ISO 8601 (UTC) where it writes clock times or
+        the readings take their arrival's, else seconds in full ('1583752474 s', not '1.58375e+09 s')."""
+        return clock_time(time) if self.iso or self.wall else f"{time!r}".removesuffix(".0") + " s"
+
+    def add(self, readings, arrival: float | None = None):
+        """The readings of one message, [(name, value, its own time or None)], taken in together, and
+        the wall-clock time it arrived (None: not known; each reading then carries its time); the rows
+        and events they complete: (rows, events). A time is seconds, or a datetime where the source
+        writes clock times."""
+        if any(isinstance(stamp, datetime) for _, _, stamp in readings):
+            self.iso = True
+            readings = [(name, value, stamp.timestamp() if isinstance(stamp, datetime) else stamp)
+                        for name, value, stamp in readings]
+        own = [stamp is not None and self.own_time[name] for name, _, stamp in readings]
+        self.wall &= not any(own)
+        events, late, future, ahead, taken, bare = [], [], [], [], False, []
+        for (name, value, stamp), mine in zip(readings, own):
+            time = stamp if mine else arrival
+            if not mine and self.own_time[name] and not self.wall:
+                bare.append(name)
+            elif arrival is not None and time > arrival + AHEAD:
+                future.append((name, time))
+            elif self.next_slot is not None and round(time / self.dt) < self.next_slot:
                 late.append((name, time))
+            elif self.next_slot is not None and not self.wall and time > self.watermark + self.horizon:
+                ahead.append((name, value, time))
             else:
                 events += self._take(name, value, time)
+                taken = True
+        if bare:
+            events.append(Event("malformed", bare[0] if len(bare) == 1 else None,
+                                f"a reading of {', '.join(bare)} without a time of its own, in a stream whose "
+                                "readings carry theirs: not used (publish {\"t\": ..., \"v\": ...}, or set "
+                                "time = \"arrival\" for the tag in the tag file)"))
+        if future:
+            events.append(_future(future, arrival, self.at))
+        if taken:
+            self.ahead = []  # the stream goes on where it was: what was held ahead of it was not followed
+        if ahead:
+            events += self._ahead(ahead)
         rows, closing = self._close() if self.next_slot is not None else ([], [])
-        return rows, ([_late(late)] if late else []) + events + closing
+        return rows, ([self._late(late)] if late else []) + events + closing
+
+    def _late(self, readings) -> Event:
+        """The event of a message's late readings; the first that are older than the reading that
+        started the row clock say, once, why and what to do (a source that sends its current value
+        first, as an OPC UA server does on connecting, then the plant's readings stamped before it)."""
+        event = _late(readings, self.at)
+        if self.explained or min(t for _, t in readings) >= self.origin * self.dt:
+            return event
+        self.explained = True
+        return dataclasses.replace(event, detail=event.detail + (
+            f"; they are older than the first reading of the run (for {self.at(self.origin * self.dt)}), which "
+            "started its row clock, and none older is ever diagnosed. If the source sent a current value first "
+            "(an OPC UA server does on connecting) and the plant's readings are stamped before it, correct the "
+            "clock of what stamps them, or read the tags at their arrival (time = \"arrival\" in the tag file) "
+            "and start a new run (--new-run)"))
+
+    def _ahead(self, readings):
+        """Hold a message's readings that are ahead of the stream; once FOLLOWED messages in a row are,
+        within the horizon of each other, take them all in: the stream has moved on."""
+        low = min(t for _, _, t in readings)
+        if self.ahead and abs(low - max(t for message in self.ahead for _, _, t in message)) > self.horizon:
+            self.ahead = []  # not the same place: what was held is not followed by this one
+        self.ahead.append(readings)
+        if len(self.ahead) < FOLLOWED:
+            names = list(dict.fromkeys(name for name, _, _ in readings))
+            return [Event("ahead", names[0] if len(names) == 1 else None,
+                          f"a reading{'s' * (len(readings) > 1)} for {self.at(low)} came {low - self.watermark:g} s "
+                          f"ahead of the stream (its newest reading is for {self.at(self.watermark)}): held, and used "
+                          "only if "
+                          f"{FOLLOWED - 1} more messages follow it there", low)]
+        held, self.ahead = self.ahead, []
+        start = min(t for _, _, t in held[0])
+        events = [Event("jump", None, f"{len(held)} messages in a row came ahead of the stream: it moved on from "
+                                      f"{self.at(self.watermark)} to {self.at(start)}, and their readings are used",
+                        low)]
+        for message in held:
+            for reading in message:
+                events += self._take(*reading)
+        return events
 
     def _take(self, name, value, time):
         slot = round(time / self.dt)
         if self.next_slot is None:
-            self.next_slot = slot
+            self.next_slot = self.origin = slot
         events = []
         newest = self.newest.get(name, -math.inf)
         if time < newest:
-            events.append(Event("out_of_order", name, f"a reading for {time:g} s came after one for {newest:g} s", time))
+            events.append(Event("out_of_order", name, f"a reading for {self.at(time)} came after one for "
+                                                     f"{self.at(newest)}", time))
         values = self.open.setdefault(slot, {})
         if name in values:
-            return events + [Event("duplicate", name, f"a second reading for {time:g} s (the first stands)", time)]
+            return events + [Event("duplicate", name, f"a second reading for {self.at(time)} (the first stands)",
+                                             time)]
         values[name] = value
         self.newest[name] = max(newest, time)
         self.watermark = max(self.watermark, time)
@@ -121,14 +239,14 @@ class Assembler:
                 if later and (min(later) - slot) * self.dt > self.max_gap:
                     self.next_slot = min(later)
                     events.append(Event("gap", None, f"no readings for {(self.next_slot - slot) * self.dt:g} s from "
-                                                     f"{slot * self.dt:g} s: longer than the longest gap filled "
+                                                     f"{self.at(slot * self.dt)}: longer than the longest gap filled "
                                                      f"({self.max_gap:g} s), so its rows are not diagnosed",
                                         slot * self.dt))
                     continue
                 self.gap += 1
             elif self.gap:
                 start = (slot - self.gap) * self.dt
-                events.append(Event("gap", None, f"no readings for {self.gap * self.dt:g} s from {start:g} s: "
+                events.append(Event("gap", None, f"no readings for {self.gap * self.dt:g} s from {self.at(start)}: "
                                                  f"{self.gap} rows of missing readings", start))
                 self.gap = 0
             self.open.pop(slot, None)
@@ -161,10 +279,11 @@ class Assembler:
             if name in values:
                 if name in self.stale:
                     self.stale.discard(name)
-                    events.append(Event("fresh", name, f"read again at {time:g} s", time))
+                    events.append(Event("fresh", name, f"read again at {self.at(time)}", time))
             elif name not in self.stale and last is not None and time - last[0] > self.stale_after[name]:
                 self.stale.add(name)
-                events.append(Event("stale", name, f"no reading since {last[0]:g} s; missing from {time:g} s", time))
+                events.append(Event("stale", name, f"no reading since {self.at(last[0])}; missing from "
+                                                        f"{self.at(time)}", time))
         y = np.array([values.get(n, math.nan) for n in self.outputs])
         u = np.array([values[n] if n in values else _or_nan(self._held(n, slot)) for n in self.inputs])
         u = np.where(np.isnan(u), self.defaults, u)

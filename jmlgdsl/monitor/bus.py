@@ -1,10 +1,10 @@
 """What the data-bus sources (MQTT, OPC UA) share: the events of their connection, the growing delay
 between attempts to connect, and the message of a refused password.
 
-A bus source hands the monitor `put(("readings", [(name, value, time or None)], arrival, token))`,
-`put(("malformed", message, token))`, `put(("event", Event))` and, for what trying again cannot
-mend, `put(("fatal", message))`; the monitor calls `acknowledge(tokens)` after the commit that holds
-them and `stop()` at the end.
+A bus source hands the monitor `put(("readings", [(name, value, time or None)], arrival, token))`
+(a time in seconds, or a datetime where the source writes clock times), `put(("malformed", message,
+token))`, `put(("event", Event))` and, for what trying again cannot mend, `put(("fatal", message))`;
+the monitor calls `acknowledge(tokens)` after the commit that holds them and `stop()` at the end.
 """
 
 from __future__ import annotations

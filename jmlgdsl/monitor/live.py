@@ -46,6 +46,10 @@ GATHER = 0.02
 # of a fleet's filter), sealed (jmlgdsl.sealed) with these kinds in it and this header.
 MONITOR_KINDS = (Assembler, Step)
 MONITOR_STATE = {"monitor": 1, "version": VERSION}
+# Sample times (of the wall clock, and at least STALL_LEAST seconds) without a row diagnosed while
+# messages keep arriving before a unit's diagnosis is said to stall: every message late, in the
+# future or held ahead, say, while the page would go on showing the last mode.
+STALL, STALL_LEAST = 10, 10.0
 
 
 class MonitorError(JmlgError):
@@ -224,16 +228,16 @@ class Monitor:
             watches[0].feed(row)
         elif kind == "readings":
             _, readings, arrival, token = item
-            own = [stamp is not None and self.tags[name].time == "source" for name, _, stamp in readings]
             watches[0].assembled(*watches[0].assembler.add(
-                [(name, self.tags[name].value(value), stamp if mine else arrival)
-                 for (name, value, stamp), mine in zip(readings, own)], not any(own)))
+                [(name, self.tags[name].value(value), stamp) for name, value, stamp in readings], arrival))
             watches[0].dirty = True  # the assembler holds the readings: it is saved before they are acknowledged
+            watches[0].arrived()
             self.tokens.append(token)
         elif kind == "malformed":
             _, message, token = item
             for watch in watches:
                 watch.event(Event("malformed", None, message))
+                watch.arrived()
             self.tokens.append(token)
         elif kind == "event":
             for watch in watches:
@@ -297,6 +301,23 @@ class Watch:
         self.samples, self.results, self.events = [], [], []
         self.dirty = False
         self.nan_sd = np.full(monitor.model.ny, np.nan)
+        self.stall = max(STALL * float(monitor.model.dt), STALL_LEAST)  # seconds
+        self.last_row = clock.monotonic()  # when the last row was diagnosed (or the monitor started)
+        self.since = {}  # messages since that row, and its events by kind
+        self.stalled = False  # whether the stall since that row was told
+
+    def arrived(self):
+        """A message for this unit was handled: a `stall` event (once until the next row) when no row
+        has been diagnosed for `stall` seconds while messages keep arriving, with what became of them."""
+        self.since["message"] = self.since.get("message", 0) + 1
+        waited = clock.monotonic() - self.last_row
+        if self.stalled or waited < self.stall:
+            return
+        self.stalled = True
+        counts = ", ".join(f"{kind} {count}" for kind, count in self.since.items() if kind != "message")
+        self.event(Event("stall", None, f"no row diagnosed for {waited:.0f} s while {self.since['message']} "
+                                        f"messages arrived ({counts or 'none of them an event'}); the page shows "
+                                        "the last row's mode until a row is diagnosed again"))
 
     def assembled(self, rows, events):
         for event in events:
@@ -309,6 +330,7 @@ class Watch:
         monitor = self.monitor
         self.rows += 1
         self.samples.append((self.rows, row))
+        self.last_row, self.since, self.stalled = clock.monotonic(), {}, False
         if monitor.fleet is None:
             self.diagnosis.feed(row)
         else:
@@ -338,6 +360,7 @@ class Watch:
         self.events.append(event)
         self.dirty = True
         monitor.counts[event.kind] = monitor.counts.get(event.kind, 0) + 1
+        self.since[event.kind] = self.since.get(event.kind, 0) + 1
         if event.kind == "late" and monitor.late_unlogged is not None:
             monitor.late_unlogged += 1
             return

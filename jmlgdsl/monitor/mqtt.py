@@ -93,14 +93,21 @@ class MqttSource:
                 hand(("event", bus.lost(where, reason)))
 
         def on_message(client, userdata, message):
-            token = (message.mid, message.qos)
-            unit, name = self.topics.get(message.topic, (None, None))
+            # Every message is handed on, as readings or as one `malformed` event, and so acknowledged
+            # with the next commit: an exception here would end paho's network thread, and the message,
+            # never acknowledged, would be delivered again after every restart to end it again.
+            token, unit, topic = (message.mid, message.qos), None, "(not UTF-8 text)"
             try:
-                if message.topic not in self.topics:  # a subscription left in the session by an earlier run
+                topic = message.topic
+                unit, name = self.topics.get(topic, (None, None))
+                if topic not in self.topics:  # a subscription left in the session by an earlier run
                     raise Malformed("not a topic of this monitor's tags")
-                hand(("readings", decode(message.payload, name, self.names), time.time(), token), unit)
+                item = ("readings", decode(message.payload, name, self.names), time.time(), token)
             except Malformed as exc:
-                hand(("malformed", f"topic {message.topic}: {exc}", token), unit)
+                item = ("malformed", f"topic {topic}: {exc}", token)
+            except Exception as exc:  # what no reading should raise: reported as the message's fault, not fatal
+                item = ("malformed", f"topic {topic}: cannot read the message ({type(exc).__name__}: {exc})", token)
+            hand(item, unit)
 
         client.on_connect, client.on_connect_fail = on_connect, on_connect_fail
         client.on_disconnect, client.on_message = on_disconnect, on_message

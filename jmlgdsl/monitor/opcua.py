@@ -24,7 +24,7 @@ import asyncio
 import logging
 import threading
 import time
-from datetime import timezone
+from datetime import datetime, timezone
 
 from asyncua import Client, ua
 from asyncua.crypto import security_policies
@@ -246,11 +246,11 @@ def _value(name, value) -> float:
     return number(raw, name, str(raw))
 
 
-def _stamp(stamp) -> float | None:
-    """Seconds since 1970 of a source time stamp (a naive one is UTC); None without one."""
+def _stamp(stamp) -> datetime | None:
+    """A source time stamp, aware (a naive one is UTC); None without one."""
     if stamp is None:
         return None
-    return (stamp if stamp.tzinfo else stamp.replace(tzinfo=timezone.utc)).timestamp()
+    return stamp if stamp.tzinfo else stamp.replace(tzinfo=timezone.utc)
 
 
 def _append_to(lost):
