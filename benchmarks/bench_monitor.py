@@ -120,21 +120,27 @@ class Timed(Monitor):
         self.latency, self.arrived, self.latencies, self.memory = latency, {}, [], []
         self.started = None
 
-    def _handle(self, item):
+    @property
+    def rows(self) -> int:
+        """Rows diagnosed so far, every unit's."""
+        return sum(watch.rows for watch in self.units)
+
+    def _handle(self, unit, item):
         if item[0] == "readings":
             self.started = self.started or time.time()
             if self.latency:
                 for _, _, stamp in item[1]:
                     self.arrived[stamp] = item[2]
-        return super()._handle(item)
+        return super()._handle(unit, item)
 
     def commit(self):
-        times = [row.time for _, row in self.samples] if self.latency else []
-        rows = len(self.samples)
+        self.step()  # the rows of this commit (the monitor's commit steps first: then nothing is left)
+        samples = [sample for watch in self.units for sample in watch.samples]
+        times = [row.time for _, row in samples] if self.latency else []
         super().commit()
         done = time.time()
         self.latencies += [done - self.arrived.pop(t) for t in times if t in self.arrived]
-        if rows:
+        if samples:
             self.finished = done
             if not self.memory or self.rows - self.memory[-1][0] >= 10_000:
                 self.memory.append((self.rows, _rss()))
