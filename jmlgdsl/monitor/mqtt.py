@@ -33,6 +33,7 @@ class MqttSource:
     With `units`, every item is handed over as (unit index, item) (None: the connection's, for every unit)."""
 
     rows = False
+    persistent = True  # a persistent session whose messages are acknowledged after their commit
 
     def __init__(self, url, model, tags, *, client_id: str, credentials=None, ca_file=None, units=None):
         self.tls = url.startswith("mqtts://")
@@ -52,9 +53,9 @@ class MqttSource:
         self.client = None
 
     def start(self, put, position):
-        client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=self.client_id, clean_session=False,
-                             protocol=mqtt.MQTTv311)
-        client.manual_ack_set(True)
+        client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=self.client_id,
+                             clean_session=not self.persistent, protocol=mqtt.MQTTv311)
+        client.manual_ack_set(self.persistent)
         client.reconnect_delay_set(int(bus.FIRST_RETRY), int(bus.LAST_RETRY))
         if self.credentials is not None:
             client.username_pw_set(*self.credentials)
@@ -73,9 +74,7 @@ class MqttSource:
                 else:
                     hand(("event", bus.unreachable(where, f"it refused the connection: {reason}")))
                 return
-            client.subscribe([(topic, 1) for topic in self.topics])
-            resumed = "resumed its session" if flags.session_present else "a new session"
-            hand(("event", bus.connected(where, f"as {self.client_id}, {resumed}")))
+            self.connected(client, flags, hand)
 
         def on_connect_fail(client, userdata):
             error = sys.exc_info()[1]  # paho calls this while it handles the connection's OSError
@@ -93,20 +92,35 @@ class MqttSource:
                 hand(("event", bus.lost(where, reason)))
 
         def on_message(client, userdata, message):
-            token = (message.mid, message.qos)
-            unit, name = self.topics.get(message.topic, (None, None))
-            try:
-                if message.topic not in self.topics:  # a subscription left in the session by an earlier run
-                    raise Malformed("not a topic of this monitor's tags")
-                hand(("readings", decode(message.payload, name, self.names), time.time(), token), unit)
-            except Malformed as exc:
-                hand(("malformed", f"topic {message.topic}: {exc}", token), unit)
+            self.received(message, hand)
 
         client.on_connect, client.on_connect_fail = on_connect, on_connect_fail
         client.on_disconnect, client.on_message = on_disconnect, on_message
         self.client = client
+        self.prepare(client)
         client.connect_async(self.host, self.port, keepalive=30)
         client.loop_start()
+
+    def prepare(self, client):
+        """Set what the connection needs before it is made: nothing here (a subclass sets its will)."""
+
+    def connected(self, client, flags, hand):
+        """The connection is up: subscribe to the tags' topics and say so. `hand(item, unit)` hands an
+        item over."""
+        client.subscribe([(topic, 1) for topic in self.topics])
+        resumed = "resumed its session" if flags.session_present else "a new session"
+        hand(("event", bus.connected(f"{self.host}:{self.port}", f"as {self.client_id}, {resumed}")))
+
+    def received(self, message, hand):
+        """A message from the broker as readings (or malformed), acknowledged after their commit."""
+        token = (message.mid, message.qos)
+        unit, name = self.topics.get(message.topic, (None, None))
+        try:
+            if message.topic not in self.topics:  # a subscription left in the session by an earlier run
+                raise Malformed("not a topic of this monitor's tags")
+            hand(("readings", decode(message.payload, name, self.names), time.time(), token), unit)
+        except Malformed as exc:
+            hand(("malformed", f"topic {message.topic}: {exc}", token), unit)
 
     def acknowledge(self, tokens):
         for mid, qos in tokens:
