@@ -12,6 +12,7 @@ import math
 import queue
 import random
 import sqlite3
+import sys
 import subprocess
 import threading
 import time
@@ -352,3 +353,18 @@ def test_a_metric_two_devices_declare_historical_readings_by_arrival_and_unknown
         [("temp", 50.60301681, 1.0), ("current", 15.0, 1.0)], [("temp", 50.57489308, 2.0)]]
     assert [(topic, [(m.name, m.value) for m in command.metrics]) for topic, command in sent] == [
         ("spBv1.0/plant/NCMD/gateway", [("Node Control/Rebirth", True)])]
+
+
+def test_without_protobuf_the_source_says_what_to_install(monkeypatch):
+    import jmlgdsl
+    from jmlgdsl.errors import JmlgError
+    from jmlgdsl.monitor import read_tags
+    from jmlgdsl.monitor.sources import open_bus
+
+    monkeypatch.setitem(sys.modules, "google.protobuf", None)  # as if it were not installed
+    for name in ("jmlgdsl.monitor.sparkplug", "jmlgdsl.monitor.sparkplug_b"):
+        monkeypatch.delitem(sys.modules, name)
+    model = jmlgdsl.load(SPEC)
+    with pytest.raises(JmlgError, match=r"a Sparkplug B source needs the protobuf package: pip install "
+                                        r"'jmlgdsl\[sparkplug\]'"):
+        open_bus("sparkplug://127.0.0.1/plant", model, read_tags(None, model))
