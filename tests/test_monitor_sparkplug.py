@@ -301,8 +301,12 @@ def test_node_asked_for_its_birth_and_backfill_in_time_order(broker, tmp_path):
 def test_a_source_url_without_a_group_and_a_fleet_are_refused(tmp_path):
     for url, message in [("sparkplug://127.0.0.1:1883", "give sparkplug://HOST:PORT/GROUP"),
                          ("sparkplug://127.0.0.1:1883/a/b/c/d", "give sparkplug://HOST:PORT/GROUP"),
-                         ("sparkplug://127.0.0.1:1883/plant/+", "each id without '+', '#' or '/'")]:
-        done = subprocess.run([*jmlgdsl_command(), "monitor", SPEC, "--source", url, "--store",
+                         ("sparkplug://127.0.0.1:1883/plant/+", "each id without '+', '#' or '/'"),
+                         ("sparkplug://127.0.0.1:1883/plant --reorder-timeout 0", "--reorder-timeout 0: give a "
+                                                                                  "positive number of seconds"),
+                         ("sparkplug://127.0.0.1:1883/plant --units a,b", "--units with a Sparkplug B source: not "
+                                                                          "supported; run a monitor for each")]:
+        done = subprocess.run([*jmlgdsl_command(), "monitor", SPEC, "--source", *url.split(), "--store",
                                str(tmp_path / "x.db")], capture_output=True, text=True, timeout=WAIT)
         assert done.returncode == 2 and message in done.stderr, done.stderr
     done = subprocess.run([*jmlgdsl_command(), "monitor", SPEC, "--source", "mqtt://127.0.0.1:1883/dryer",

@@ -14,8 +14,8 @@ def register(subparsers):
         "monitor", help="diagnose a running plant live, keeping every conclusion in a store",
         description="Diagnose a plant's data as they arrive, from a CSV file followed as it grows, standard "
                     "input (-), an MQTT broker (mqtt://HOST:PORT/PREFIX, mqtts://...), an OPC UA server "
-                    "(opc.tcp://HOST:PORT/PATH) or Sparkplug B edge nodes (sparkplug://HOST:PORT/GROUP/...). Readings of tags that arrive at their own moments are put "
-                    "on the spec's sample clock. Every row, its mode posterior, alarms and events go to the "
+                    "(opc.tcp://HOST:PORT/PATH) or Sparkplug B edge nodes (sparkplug://HOST:PORT/GROUP/...). "
+                    "Readings of tags that arrive at their own moments are put on the spec's sample clock. Every row, its mode posterior, alarms and events go to the "
                     "store (SQLite, or PostgreSQL for many monitors), committed with the diagnosis's state, so "
                     "the monitor killed at any moment and started again with the same command resumes where it "
                     "was. It runs until stopped (SIGTERM, Ctrl-C), or to the end of standard input or of an "

@@ -88,8 +88,8 @@ def open_bus(url: str, model, tags, *, follow: bool = True, client_id: str | Non
                             "'jmlgdsl[sparkplug]'") from None
         _refuse(url, "a Sparkplug B source", given, "--security", "--certificate", "--private-key")
         if units is not None:
-            raise FleetError(f"--units with a Sparkplug B source: not supported; watch each edge node or device with "
-                             f"a monitor of its own (--source {url}/...)")
+            raise FleetError("--units with a Sparkplug B source: not supported; run a monitor for each edge node "
+                             "or device (--source sparkplug://HOST:PORT/GROUP/EDGE_NODE/DEVICE)")
         return SparkplugSource(url, model, tags, host_id=client_id or f"jmlgdsl-{model.name}",
                                credentials=credentials, ca_file=ca_file,
                                reorder=REORDER if reorder is None else reorder)

@@ -159,7 +159,8 @@ def _encoded(metric: Metric):
         elif kind == BYTES:
             m.bytes_value = metric.value
         else:
-            raise ValueError(f"metric {metric.name or metric.alias}: no value of type {TYPES.get(kind, kind)} is written")
+            raise ValueError(f"metric {metric.name or metric.alias}: no value of type {TYPES.get(kind, kind)} is "
+                             "written")
     return m
 
 
