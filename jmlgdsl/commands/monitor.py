@@ -13,9 +13,9 @@ def register(subparsers):
     p = subparsers.add_parser(
         "monitor", help="diagnose a running plant live, keeping every conclusion in a store",
         description="Diagnose a plant's data as they arrive, from a CSV file followed as it grows, standard "
-                    "input (-), an MQTT broker (mqtt://HOST:PORT/PREFIX, mqtts://...) or an OPC UA server "
-                    "(opc.tcp://HOST:PORT/PATH). Readings of tags that arrive at their own moments are put "
-                    "on the spec's sample clock. Every row, its mode posterior, alarms and events go to the "
+                    "input (-), an MQTT broker (mqtt://HOST:PORT/PREFIX, mqtts://...), an OPC UA server "
+                    "(opc.tcp://HOST:PORT/PATH) or Sparkplug B edge nodes (sparkplug://HOST:PORT/GROUP/...). "
+                    "Readings of tags that arrive at their own moments are put on the spec's sample clock. Every row, its mode posterior, alarms and events go to the "
                     "store (SQLite, or PostgreSQL for many monitors), committed with the diagnosis's state, so "
                     "the monitor killed at any moment and started again with the same command resumes where it "
                     "was. It runs until stopped (SIGTERM, Ctrl-C), or to the end of standard input or of an "
@@ -25,7 +25,8 @@ def register(subparsers):
     p.add_argument("spec", help="plant spec (.jmlg) or compiled model (.json/.npz)")
     p.add_argument("--source", required=True, metavar="URL",
                    help="a CSV file (followed as it grows), - (standard input), mqtt://HOST:PORT/PREFIX, "
-                        "mqtts://HOST:PORT/PREFIX or opc.tcp://HOST:PORT/PATH")
+                        "mqtts://HOST:PORT/PREFIX, opc.tcp://HOST:PORT/PATH or "
+                        "sparkplug://HOST:PORT/GROUP[/EDGE_NODE[/DEVICE]] (sparkplugs:// over TLS)")
     p.add_argument("--store", required=True, metavar="PATH|URL", help=STORE_HELP + "; made when absent")
     p.add_argument("--units", metavar="NAMES",
                    help="watch the units of a fleet with one spec: names and ranges such as pump01..pump200,spare; "
@@ -61,7 +62,8 @@ def register(subparsers):
                        help="a gap without any reading up to this long is diagnosed as rows of missing "
                             "readings; a longer one is skipped (default 3600)")
     bus = p.add_argument_group("connection")
-    bus.add_argument("--client-id", help="MQTT client id of the persistent session (default jmlgdsl-PLANT)")
+    bus.add_argument("--client-id", help="MQTT client id of the persistent session; for Sparkplug B, the host "
+                                          "application's id (default jmlgdsl-PLANT)")
     bus.add_argument("--username", help="user name at the broker or server")
     bus.add_argument("--password-env", metavar="VAR", help="the environment variable that holds the password")
     bus.add_argument("--password-file", metavar="FILE", help="the file that holds the password (its first line)")
@@ -70,6 +72,9 @@ def register(subparsers):
                      help="OPC UA security, e.g. Basic256Sha256,SignAndEncrypt (default None: no security)")
     bus.add_argument("--certificate", metavar="FILE", help="the client's OPC UA certificate (with --security)")
     bus.add_argument("--private-key", metavar="FILE", help="the client's OPC UA private key (with --security)")
+    bus.add_argument("--reorder-timeout", type=float, metavar="SECONDS",
+                     help="Sparkplug B: how long a gap in an edge node's seq numbers waits for its messages before "
+                          "they are given up and the node is asked for a rebirth (default 2)")
     add_filter_options(p)
     add_alarm_options(p)
     p.add_argument("--lag", type=int, default=0, metavar="L",
@@ -121,7 +126,7 @@ def main(args) -> int:
     recipe = dict(url=args.source, follow=not args.no_follow, client_id=args.client_id,
                   credentials=credentials(args.username, args.password_env, args.password_file),
                   ca_file=args.ca_file, security=args.security, certificate=args.certificate,
-                  private_key=args.private_key)
+                  private_key=args.private_key, reorder=args.reorder_timeout)
     source = open_bus(model=model, tags=tags, units=units, **recipe)  # refuses a bad source before anything starts
     stop = stopped_by_signals()
     password = store_password(args)

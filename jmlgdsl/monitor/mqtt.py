@@ -33,6 +33,7 @@ class MqttSource:
     With `units`, every item is handed over as (unit index, item) (None: the connection's, for every unit)."""
 
     rows = False
+    persistent = True  # a persistent session whose messages are acknowledged after their commit
 
     def __init__(self, url, model, tags, *, client_id: str, credentials=None, ca_file=None, units=None):
         self.tls = url.startswith("mqtts://")
@@ -52,9 +53,9 @@ class MqttSource:
         self.client = None
 
     def start(self, put, position):
-        client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=self.client_id, clean_session=False,
-                             protocol=mqtt.MQTTv311)
-        client.manual_ack_set(True)
+        client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=self.client_id,
+                             clean_session=not self.persistent, protocol=mqtt.MQTTv311)
+        client.manual_ack_set(self.persistent)
         client.reconnect_delay_set(int(bus.FIRST_RETRY), int(bus.LAST_RETRY))
         if self.credentials is not None:
             client.username_pw_set(*self.credentials)
@@ -73,9 +74,7 @@ class MqttSource:
                 else:
                     hand(("event", bus.unreachable(where, f"it refused the connection: {reason}")))
                 return
-            client.subscribe([(topic, 1) for topic in self.topics])
-            resumed = "resumed its session" if flags.session_present else "a new session"
-            hand(("event", bus.connected(where, f"as {self.client_id}, {resumed}")))
+            self.connected(client, flags, hand)
 
         def on_connect_fail(client, userdata):
             error = sys.exc_info()[1]  # paho calls this while it handles the connection's OSError
@@ -96,24 +95,40 @@ class MqttSource:
             # Every message is handed on, as readings or as one `malformed` event, and so acknowledged
             # with the next commit: an exception here would end paho's network thread, and the message,
             # never acknowledged, would be delivered again after every restart to end it again.
-            token, unit, topic = (message.mid, message.qos), None, "(not UTF-8 text)"
             try:
-                topic = message.topic
-                unit, name = self.topics.get(topic, (None, None))
-                if topic not in self.topics:  # a subscription left in the session by an earlier run
-                    raise Malformed("not a topic of this monitor's tags")
-                item = ("readings", decode(message.payload, name, self.names), time.time(), token)
-            except Malformed as exc:
-                item = ("malformed", f"topic {topic}: {exc}", token)
+                self.received(message, hand)
             except Exception as exc:  # what no reading should raise: reported as the message's fault, not fatal
-                item = ("malformed", f"topic {topic}: cannot read the message ({type(exc).__name__}: {exc})", token)
-            hand(item, unit)
+                hand(("malformed", f"topic {_topic(message)}: cannot read the message ({type(exc).__name__}: {exc})",
+                      (message.mid, message.qos)))
 
         client.on_connect, client.on_connect_fail = on_connect, on_connect_fail
         client.on_disconnect, client.on_message = on_disconnect, on_message
         self.client = client
+        self.prepare(client)
         client.connect_async(self.host, self.port, keepalive=30)
         client.loop_start()
+
+    def prepare(self, client):
+        """Set what the connection needs before it is made: nothing here (a subclass sets its will)."""
+
+    def connected(self, client, flags, hand):
+        """The connection is up: subscribe to the tags' topics and say so. `hand(item, unit)` hands an
+        item over."""
+        client.subscribe([(topic, 1) for topic in self.topics])
+        resumed = "resumed its session" if flags.session_present else "a new session"
+        hand(("event", bus.connected(f"{self.host}:{self.port}", f"as {self.client_id}, {resumed}")))
+
+    def received(self, message, hand):
+        """A message from the broker as readings (or malformed), acknowledged after their commit."""
+        token, topic = (message.mid, message.qos), _topic(message)
+        unit, name = self.topics.get(topic, (None, None))
+        try:
+            if topic not in self.topics:  # a subscription left in the session by an earlier run
+                raise Malformed("not a topic of this monitor's tags")
+            item = ("readings", decode(message.payload, name, self.names), time.time(), token)
+        except Malformed as exc:
+            item = ("malformed", f"topic {topic}: {exc}", token)
+        hand(item, unit)
 
     def acknowledge(self, tokens):
         for mid, qos in tokens:
@@ -124,3 +139,11 @@ class MqttSource:
         if client is not None:
             client.disconnect()
             client.loop_stop()
+
+
+def _topic(message) -> str:
+    """A message's topic, or what stands for it when its bytes are not UTF-8 text (paho decodes on reading)."""
+    try:
+        return message.topic
+    except UnicodeDecodeError:
+        return "(not UTF-8 text)"

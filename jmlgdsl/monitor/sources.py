@@ -3,6 +3,7 @@
     path/to/data.csv, -              CsvSource (jmlgdsl.monitor.follow)
     mqtt://HOST:PORT/PREFIX          MqttSource (jmlgdsl.monitor.mqtt); mqtts:// over TLS
     opc.tcp://HOST:PORT/PATH         OpcuaSource (jmlgdsl.monitor.opcua)
+    sparkplug://HOST:PORT/GROUP/...  SparkplugSource (jmlgdsl.monitor.sparkplug); sparkplugs:// over TLS
 
 and, for the units of a fleet, the same with {unit} in them (jmlgdsl.monitor.fleet).
 """
@@ -50,22 +51,23 @@ def secret(what: str, env: str | None, path: str | None) -> str | None:
 
 def open_bus(url: str, model, tags, *, follow: bool = True, client_id: str | None = None, credentials=None,
              ca_file: str | None = None, security: str | None = None, certificate: str | None = None,
-             private_key: str | None = None, units=None):
+             private_key: str | None = None, reorder: float | None = None, units=None):
     """The source a --source URL names (not yet started), of the named `units` of a fleet when given;
     an option its kind does not take is refused."""
     scheme = urlsplit(url).scheme if "://" in url else ""
     given = {"--username": credentials is not None, "--client-id": client_id, "--ca-file": ca_file,
-             "--security": security, "--certificate": certificate, "--private-key": private_key}
+             "--security": security, "--certificate": certificate, "--private-key": private_key,
+             "--reorder-timeout": reorder is not None}
     if scheme in ("mqtt", "mqtts"):
         from .mqtt import MqttSource
 
-        _refuse(url, "an MQTT source", given, "--security", "--certificate", "--private-key")
+        _refuse(url, "an MQTT source", given, "--security", "--certificate", "--private-key", "--reorder-timeout")
         return MqttSource(url, model, tags, client_id=client_id or f"jmlgdsl-{model.name}",
                           credentials=credentials, ca_file=ca_file, units=units)
     if scheme == "opc.tcp":
         from .opcua import OpcuaSource
 
-        _refuse(url, "an OPC UA source", given, "--client-id", "--ca-file")
+        _refuse(url, "an OPC UA source", given, "--client-id", "--ca-file", "--reorder-timeout")
         if units is not None:
             plain = sorted(name for name, tag in tags.items() if PLACEHOLDER not in (tag.node or ""))
             if plain:
@@ -76,9 +78,24 @@ def open_bus(url: str, model, tags, *, follow: bool = True, client_id: str | Non
                                 for unit in units], url)
         return OpcuaSource(url, model, tags, credentials=credentials, security=security, certificate=certificate,
                            private_key=private_key)
+    if scheme in ("sparkplug", "sparkplugs"):
+        try:
+            from .sparkplug import REORDER, SparkplugSource
+        except ModuleNotFoundError as exc:
+            if not (exc.name or "").startswith("google"):
+                raise
+            raise JmlgError(f"--source {url}: a Sparkplug B source needs the protobuf package: pip install "
+                            "'jmlgdsl[sparkplug]'") from None
+        _refuse(url, "a Sparkplug B source", given, "--security", "--certificate", "--private-key")
+        if units is not None:
+            raise FleetError("--units with a Sparkplug B source: not supported; run a monitor for each edge node "
+                             "or device (--source sparkplug://HOST:PORT/GROUP/EDGE_NODE/DEVICE)")
+        return SparkplugSource(url, model, tags, host_id=client_id or f"jmlgdsl-{model.name}",
+                               credentials=credentials, ca_file=ca_file,
+                               reorder=REORDER if reorder is None else reorder)
     if scheme:
-        raise JmlgError(f"--source {url}: unknown scheme {scheme!r}; use a CSV file, -, mqtt://, mqtts:// or "
-                        "opc.tcp://")
+        raise JmlgError(f"--source {url}: unknown scheme {scheme!r}; use a CSV file, -, mqtt://, mqtts://, "
+                        "opc.tcp://, sparkplug:// or sparkplugs://")
     _refuse(url, "a CSV source", given, *given)
     if units is not None:
         if PLACEHOLDER not in url:

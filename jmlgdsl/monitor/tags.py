@@ -4,6 +4,7 @@ spec's unit.
     [tags.temp]
     topic = "line4/dryer/temp_C"      # MQTT topic (default PREFIX/temp)
     node = "ns=2;s=Dryer.Temp"        # OPC UA node id (an OPC UA source needs one per name)
+    metric = "Dryer/Air temperature"  # Sparkplug B metric name (default temp)
     scale = 1.0                       # value in the spec's unit = scale * reading + offset
     offset = 0.0
     time = "source"                   # the reading's own time stamp ("source", the default) or its
@@ -28,7 +29,7 @@ if sys.version_info >= (3, 11):
 else:  # pragma: no cover - the Python 3.10 backport
     import tomli as tomllib
 
-KEYS = {"topic", "node", "scale", "offset", "time", "stale"}
+KEYS = {"topic", "node", "metric", "scale", "offset", "time", "stale"}
 TIMES = ("source", "arrival")
 
 
@@ -44,6 +45,7 @@ class Tag:
     output: bool  # an output (a measurement); else an input
     topic: str | None = None
     node: str | None = None
+    metric: str | None = None  # None: the spec name
     scale: float = 1.0
     offset: float = 0.0
     time: str = "source"
@@ -84,7 +86,7 @@ def _tag(path, name, output, entry) -> Tag:
     for key in entry:
         if key not in KEYS:
             raise TagError(f"{where}: unknown key {key!r}{suggest(key, sorted(KEYS))}")
-    for key in ("topic", "node"):
+    for key in ("topic", "node", "metric"):
         if key in entry and not isinstance(entry[key], str):
             raise TagError(f"{where}: {key} must be a string")
     for key in ("scale", "offset", "stale"):
@@ -98,6 +100,6 @@ def _tag(path, name, output, entry) -> Tag:
         raise TagError(f"{where}: stale must be a positive number of seconds")
     if entry.get("time", "source") not in TIMES:
         raise TagError(f"{where}: time must be \"source\" or \"arrival\", got {entry['time']!r}")
-    return Tag(name, output, entry.get("topic"), entry.get("node"), float(entry.get("scale", 1.0)),
-               float(entry.get("offset", 0.0)), entry.get("time", "source"),
+    return Tag(name, output, entry.get("topic"), entry.get("node"), entry.get("metric"),
+               float(entry.get("scale", 1.0)), float(entry.get("offset", 0.0)), entry.get("time", "source"),
                None if entry.get("stale") is None else float(entry["stale"]))
