@@ -270,3 +270,74 @@ def test_webhook_back_while_the_monitor_runs_is_sent_what_it_missed(tmp_path):
     details = [d for d, in sqlite3.connect(store).execute("SELECT detail FROM event WHERE kind = 'delivery'")]
     assert "alarm 1 raised: [Errno 111] Connection refused; trying again in 1 s" in details[0]
     assert "delivered after" in details[-1]
+
+
+def test_fleet_units_publish_under_their_own_topics(broker, tmp_path):
+    port, store = broker(), str(tmp_path / "fleet.db")
+    for unit in ("d1", "d2"):
+        (tmp_path / f"{unit}.csv").write_text("".join(LINES[:201]))
+    subscriber = Subscriber(port, "fleet")
+    done = subprocess.run([*jmlgdsl_command(), "monitor", SPEC, "--source", str(tmp_path / "{unit}.csv"), "--store",
+                           store, "--units", "d1,d2", "--no-follow", "--publish", f"mqtt://127.0.0.1:{port}/{PREFIX}"],
+                          capture_output=True, text=True, timeout=WAIT)
+    assert done.returncode == 0, done.stderr
+    deadline = time.monotonic() + WAIT
+    while len(subscriber.messages) < 2 * 201 and time.monotonic() < deadline:  # 200 rows and a raised alarm each
+        time.sleep(0.02)
+    subscriber.close()
+    for unit, run in (("d1", 1), ("d2", 2)):
+        mine = [body for topic, body, _ in subscriber.messages if topic == f"{PREFIX}/{unit}/state"]
+        assert [(s["unit"], s["run"], s["t"]) for s in mine] == [(unit, run, t) for t in range(1, 201)]
+    transitions = [(topic, body["unit"], body["transition"], body["t"]) for topic, body, _ in subscriber.messages
+                   if topic.endswith("/alarm")]
+    assert sorted(transitions) == [(f"{PREFIX}/{unit}/alarm", unit, "raised", 72) for unit in ("d1", "d2")]
+
+
+def test_publish_broker_that_refuses_the_password_stops_the_monitor(broker, tmp_path):
+    port, store, data = broker(password=True), str(tmp_path / "dryer.db"), tmp_path / "dryer.csv"
+    data.write_text("".join(LINES[:101]))
+    secret = tmp_path / "password"
+    secret.write_text("wrong\n")
+    url = f"mqtt://127.0.0.1:{port}/{PREFIX}"
+    done = subprocess.run([*jmlgdsl_command(), "monitor", SPEC, "--source", str(data), "--store", store, "--publish",
+                           url, "--publish-username", "plant", "--publish-password-file", str(secret)],
+                          capture_output=True, text=True, timeout=WAIT)
+    assert done.returncode == 2
+    assert (f"error: --publish {url}: the broker refused the connection (Not authorized); check --publish-username "
+            "and the password (--publish-password-env, --publish-password-file)") in done.stderr
+    assert "wrong" not in done.stderr
+    done = subprocess.run([*jmlgdsl_command(), "monitor", SPEC, "--source", str(data), "--store", store, "--publish",
+                           url, "--publish-password-file", str(secret)], capture_output=True, text=True, timeout=WAIT)
+    assert done.returncode == 2
+    assert "error: --publish-password-file: a password needs --publish-username" in done.stderr
+
+
+def test_node_red_flow_in_the_docs_reads_what_the_monitor_publishes(broker, tmp_path):
+    """docs/monitor.md's Node-RED flow subscribes to the topics of the --publish it shows and reads
+    fields the messages have."""
+    import re
+    from conftest import ROOT
+
+    doc = (ROOT / "docs" / "monitor.md").read_text()
+    flow = json.loads(next(block for block in re.findall(r"```json\n(.*?)```", doc, flags=re.S)
+                           if '"mqtt-broker"' in block))
+    prefix = re.search(r"--publish mqtt://127\.0\.0\.1:1883/(\S+)", doc).group(1)
+    topics = {node["name"]: node["topic"] for node in flow if node["type"] == "mqtt in"}
+    assert topics == {"state": f"{prefix}/state", "alarm": f"{prefix}/alarm"}
+    port, store, data = broker(), str(tmp_path / "dryer.db"), tmp_path / "dryer.csv"
+    data.write_text("".join(LINES[:101]))
+    subscriber = Subscriber(port, "node-red")
+    done = subprocess.run([*jmlgdsl_command(), "monitor", SPEC, "--source", str(data), "--store", store, "--no-follow",
+                           "--publish", f"mqtt://127.0.0.1:{port}/{PREFIX}"], capture_output=True, text=True,
+                          timeout=WAIT)
+    assert done.returncode == 0, done.stderr
+    deadline = time.monotonic() + WAIT
+    while not subscriber.transitions() and time.monotonic() < deadline:
+        time.sleep(0.02)
+    subscriber.close()
+    read = {"state": subscriber.states()[-1], "alarm": subscriber.transitions()[0]}
+    wired = {node["id"]: node for node in flow}
+    for name, body in read.items():  # every payload.FIELD the nodes after each MQTT input read
+        after = [wired[i] for i in next(n for n in flow if n.get("name") == name and n["type"] == "mqtt in")["wires"][0]]
+        fields = set(re.findall(r"payload\.(\w+)", json.dumps(after)))
+        assert fields and fields <= set(body), (name, fields - set(body))

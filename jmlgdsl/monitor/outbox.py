@@ -102,6 +102,8 @@ class Outbox:
                     marks[run] = end
                     fresh.append((feed.sink.name, run, *end))
                 feed.begin(run, marks[run], end)
+                if marks[run] != end:
+                    feed.behind.add(run)  # what it had not confirmed: handed again before anything moves
         if fresh:
             self.store.save([], fresh)
         for sink in self.sinks:
@@ -234,13 +236,13 @@ class Feed:
 
     def __init__(self, sink):
         self.sink = sink
-        self.handed, self.recorded, self.marked, self.held = {}, {}, {}, {}
+        self.handed, self.recorded, self.began, self.held = {}, {}, {}, {}
         self.waiting = {}  # run -> deque of [position, confirmed] in the order handed
         self.entries = {}  # id(conclusion) -> (conclusion, its entry in waiting) until confirmed
         self.behind = set()  # runs it was not handed all of for want of room
 
     def begin(self, run: int, mark: tuple, end: tuple):
-        self.handed[run] = self.recorded[run] = self.marked[run] = tuple(mark)
+        self.handed[run] = self.recorded[run] = self.began[run] = tuple(mark)
         self.held[run] = tuple(end)
         self.waiting[run] = collections.deque()
 
@@ -248,7 +250,7 @@ class Feed:
         """Whether the conclusion of row t (or of action id `action`) was in the store when the monitor
         started, after the sink's mark then: an earlier monitor may have sent it."""
         k, value = (0, t) if action is None else (1, action)
-        return self.marked[run][k] < value <= self.held[run][k]
+        return self.began[run][k] < value <= self.held[run][k]
 
     def hand(self, run: int, conclusions: list, to: tuple):
         """Conclusions handed to the sink, and its place `to` after them (past rows that held none)."""
