@@ -6,7 +6,6 @@ again, loses nothing and publishes nothing twice without marking it; a webhook r
 transition, and one that is down holds nothing up, is an event, and is sent what it missed when it
 is back, by the same monitor or by the next."""
 
-import http.server
 import json
 import signal
 import sqlite3
@@ -16,13 +15,13 @@ import time
 
 import pytest
 from conftest import jmlgdsl_command
-from monitor_servers import (LINES, MOSQUITTO, NO_MOSQUITTO, SPEC, WAIT, broker, free_port, query,  # noqa: F401
-                             stop, until)  # (broker: a fixture)
+from monitor_servers import (LINES, MOSQUITTO, NO_MOSQUITTO, SPEC, WAIT, Receiver, broker, free_port,  # noqa: F401
+                             query, stop, until)  # (broker: a fixture)
 
 from jmlgdsl.monitor import Store
 
 paho = pytest.importorskip("paho.mqtt.client")
-pytestmark = pytest.mark.skipif(MOSQUITTO is None, reason=NO_MOSQUITTO)
+mosquitto = pytest.mark.skipif(MOSQUITTO is None, reason=NO_MOSQUITTO)  # the webhook's tests need none
 PREFIX = "diagnosis/dryer"
 
 
@@ -71,6 +70,7 @@ def expected_transitions(store):
     return [(id, kind) for _, id, kind in rows] + [(id, names[kind]) for id, kind in actions]
 
 
+@mosquitto
 def test_subscribers_get_every_row_every_transition_and_the_latest_state(broker, tmp_path):
     port, store, data = broker(), str(tmp_path / "dryer.db"), tmp_path / "dryer.csv"
     data.write_text("".join(LINES))
@@ -114,6 +114,7 @@ def test_subscribers_get_every_row_every_transition_and_the_latest_state(broker,
     assert late.messages[0][1] == states[-1]
 
 
+@mosquitto
 def test_killed_monitor_loses_nothing_and_marks_what_it_publishes_again(broker, tmp_path):
     """Rows committed while the broker is frozen (SIGSTOP) are published but never acknowledged; the
     monitor killed then, and started again, publishes them again marked "redelivered", and each row
@@ -165,35 +166,6 @@ def test_killed_monitor_loses_nothing_and_marks_what_it_publishes_again(broker, 
     assert sorted(seen) == sorted(expected_transitions(store))
     assert all(marks.count(False) <= 1 for marks in seen.values())
     assert seen[(3, "raised")][-1] is True  # raised at row 517, while the broker was frozen
-
-
-class Receiver:
-    """A webhook receiver on 127.0.0.1 (http.server in a thread) that keeps each POST's JSON body."""
-
-    def __init__(self, port=None):
-        posts = self.posts = []
-
-        class Handler(http.server.BaseHTTPRequestHandler):
-            def do_POST(self):
-                body = self.rfile.read(int(self.headers["Content-Length"]))
-                posts.append((self.headers["Content-Type"], json.loads(body)))
-                self.send_response(204)
-                self.end_headers()
-
-            def log_message(self, *args):
-                pass
-
-        self.server = http.server.ThreadingHTTPServer(("127.0.0.1", port or 0), Handler)
-        self.port = self.server.server_address[1]
-        self.thread = threading.Thread(target=self.server.serve_forever, daemon=True)
-        self.thread.start()
-
-    def transitions(self):
-        return [(body["alarm"], body["transition"]) for _, body in self.posts]
-
-    def close(self):
-        self.server.shutdown()
-        self.server.server_close()
 
 
 def test_webhook_gets_every_transition(tmp_path):
@@ -272,6 +244,7 @@ def test_webhook_back_while_the_monitor_runs_is_sent_what_it_missed(tmp_path):
     assert "delivered after" in details[-1]
 
 
+@mosquitto
 def test_fleet_units_publish_under_their_own_topics(broker, tmp_path):
     port, store = broker(), str(tmp_path / "fleet.db")
     for unit in ("d1", "d2"):
@@ -293,6 +266,7 @@ def test_fleet_units_publish_under_their_own_topics(broker, tmp_path):
     assert sorted(transitions) == [(f"{PREFIX}/{unit}/alarm", unit, "raised", 72) for unit in ("d1", "d2")]
 
 
+@mosquitto
 def test_publish_broker_that_refuses_the_password_stops_the_monitor(broker, tmp_path):
     port, store, data = broker(password=True), str(tmp_path / "dryer.db"), tmp_path / "dryer.csv"
     data.write_text("".join(LINES[:101]))
@@ -312,6 +286,7 @@ def test_publish_broker_that_refuses_the_password_stops_the_monitor(broker, tmp_
     assert "error: --publish-password-file: a password needs --publish-username" in done.stderr
 
 
+@mosquitto
 def test_node_red_flow_in_the_docs_reads_what_the_monitor_publishes(broker, tmp_path):
     """docs/monitor.md's Node-RED flow subscribes to the topics of the --publish it shows and reads
     fields the messages have."""
