@@ -1,9 +1,10 @@
 """What the monitor's tests against live servers share: the bundled dryer recording, free ports on
-127.0.0.1, mosquitto brokers and a publisher, bounded waits on a running monitor, queries of its
-store, and the tables to compare."""
+127.0.0.1, mosquitto brokers and a publisher, a webhook receiver, bounded waits on a running
+monitor, queries of its store, and the tables to compare."""
 
 import csv
 import getpass
+import http.server
 import json
 import os
 import shutil
@@ -192,3 +193,32 @@ def publish(port, messages, topic="dryer", ca_file=None):
     finally:
         client.disconnect()
         client.loop_stop()
+
+
+class Receiver:
+    """A webhook receiver on 127.0.0.1 (http.server in a thread) that keeps each POST's JSON body."""
+
+    def __init__(self, port=None):
+        posts = self.posts = []
+
+        class Handler(http.server.BaseHTTPRequestHandler):
+            def do_POST(self):
+                body = self.rfile.read(int(self.headers["Content-Length"]))
+                posts.append((self.headers["Content-Type"], json.loads(body)))
+                self.send_response(204)
+                self.end_headers()
+
+            def log_message(self, *args):
+                pass
+
+        self.server = http.server.ThreadingHTTPServer(("127.0.0.1", port or 0), Handler)
+        self.port = self.server.server_address[1]
+        self.thread = threading.Thread(target=self.server.serve_forever, daemon=True)
+        self.thread.start()
+
+    def transitions(self):
+        return [(body["alarm"], body["transition"]) for _, body in self.posts]
+
+    def close(self):
+        self.server.shutdown()
+        self.server.server_close()

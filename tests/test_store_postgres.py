@@ -19,7 +19,7 @@ import urllib.request
 
 import pytest
 from conftest import jmlgdsl_command
-from monitor_servers import DATA, SPEC, WAIT, free_port, killed_mid_file
+from monitor_servers import DATA, SPEC, WAIT, Receiver, free_port, killed_mid_file
 
 from jmlgdsl.cli import main
 from jmlgdsl.monitor import Store
@@ -158,6 +158,17 @@ def test_export_equals_run(server, password, tmp_path, lag):
                                     "WHERE table_name = 'sample'"))
     assert types["time"] == "double precision" and types["t"] == "bigint"
     assert query(server, url, "SELECT (posterior::json ->> 1)::float FROM result WHERE t = 1000")[0][0] > 0.9
+
+
+def test_webhook_is_sent_every_transition_and_its_mark_kept(server, password, tmp_path):
+    url, receiver = server.database(), Receiver()
+    try:
+        assert main(["monitor", SPEC, "--source", str(DATA), "--no-follow", "--store", url, *password,
+                     "--notify", f"http://127.0.0.1:{receiver.port}/hook"]) == 0
+    finally:
+        receiver.close()
+    assert receiver.transitions() == [(1, "raised"), (1, "cleared"), (2, "raised"), (2, "cleared"), (3, "raised")]
+    assert query(server, url, "SELECT run, t, action FROM delivery") == [(1, 1000, 0)]
 
 
 def test_a_user_who_may_only_read_exports_the_store(server, password, tmp_path, monkeypatch):

@@ -75,6 +75,22 @@ def register(subparsers):
     bus.add_argument("--reorder-timeout", type=float, metavar="SECONDS",
                      help="Sparkplug B: how long a gap in an edge node's seq numbers waits for its messages before "
                           "they are given up and the node is asked for a rebirth (default 2)")
+    out = p.add_argument_group("conclusions to the plant's systems (docs/monitor.md, \"Integrations\")")
+    out.add_argument("--publish", metavar="URL",
+                     help="mqtt://HOST:PORT/PREFIX or mqtts://...: publish each row's state (retained) on PREFIX/state "
+                          "and each alarm transition on PREFIX/alarm (PREFIX/UNIT/... for a fleet's units), as JSON "
+                          "at QoS 1, once committed to the store")
+    out.add_argument("--publish-username", metavar="NAME", help="user name at the --publish broker")
+    out.add_argument("--publish-password-env", metavar="VAR", help="the environment variable that holds its password")
+    out.add_argument("--publish-password-file", metavar="FILE", help="the file that holds its password (first line)")
+    out.add_argument("--publish-ca-file", metavar="FILE",
+                     help="certificate authority of an mqtts:// --publish broker (default the system's)")
+    out.add_argument("--notify", metavar="URL",
+                     help="http(s) webhook: POST each alarm transition (raised, cleared, acknowledged, shelved, "
+                          "unshelved) as JSON, retried with back-off, never holding the diagnosis up")
+    out.add_argument("--notify-token-env", metavar="VAR",
+                     help="the environment variable that holds a token sent as 'Authorization: Bearer TOKEN'")
+    out.add_argument("--notify-token-file", metavar="FILE", help="the file that holds that token (first line)")
     add_filter_options(p)
     add_alarm_options(p)
     p.add_argument("--lag", type=int, default=0, metavar="L",
@@ -91,7 +107,8 @@ def main(args) -> int:
 
     from ..monitor import Monitor, Store, monitor_options, read_tags
     from ..monitor.fleet import unit_names
-    from ..monitor.sources import credentials, open_bus
+    from ..monitor.outbox import open_sinks
+    from ..monitor.sources import credentials, open_bus, secret
     from ..diagnosis.prefilter import parse
     from ..errors import JmlgError
     from ..names import plural
@@ -128,6 +145,20 @@ def main(args) -> int:
                   ca_file=args.ca_file, security=args.security, certificate=args.certificate,
                   private_key=args.private_key, reorder=args.reorder_timeout)
     source = open_bus(model=model, tags=tags, units=units, **recipe)  # refuses a bad source before anything starts
+    for option in ("publish_username", "publish_password_env", "publish_password_file", "publish_ca_file"):
+        if getattr(args, option) is not None and args.publish is None:
+            raise JmlgError(f"--{option.replace('_', '-')} is for the --publish broker: give --publish")
+    for option in ("notify_token_env", "notify_token_file"):
+        if getattr(args, option) is not None and args.notify is None:
+            raise JmlgError(f"--{option.replace('_', '-')} is for the --notify webhook: give --notify")
+    if (args.publish or args.notify) and args.cluster:
+        raise JmlgError(f"{'--publish' if args.publish else '--notify'} is not yet taken with --cluster; run the "
+                        "fleet's monitor without it")
+    sinks = open_sinks(publish=args.publish, notify=args.notify, client_id=args.client_id or f"jmlgdsl-{model.name}",
+                       credentials=credentials(args.publish_username, args.publish_password_env,
+                                               args.publish_password_file, "--publish-"),
+                       ca_file=args.publish_ca_file,
+                       token=secret("notify-token", args.notify_token_env, args.notify_token_file))
     stop = stopped_by_signals()
     password = store_password(args)
     page = start_page(args, args.store, password=password, unit=units and units[0])
@@ -137,7 +168,7 @@ def main(args) -> int:
         else:
             with Store(args.store, password=password) as store:
                 monitor = Monitor(model, store, source, spec=_text(args.spec), options=options, tags=tags,
-                                  units=units, new_run=args.new_run, banks=banks,
+                                  units=units, new_run=args.new_run, banks=banks, sinks=sinks,
                                   log=lambda text: print(f"monitor: {text}", file=sys.stderr, flush=True))
                 stopped = [monitor.run(stop)]
     finally:

@@ -9,6 +9,8 @@ the monitor calls `acknowledge(tokens)` after the commit that holds them and `st
 
 from __future__ import annotations
 
+import ssl
+
 from .assemble import Event
 
 FIRST_RETRY, LAST_RETRY = 1.0, 30.0  # seconds between connection attempts: doubling from the first to the last
@@ -36,7 +38,20 @@ def lost(where: str, why) -> Event:
     return Event("disconnect", None, f"lost the connection to {where} ({why}); reconnecting")
 
 
-def refused(source: str, who: str, why) -> str:
-    """The message of a source whose user name, password or certificate was refused."""
-    return (f"{source}: the {who} refused the connection ({why}); check --username and the password "
-            "(--password-env, --password-file)")
+def refused(source: str, who: str, why, options: str = "--") -> str:
+    """The message of a source (or of a sink whose options begin with `options`, e.g. --publish-) whose
+    user name, password or certificate was refused."""
+    return (f"{source}: the {who} refused the connection ({why}); check {options}username and the password "
+            f"({options}password-env, {options}password-file)")
+
+
+def untrusted(where: str, port: int, error, option: str = "--ca-file") -> str | None:
+    """The message of a TLS connection to `where` that failed, which trying again cannot mend (a
+    certificate the certificate authority of `option`, or the system's, does not trust; a port that
+    speaks no TLS); None for another failure."""
+    if isinstance(error, ssl.SSLCertVerificationError):
+        return (f"{where}: the broker's certificate is not trusted ({error.verify_message}); give the certificate "
+                f"authority that signed it with {option}")
+    if isinstance(error, ssl.SSLError):
+        return f"{where}: no TLS connection ({error.reason or error}): is {port} the broker's TLS port?"
+    return None

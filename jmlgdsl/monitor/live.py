@@ -26,6 +26,7 @@ from ..infer.result import Step
 from ..infer.units import Stacked
 from ..errors import JmlgError
 from .assemble import Assembler, Event
+from .outbox import Outbox
 from .store import Commit, Store
 from ..version import VERSION
 
@@ -92,10 +93,11 @@ class Monitor:
     time, are stepped together when the input pauses and before every commit. `banks` gives each
     unit its own (model, spec text), its spec fitted to it (`jmlgdsl.diagnosis.fleet.unit_banks`;
     default `model` and `spec` for every unit): its run records them, a restart with another is
-    refused, and the units still step together, each under its own numbers."""
+    refused, and the units still step together, each under its own numbers. `sinks` (jmlgdsl.monitor.
+    outbox) are sent what each commit holds, and the operators' actions on its alarms."""
 
     def __init__(self, model, store: Store, source, *, spec: str | None, options: dict, tags: dict,
-                 units=None, new_run: bool = False, log=None, banks=None):
+                 units=None, new_run: bool = False, log=None, banks=None, sinks=()):
         self.model, self.store, self.source, self.log = model, store, source, log or (lambda text: None)
         self.options = recorded_options(model, options, source.name, tags)
         self.tags = tags
@@ -105,6 +107,7 @@ class Monitor:
         self.stacked = None if all(bank is model for bank, _ in self.banks) else Stacked([b for b, _ in self.banks])
         runs = open_runs(store, model, spec, self.options, units, new_run, self.banks)
         self.units = [self._unit(run, i) for i, run in enumerate(runs)]
+        self.outbox = Outbox(store, sinks, runs, model.name)
         self.fleet = None  # the units' diagnoses as one Fleet, when their filters step together
         if self.named and stepped_together(self.units[0].diagnosis.filter):
             self.fleet = Fleet(model, units=[watch.diagnosis for watch in self.units])
@@ -183,6 +186,7 @@ class Monitor:
                               f"{watch.rows}"))
         ended = False
         try:
+            self.outbox.start()
             while not stop.is_set() and not ended:
                 try:
                     unit, item = items.get(timeout=IDLE)
@@ -214,7 +218,10 @@ class Monitor:
             closing.set()
             try:
                 self.commit()
+                self.outbox.close()
+                self.commit()  # how far the sinks got while they closed
             finally:
+                self.outbox.close(0)
                 self.source.stop()
         return Stopped(tuple(watch.run.id for watch in self.units), self.stored - self.started_rows, self.stored,
                        dict(self.counts), ended)
@@ -267,12 +274,17 @@ class Monitor:
 
     def commit(self):
         """Store what was handled since the last commit with the state after it, every unit's in one
-        transaction; then acknowledge it to the source."""
+        transaction (with how far the sinks have delivered); then acknowledge it to the source, and hand
+        it to the sinks."""
         self.step()
+        reports, marks = self.outbox.collect()
+        for unit, item in reports:  # the sinks' events, kept with this commit
+            self._handle(unit, item)
         dirty = [watch for watch in self.units if watch.dirty]
-        if not dirty and not self.tokens:
+        if not dirty and not self.tokens and not marks:
+            self.outbox.hand()  # the operators' actions
             return
-        self.store.save([watch.commit() for watch in dirty])
+        self.store.save([watch.commit() for watch in dirty], marks)
         for watch in dirty:
             watch.samples, watch.results, watch.events, watch.dirty = [], [], [], False
         self.finished = 0
@@ -283,6 +295,7 @@ class Monitor:
         self.committed = clock.monotonic()
         tokens, self.tokens = self.tokens, []
         self.source.acknowledge(tokens)
+        self.outbox.hand({watch.run.id for watch in dirty})
 
 
 class Watch:

@@ -13,7 +13,6 @@ trust, stops the monitor with a message that says so.
 
 from __future__ import annotations
 
-import ssl
 import sys
 import time
 
@@ -78,14 +77,8 @@ class MqttSource:
 
         def on_connect_fail(client, userdata):
             error = sys.exc_info()[1]  # paho calls this while it handles the connection's OSError
-            if isinstance(error, ssl.SSLCertVerificationError):
-                hand(("fatal", f"{self.name}: the broker's certificate is not trusted ({error.verify_message}); give "
-                              "the certificate authority that signed it with --ca-file"))
-            elif isinstance(error, ssl.SSLError):
-                hand(("fatal", f"{self.name}: no TLS connection ({error.reason or error}): is {self.port} the "
-                              "broker's TLS port?"))
-            else:
-                hand(("event", bus.unreachable(where, error or "no answer")))
+            fatal = bus.untrusted(self.name, self.port, error)
+            hand(("fatal", fatal) if fatal else ("event", bus.unreachable(where, error or "no answer")))
 
         def on_disconnect(client, userdata, flags, reason, properties):
             if self.client is not None:

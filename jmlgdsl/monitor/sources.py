@@ -18,13 +18,15 @@ from .fleet import PLACEHOLDER, FleetError, UnitSources, for_unit, unit_tags
 from .follow import CsvSource
 
 
-def credentials(username: str | None, env: str | None, path: str | None) -> tuple[str, str] | None:
-    """(user name, password) from --username and the password's environment variable or file; None
-    without a user name. The password is read here and never shown."""
-    password = secret("password", env, path)
+def credentials(username: str | None, env: str | None, path: str | None,
+                options: str = "--") -> tuple[str, str] | None:
+    """(user name, password) from --username and the password's environment variable or file (or the
+    options that begin with `options` instead, e.g. --publish-username); None without a user name.
+    The password is read here and never shown."""
+    password = secret(f"{options[2:]}password", env, path)
     if username is None:
         if password is not None:
-            raise JmlgError(f"{'--password-env' if env else '--password-file'}: a password needs --username")
+            raise JmlgError(f"{options}password-{'env' if env else 'file'}: a password needs {options}username")
         return None
     return username, password or ""
 

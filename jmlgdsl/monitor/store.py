@@ -25,10 +25,13 @@ reading not measured):
     state   run, rows (diagnosed so far), checkpoint (the Diagnosis), monitor (the row assembler),
             position (JSON: where the source resumes), saved (UTC ISO time); the checkpoint and the
             monitor's state are sealed (jmlgdsl.sealed: data only, with a checksum)
+    delivery sink, run, t, action, saved: how far a sink of the monitor's conclusions (an MQTT
+            broker, a webhook: jmlgdsl.monitor.outbox) has confirmed what it was handed, the rows
+            up to result t and the actions up to action id `action`
 
 A store of an older schema (1: before y_sd, evidence, the alarm's mode, descriptions, units and
-actions; 2: before the run's unit) is brought to schema 3 when it is opened; the columns it lacks
-are NULL for its old rows.
+actions; 2: before the run's unit; 3: before the delivery marks) is brought to schema 4 when it is
+opened; the columns it lacks are NULL for its old rows.
 
 A fleet's monitor keeps a run per unit: every unit's rows, alarms and state are its run's, and the
 `unit` column names the unit (SELECT ... FROM result JOIN run ON run.id = result.run WHERE
@@ -55,7 +58,7 @@ from ..names import plural, spans
 from ..version import VERSION
 from .databases import StoreError, connect
 
-SCHEMA_VERSION = 3
+SCHEMA_VERSION = 4
 SCHEMA = """
 CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
 CREATE TABLE IF NOT EXISTS run (
@@ -85,6 +88,9 @@ CREATE INDEX IF NOT EXISTS event_kind ON event (run, kind);
 CREATE TABLE IF NOT EXISTS state (
     run INTEGER PRIMARY KEY, rows INTEGER NOT NULL, checkpoint BLOB NOT NULL, monitor BLOB,
     position TEXT, saved TEXT NOT NULL);
+CREATE TABLE IF NOT EXISTS delivery (
+    sink TEXT NOT NULL, run INTEGER NOT NULL, t INTEGER NOT NULL, action INTEGER NOT NULL, saved TEXT NOT NULL,
+    PRIMARY KEY (sink, run));
 """
 
 
@@ -161,7 +167,7 @@ class Saved:
 
 UPGRADES = {"1": (("run", "descriptions"), ("run", "units"), ("result", "y_sd"), ("result", "evidence_mode"),
                   ("result", "evidence"), ("alarm", "mode")),
-            "2": (("run", "unit"),)}  # the columns each older schema lacks
+            "2": (("run", "unit"),), "3": ()}  # the columns each older schema lacks (3: only a table)
 
 
 def now() -> str:
@@ -345,14 +351,23 @@ class Store:
                              f"({_short(exc)}); the run's rows that read can be exported ('jmlgdsl export'); start a new "
                              f"run with --new-run") from None
 
+    def delivered(self, sink: str) -> dict:
+        """{run: (t, action)}: how far a sink confirmed each run's conclusions (jmlgdsl.monitor.outbox)."""
+        return {run: (t, action) for run, t, action in
+                self.db.execute("SELECT run, t, action FROM delivery WHERE sink = ?", (sink,))}
+
     # ------------------------------------------------------------------ the one write
-    def save(self, commits: list[Commit]):
-        """Commit every run's part (a Commit each) in one transaction: all of them, or none."""
+    def save(self, commits: list[Commit], marks=()):
+        """Commit every run's part (a Commit each) in one transaction: all of them, or none; with the
+        sinks' delivery `marks` (sink, run, t, action) when given."""
         try:
             with self._transaction():
                 at = now()
                 for commit in commits:
                     self._save(commit, at)
+                self.db.executemany("INSERT INTO delivery VALUES (?,?,?,?,?) ON CONFLICT (sink, run) DO UPDATE SET "
+                                    "t = excluded.t, action = excluded.action, saved = excluded.saved",
+                                    [(*mark, at) for mark in marks])
         except self.db.errors as exc:
             raise StoreError(f"{self.path}: the store failed while saving ({exc}); nothing of this batch was kept, "
                              "and the monitor started again resumes from its last commit") from None
@@ -419,11 +434,14 @@ class Store:
             self.db.execute("INSERT INTO action (run, alarm, at, who, kind, reason) VALUES (?,?,?,?,?,?)",
                             (run, alarm, now(), who.strip(), kind, (reason or "").strip() or None))
 
-    def alarms(self, run: int) -> list[Alarm]:
-        """A run's alarms, oldest first, with their acknowledgement and shelving."""
+    def alarms(self, run: int, actions: int | None = None) -> list[Alarm]:
+        """A run's alarms, oldest first, with their acknowledgement and shelving (as they stood after
+        the action of id `actions`, when given)."""
         acknowledged, shelved = {}, {}
         for alarm, at, who, kind, reason in self.db.execute(
-                "SELECT alarm, at, who, kind, reason FROM action WHERE run = ? ORDER BY id", (run,)):
+                "SELECT alarm, at, who, kind, reason FROM action WHERE run = ?"
+                + ("" if actions is None else " AND id <= ?") + " ORDER BY id",
+                (run,) if actions is None else (run, actions)):
             if kind == "acknowledge":
                 acknowledged[alarm] = (who, at)
             elif kind == "shelve":
