@@ -19,6 +19,7 @@ import pytest
 from conftest import ROOT
 
 from jmlgdsl.cli import main
+from jmlgdsl.page import Page
 
 SPEC = str(ROOT / "specs" / "dryer.jmlg")
 DATA = ROOT / "examples" / "dryer_seq1.csv"
@@ -222,3 +223,27 @@ class Receiver:
     def close(self):
         self.server.shutdown()
         self.server.server_close()
+
+
+@pytest.fixture(scope="module")
+def dryer_store(tmp_path_factory):
+    """A store of the bundled dryer recording, diagnosed to its end."""
+    path = str(tmp_path_factory.mktemp("page") / "dryer.db")
+    assert main(["monitor", SPEC, "--source", str(DATA), "--store", path, "--no-follow"]) == 0
+    return path
+
+
+@pytest.fixture
+def store(dryer_store, tmp_path):
+    """A copy of it, for a test that acts on its alarms."""
+    copy = tmp_path / "dryer.db"
+    with sqlite3.connect(dryer_store) as source, sqlite3.connect(copy) as target:
+        source.backup(target)
+    return str(copy)
+
+
+@pytest.fixture
+def page(store):
+    served = Page(store, "127.0.0.1", 0).start()
+    yield served
+    served.stop()

@@ -13,37 +13,14 @@ import urllib.request
 import numpy as np
 import pytest
 from conftest import ROOT, jmlgdsl_command
-from monitor_servers import DATA, SPEC, WAIT, exported, expected_table, free_port
+from monitor_servers import (DATA, SPEC, WAIT, dryer_store, exported, expected_table, free_port, page,  # noqa: F401
+                             store)
 
 import jmlgdsl
 from jmlgdsl.cli import main
 from jmlgdsl.diagnosis.prediction import predictive_sd
 from jmlgdsl.monitor import Store
 from jmlgdsl.page import Page, PageError
-
-
-@pytest.fixture(scope="module")
-def dryer_store(tmp_path_factory):
-    """A store of the bundled dryer recording, diagnosed to its end."""
-    path = str(tmp_path_factory.mktemp("page") / "dryer.db")
-    assert main(["monitor", SPEC, "--source", str(DATA), "--store", path, "--no-follow"]) == 0
-    return path
-
-
-@pytest.fixture
-def store(dryer_store, tmp_path):
-    """A copy of it, for a test that acts on its alarms."""
-    copy = tmp_path / "dryer.db"
-    with sqlite3.connect(dryer_store) as source, sqlite3.connect(copy) as target:
-        source.backup(target)
-    return str(copy)
-
-
-@pytest.fixture
-def page(store):
-    served = Page(store, "127.0.0.1", 0).start()
-    yield served
-    served.stop()
 
 
 def get(page, path):

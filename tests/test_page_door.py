@@ -8,32 +8,7 @@ import socket
 import sqlite3
 
 import pytest
-from monitor_servers import DATA, SPEC, WAIT
-
-from jmlgdsl.cli import main
-from jmlgdsl.page import Page
-
-
-@pytest.fixture(scope="module")
-def dryer_store(tmp_path_factory):
-    path = str(tmp_path_factory.mktemp("door") / "dryer.db")
-    assert main(["monitor", SPEC, "--source", str(DATA), "--store", path, "--no-follow"]) == 0
-    return path
-
-
-@pytest.fixture
-def store(dryer_store, tmp_path):
-    copy = tmp_path / "dryer.db"
-    with sqlite3.connect(dryer_store) as source, sqlite3.connect(copy) as target:
-        source.backup(target)
-    return str(copy)
-
-
-@pytest.fixture
-def page(store):
-    served = Page(store, "127.0.0.1", 0).start()
-    yield served
-    served.stop()
+from monitor_servers import WAIT, dryer_store, page, store  # noqa: F401  (fixtures)
 
 
 def raw(page, method, path, body=b"", host=None, headers=()):

@@ -52,14 +52,9 @@ class MqttSource:
         self.client = None
 
     def start(self, put, position):
-        client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=self.client_id,
-                             clean_session=not self.persistent, protocol=mqtt.MQTTv311)
+        client = paho_client(self.client_id, self.credentials, self.ca_file, clean_session=not self.persistent,
+                             tls=self.tls)
         client.manual_ack_set(self.persistent)
-        client.reconnect_delay_set(int(bus.FIRST_RETRY), int(bus.LAST_RETRY))
-        if self.credentials is not None:
-            client.username_pw_set(*self.credentials)
-        if self.tls:
-            client.tls_set(ca_certs=self.ca_file)
         where = f"{self.host}:{self.port}"
 
         def hand(item, unit=None):
@@ -140,3 +135,17 @@ def _topic(message) -> str:
         return message.topic
     except UnicodeDecodeError:
         return "(not UTF-8 text)"
+
+
+def paho_client(client_id: str, credentials, ca_file, clean_session: bool = True, tls: bool = False) -> mqtt.Client:
+    """A paho client (MQTT 3.1.1) as the monitor's connections use it: its retry delays, the
+    credentials (name, password) or None, and with `tls` TLS under the certificate authority
+    `ca_file` (None: the system's)."""
+    client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=client_id, clean_session=clean_session,
+                         protocol=mqtt.MQTTv311)
+    client.reconnect_delay_set(int(bus.FIRST_RETRY), int(bus.LAST_RETRY))
+    if credentials is not None:
+        client.username_pw_set(*credentials)
+    if tls:
+        client.tls_set(ca_certs=ca_file)
+    return client

@@ -18,12 +18,10 @@ import queue
 import sys
 import time
 
-import paho.mqtt.client as mqtt
-
 from . import bus
 from .assemble import Event
 from .fleet import PLACEHOLDER, for_unit
-from .mqtt import REFUSED
+from .mqtt import REFUSED, paho_client
 from .urls import address
 from ..errors import JmlgError
 
@@ -56,13 +54,7 @@ class MqttPublisher:
         return "/".join(filter(None, (where, TOPICS[conclusion.kind])))
 
     def start(self, report):
-        client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=self.client_id, clean_session=True,
-                             protocol=mqtt.MQTTv311)
-        client.reconnect_delay_set(int(bus.FIRST_RETRY), int(bus.LAST_RETRY))
-        if self.credentials is not None:
-            client.username_pw_set(*self.credentials)
-        if self.tls:
-            client.tls_set(ca_certs=self.ca_file)
+        client = paho_client(self.client_id, self.credentials, self.ca_file, tls=self.tls)
         where = f"{self.host}:{self.port}"
 
         def event(happened: Event):
