@@ -31,12 +31,13 @@ jmlgdsl/monitor/databases.py):
             broker, a webhook: jmlgdsl.monitor.outbox) has confirmed what it was handed, the rows
             up to result t and the actions up to action id `action`
 
-Why packed vectors: a row of a 20-sensor bank holds 81 numbers, which as JSON text took 5,191 bytes
-(shortest round-trip digits, 17 of them for most floats); as float64s they take 8 bytes each (about 8.5
-a number stored, with the row's key and scalars), the writer packs them without formatting digits,
-`export` and the page read them back to the bit, and a row stays one row of each table (a narrow
-run/t/tag/value layout would cost a key per number, several times the bytes). float32 would halve
-the probabilities and standard deviations but change the 10 digits `export` prints.
+Why packed vectors: a row of a 20-sensor bank holds 123 vector numbers, which as JSON text took
+5,145 bytes of store (shortest round-trip digits, 17 of them for most floats); packed they take
+1,272 (10.3 a number with the row's key, scalars and SQLite's pages; benchmarks/bench_monitor.py).
+The writer packs them without formatting digits, `export` and the page read them back to the bit,
+and a row stays one row of each table: a narrow run/t/tag/value layout would cost a key per number,
+several times the bytes, and typed columns a column per sensor, a schema per model. float32 would
+halve the probabilities and standard deviations but change the 10 digits `export` prints.
 
 A store of an older schema (1: before y_sd, evidence, the alarm's mode, descriptions, units and
 actions; 2: before the run's unit; 3: before the delivery marks; 4: vectors as JSON text) is
