@@ -41,12 +41,14 @@ import threading
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 from conftest import jmlgdsl_command
 from monitor_servers import (LINES, MOSQUITTO, NO_MOSQUITTO, SPEC, WAIT, broker, free_port,  # noqa: F401
                              publish, query)  # (broker: a fixture)
 
 from jmlgdsl.cli import main
+from jmlgdsl.monitor.databases import SQLite
 from jmlgdsl.monitor.fleet import FleetError, unit_names
 
 UNITS = ["pump01", "pump02", "pump03"]
@@ -190,7 +192,8 @@ def test_each_unit_exports_as_run_writes_its_file(fleet, tmp_path, capsys):
     with sqlite3.connect(store) as db:
         assert db.execute("SELECT id, unit, plant FROM run ORDER BY id").fetchall() == [
             (1, "pump01", "dryer"), (2, "pump02", "dryer"), (3, "pump03", "dryer")]
-        assert db.execute("SELECT y FROM sample WHERE run = 3 AND time = ?", (MISSING,)).fetchone() == ("[null]",)
+        assert np.isnan(SQLite.unvector(db.execute("SELECT y FROM sample WHERE run = 3 AND time = ?",
+                                                   (MISSING,)).fetchone()[0], 1)).all()
         assert db.execute("SELECT min(time), max(time) FROM sample WHERE run = 2").fetchone() == (301.0, 1000.0)
     assert per_run(store, "sample") == per_run(store, "result") == {
         unit: counted(len(ROWS[unit])) for unit in UNITS}
@@ -399,7 +402,8 @@ def test_mqtt_units_on_one_connection_resume_after_a_kill(broker, tmp_path):
         unit: counted(len(lines)) for unit, lines in rows.items()}
     with sqlite3.connect(store) as db:
         assert db.execute("SELECT id, unit FROM run ORDER BY id").fetchall() == list(enumerate(UNITS, 1))
-        assert db.execute("SELECT y FROM sample WHERE run = 2 AND time = ?", (MISSING,)).fetchone() == ("[null]",)
+        assert np.isnan(SQLite.unvector(db.execute("SELECT y FROM sample WHERE run = 2 AND time = ?",
+                                                   (MISSING,)).fetchone()[0], 1)).all()
         assert db.execute("SELECT count(*) FROM event WHERE kind = 'malformed'").fetchone() == (0,)
     write_files(tmp_path / "data", rows)
     for unit in UNITS:

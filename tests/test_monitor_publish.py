@@ -21,6 +21,7 @@ from monitor_servers import (LINES, MOSQUITTO, NO_MOSQUITTO, SPEC, WAIT, Receive
                              query, stop, until)  # (broker: a fixture)
 
 from jmlgdsl.monitor import Store
+from jmlgdsl.monitor.databases import SQLite
 
 paho = pytest.importorskip("paho.mqtt.client")
 mosquitto = pytest.mark.skipif(MOSQUITTO is None, reason=NO_MOSQUITTO)  # the webhook's tests need none
@@ -99,7 +100,8 @@ def test_subscribers_get_every_row_every_transition_and_the_latest_state(broker,
                       "USING (run, t) ORDER BY t").fetchall()
     states = early.states()
     assert [(s["t"], s["time"], s["mode"], list(s["modes"]), list(s["modes"].values()), s["alarm"]) for s in states] == [
-        (t, time, mode, modes, json.loads(posterior), bool(alarm)) for t, time, mode, posterior, alarm in rows]
+        (t, time, mode, modes, SQLite.unvector(posterior, len(modes)).tolist(), bool(alarm))
+        for t, time, mode, posterior, alarm in rows]
     assert {s["redelivered"] for s in states} == {False}
     assert states[516]["alarm_id"] == 3 and states[515]["alarm_id"] is None  # raised at row 517
     transitions = early.transitions()

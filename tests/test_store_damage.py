@@ -1,6 +1,6 @@
 """A monitor's store that was damaged or written by someone else: a checkpoint that is a pickle (as
 earlier versions wrote them, or crafted to run code), a checkpoint with a byte flipped, damaged
-pages, a JSON cell edited by hand, a file of 0 bytes. Nothing here ends in a traceback: the monitor
+pages, a cell edited by hand, a file of 0 bytes. Nothing here ends in a traceback: the monitor
 refuses to resume from state that does not verify and says what to do; `export` writes what is
 readable and says what is not."""
 
@@ -96,19 +96,12 @@ def edit(store, sql, *params):
 
 
 def damaged_cells(tmp_path):
-    """A store of 300 rows with three cells damaged: the posterior of row 17 made bytes that are not
-    UTF-8 (a flipped bit in its page), the y of row 40 and the residual of row 41 edited by hand."""
+    """A store of 300 rows with three cells damaged: the posterior of row 17 a byte short (not the
+    float64s of every mode), the y of row 40 and the residual of row 41 edited by hand as text."""
     data, store = monitored(tmp_path)
-    with sqlite3.connect(store) as db:
-        posterior = db.execute("SELECT posterior FROM result WHERE t = 17").fetchone()[0].encode()
-    db.close()
     settled(store)
     shutil.copy(store, tmp_path / "whole.db")
-    raw = bytearray(open(store, "rb").read())
-    at = raw.find(posterior)
-    assert at > 0 and raw.find(posterior, at + 1) < 0
-    raw[at + 3] = 0xFF
-    open(store, "wb").write(raw)
+    edit(store, "UPDATE result SET posterior = substr(posterior, 2) WHERE t = 17")
     edit(store, "UPDATE sample SET y = '[50.1' WHERE t = 40")
     edit(store, "UPDATE result SET residual = '{\"temp\": 1}' WHERE t = 41")
     return data, store

@@ -23,6 +23,7 @@ from monitor_servers import DATA, SPEC, WAIT, Receiver, free_port, killed_mid_fi
 
 from jmlgdsl.cli import main
 from jmlgdsl.monitor import Store
+from jmlgdsl.monitor.store import VECTORS
 from jmlgdsl.page import Page
 
 psycopg = pytest.importorskip("psycopg", reason="no psycopg: pip install 'psycopg[binary]'")
@@ -157,7 +158,29 @@ def test_export_equals_run(server, password, tmp_path, lag):
     types = dict(query(server, url, "SELECT column_name, data_type FROM information_schema.columns "
                                     "WHERE table_name = 'sample'"))
     assert types["time"] == "double precision" and types["t"] == "bigint"
-    assert query(server, url, "SELECT (posterior::json ->> 1)::float FROM result WHERE t = 1000")[0][0] > 0.9
+    assert query(server, url, "SELECT posterior[2] FROM result WHERE t = 1000")[0][0] > 0.9
+
+
+def test_a_store_of_json_vectors_upgrades_in_place(server, password, tmp_path):
+    url, first = server.database(), tmp_path / "first.csv"
+    lines = DATA.read_text().splitlines(keepends=True)
+    first.write_text("".join(lines[:501]))
+    assert main(["monitor", SPEC, "--source", str(first), "--no-follow", "--store", url, *password]) == 0
+    for table_name, columns in VECTORS.items():  # as schema 4 kept them: JSON text, null for NaN
+        query(server, url, f"ALTER TABLE {table_name} " + ", ".join(
+            f"ALTER COLUMN {c} TYPE TEXT USING replace(replace(array_to_json({c})::text, 'NaN', 'null'), ',', ', ')"
+            for c in columns))
+    query(server, url, "UPDATE meta SET value = '4' WHERE key = 'schema'")
+    assert query(server, url, "SELECT posterior FROM result WHERE t = 500")[0][0].startswith("[")
+    with open(first, "a") as out:
+        out.writelines(lines[501:])
+    assert main(["monitor", SPEC, "--source", str(first), "--no-follow", "--store", url, *password]) == 0
+    assert query(server, url, "SELECT value FROM meta WHERE key = 'schema'") == [("5",)]
+    assert {c: "ARRAY" for cs in VECTORS.values() for c in cs} == dict(query(
+        server, url, "SELECT column_name, data_type FROM information_schema.columns WHERE column_name IN "
+                     "('y', 'u', 'posterior', 'state_mean', 'y_pred', 'residual', 'y_sd', 'evidence')"))
+    assert table("export", url, *password, tmp_path=tmp_path) == table("run", SPEC, str(DATA), tmp_path=tmp_path,
+                                                                       name="run.csv")
 
 
 def test_webhook_is_sent_every_transition_and_its_mark_kept(server, password, tmp_path):

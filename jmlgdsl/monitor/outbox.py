@@ -201,7 +201,7 @@ class Outbox:
     def _state(self, feed, record, row, opened) -> Conclusion:
         """A row's state: its mode, every mode's probability and the alarm."""
         t, time, mode, posterior, alarm = row
-        probabilities = json.loads(posterior)
+        probabilities = self.store.db.unvector(posterior, len(record.modes)).tolist()
         position = (t, feed.handed[record.id][1])
         body = {"plant": self.plant, "unit": record.unit, "run": record.id, "t": t, "time": time, "mode": mode,
                 "probability": probabilities[record.modes.index(mode)],

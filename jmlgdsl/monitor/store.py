@@ -3,8 +3,10 @@ saved state they were diagnosed with: an SQLite file (WAL mode), or a PostgreSQL
 (postgresql://USER@HOST:PORT/DBNAME) that many monitors write and others read, with the same schema
 (jmlgdsl/monitor/databases.py runs it on either).
 
-Schema (vectors are JSON arrays in the order the `run` row lists the names; JSON null is NaN, a
-reading not measured):
+Schema (vectors — y, u, posterior, state_mean, y_pred, residual, y_sd, evidence — are numbers in
+the order the `run` row lists the names, each float64 as computed, NaN for a reading not measured:
+in SQLite a BLOB of little-endian float64s, in PostgreSQL a double precision[]; see
+jmlgdsl/monitor/databases.py):
 
     run     id, started (UTC ISO time), version, plant, spec (the spec file's text), spec_sha256,
             model_sha256 (the compiled model's fingerprint), options (JSON: filter, alarm rule, lag,
@@ -29,9 +31,19 @@ reading not measured):
             broker, a webhook: jmlgdsl.monitor.outbox) has confirmed what it was handed, the rows
             up to result t and the actions up to action id `action`
 
+Why packed vectors: a row of a 20-sensor bank holds 123 vector numbers, which as JSON text took
+5,145 bytes of store (shortest round-trip digits, 17 of them for most floats); packed they take
+1,272 (10.3 a number with the row's key, scalars and SQLite's pages; benchmarks/bench_monitor.py).
+The writer packs them without formatting digits, `export` and the page read them back to the bit,
+and a row stays one row of each table: a narrow run/t/tag/value layout would cost a key per number,
+several times the bytes, and typed columns a column per sensor, a schema per model. float32 would
+halve the probabilities and standard deviations but change the 10 digits `export` prints.
+
 A store of an older schema (1: before y_sd, evidence, the alarm's mode, descriptions, units and
-actions; 2: before the run's unit; 3: before the delivery marks) is brought to schema 4 when it is
-opened; the columns it lacks are NULL for its old rows.
+actions; 2: before the run's unit; 3: before the delivery marks; 4: vectors as JSON text) is
+brought to schema 5 when it is opened, in one transaction: the columns it lacks are NULL for its old
+rows, and its JSON vectors are converted in place to numbers (exactly: JSON kept each float's
+shortest round-trip digits), so every reader reads one layout.
 
 A fleet's monitor keeps a run per unit: every unit's rows, alarms and state are its run's, and the
 `unit` column names the unit (SELECT ... FROM result JOIN run ON run.id = result.run WHERE
@@ -58,7 +70,7 @@ from ..names import plural, spans
 from ..version import VERSION
 from .databases import StoreError, connect
 
-SCHEMA_VERSION = 4
+SCHEMA_VERSION = 5
 SCHEMA = """
 CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
 CREATE TABLE IF NOT EXISTS run (
@@ -68,12 +80,12 @@ CREATE TABLE IF NOT EXISTS run (
     units TEXT, unit TEXT);
 CREATE INDEX IF NOT EXISTS run_unit ON run (unit, id);
 CREATE TABLE IF NOT EXISTS sample (
-    run INTEGER NOT NULL, t INTEGER NOT NULL, time REAL, y TEXT NOT NULL, u TEXT NOT NULL,
+    run INTEGER NOT NULL, t INTEGER NOT NULL, time REAL, y VECTOR NOT NULL, u VECTOR NOT NULL,
     mode TEXT, anomaly INTEGER, changepoint INTEGER, PRIMARY KEY (run, t)) WITHOUT ROWID;
 CREATE TABLE IF NOT EXISTS result (
-    run INTEGER NOT NULL, t INTEGER NOT NULL, map_mode TEXT NOT NULL, posterior TEXT NOT NULL,
-    state_mean TEXT NOT NULL, y_pred TEXT NOT NULL, residual TEXT NOT NULL, ess REAL,
-    loglik REAL, alarm INTEGER NOT NULL, y_sd TEXT, evidence_mode TEXT, evidence TEXT,
+    run INTEGER NOT NULL, t INTEGER NOT NULL, map_mode TEXT NOT NULL, posterior VECTOR NOT NULL,
+    state_mean VECTOR NOT NULL, y_pred VECTOR NOT NULL, residual VECTOR NOT NULL, ess REAL,
+    loglik REAL, alarm INTEGER NOT NULL, y_sd VECTOR, evidence_mode TEXT, evidence VECTOR,
     PRIMARY KEY (run, t)) WITHOUT ROWID;
 CREATE TABLE IF NOT EXISTS alarm (
     id INTEGER PRIMARY KEY, run INTEGER NOT NULL, raised_t INTEGER NOT NULL, raised_time REAL,
@@ -167,27 +179,13 @@ class Saved:
 
 UPGRADES = {"1": (("run", "descriptions"), ("run", "units"), ("result", "y_sd"), ("result", "evidence_mode"),
                   ("result", "evidence"), ("alarm", "mode")),
-            "2": (("run", "unit"),), "3": ()}  # the columns each older schema lacks (3: only a table)
+            "2": (("run", "unit"),), "3": (), "4": ()}  # the columns each older schema lacks (3: only a table)
+VECTORS = {"sample": ("y", "u"), "result": ("posterior", "state_mean", "y_pred", "residual", "y_sd", "evidence")}
 
 
 def now() -> str:
     """The wall-clock time, UTC, ISO 8601 to the microsecond."""
     return datetime.now(timezone.utc).isoformat()
-
-
-def vector(values) -> str:
-    """A vector as a JSON array, exactly (shortest round-trip digits, as json writes a float), NaN as null."""
-    return "[" + ", ".join(repr(v) if math.isfinite(v) else "null" if v != v else json.dumps(v)
-                           for v in np.asarray(values, float).tolist()) + "]"
-
-
-def unvector(text, size: int) -> np.ndarray:
-    """A vector of `size` numbers that `vector` wrote; a ValueError for text it did not write."""
-    values = json.loads(text)
-    if not isinstance(values, list) or len(values) != size or not all(
-            v is None or type(v) in (int, float) for v in values):
-        raise ValueError(f"not a vector of {size} numbers")
-    return np.array([math.nan if v is None else v for v in values], dtype=float)
 
 
 def damaged(path: str, damage: list[str]) -> str:
@@ -242,8 +240,8 @@ class Store:
 
     def _make(self, create: bool):
         """Make the store's tables, or bring an older store to this schema (the new columns, NULL for
-        the rows already there, and the new tables), in one transaction that holds the lock, so
-        monitors that open a new store at once make it once."""
+        the rows already there, its JSON vectors as numbers, and the new tables), in one transaction
+        that holds the lock, so monitors that open a new store at once make it once."""
         with self._transaction():
             self.db.lock_schema()
             found = self._meta_schema()
@@ -253,6 +251,8 @@ class Store:
                 for version in range(int(found), SCHEMA_VERSION):
                     for table, column in UPGRADES[str(version)]:
                         self.db.execute(f"ALTER TABLE {table} ADD COLUMN {column} TEXT")
+                for table, columns in VECTORS.items():  # every older schema kept them as JSON text
+                    self.db.vectors_from_json(table, columns, _create(table))
                 self.db.execute("UPDATE meta SET value = ? WHERE key = 'schema'", (str(SCHEMA_VERSION),))
             elif found not in (None, str(SCHEMA_VERSION)):
                 raise StoreError(f"{self.path}: a store of schema {found}; this jmlgdsl reads schema {SCHEMA_VERSION}")
@@ -374,7 +374,7 @@ class Store:
 
     def _save(self, commit: Commit, at: str):
         run, samples, results, events = commit.run, commit.samples, commit.results, commit.events
-        modes = self._modes(run)
+        modes, vector = self._modes(run), self.db.vector
         self.db.executemany("INSERT INTO sample VALUES (?,?,?,?,?,?,?,?)", [
             (run, t, row.time, vector(row.y), vector(row.u), None if row.mode is None else modes[row.mode],
              row.anomaly, row.changepoint) for t, row in samples])
@@ -382,7 +382,7 @@ class Store:
                             "loglik, alarm, y_sd, evidence_mode, evidence) VALUES (?,?,?,?,?,?,?,?,?,?,?,?,?)", [
             (run, d.step.t, modes[d.step.map_mode], vector(d.step.mode_posterior), vector(d.step.state_mean),
              vector(d.step.y_pred), vector(d.step.residual), _real(d.step.ess), _real(d.step.loglik), d.alarm,
-             vector(sd), *_evidence(d.evidence, modes))
+             vector(sd), *_evidence(d.evidence, modes, vector))
             for d, sd in results])
         self._alarms(run, [d for d, _ in results])
         self.db.executemany("INSERT INTO event (run, at, time, kind, tag, detail) VALUES (?,?,?,?,?,?)",
@@ -475,7 +475,7 @@ class Store:
         lag, writer, exported = run.options.get("lag", 0), None, Exported(0, [])
         query = ("SELECT r.t, s.time, r.posterior, r.state_mean, r.y_pred, r.residual, r.loglik, r.ess, r.alarm "
                  "FROM result r JOIN sample s ON s.run = r.run AND s.t = r.t WHERE r.run = ? AND r.t > ? ORDER BY r.t")
-        K, nx, ny = len(run.modes), len(run.states), len(run.outputs)
+        K, nx, ny, unvector = len(run.modes), len(run.states), len(run.outputs), self.db.unvector
 
         def step(row):
             t, time, posterior, mean, pred, residual, loglik, ess, alarm = row
@@ -497,7 +497,7 @@ class Store:
         that cannot be read (a damaged store) are left out and named."""
         exported, writer = Exported(0, []), None
         query = "SELECT t, time, y, u, mode, anomaly, changepoint FROM sample WHERE run = ? AND t > ? ORDER BY t"
-        ny, nu = len(run.outputs), len(run.inputs)
+        ny, nu, unvector = len(run.outputs), len(run.inputs), self.db.unvector
         labels = [name for name in ("mode", "anomaly", "changepoint") if self._labelled(run, name)]
 
         def cells(row):
@@ -565,9 +565,14 @@ class Store:
         return self.db.damage()
 
 
-def _evidence(evidence, modes) -> tuple:
-    """(evidence_mode, evidence) columns of a row's Evidence (NULL, NULL without one)."""
+def _evidence(evidence, modes, vector) -> tuple:
+    """(evidence_mode, evidence) columns of a row's Evidence (NULL, NULL without one), its terms as `vector` keeps them."""
     return (None, None) if evidence is None else (modes[evidence.mode], vector(evidence.terms))
+
+
+def _create(table: str) -> str:
+    """The schema's statement that makes a table."""
+    return next(s for s in SCHEMA.split(";") if s.strip().startswith(f"CREATE TABLE IF NOT EXISTS {table} ("))
 
 
 def _real(value) -> float | None:

@@ -1,15 +1,15 @@
 """What the operator's page shows, as JSON built from a monitor's store: the run, a window of rows,
 the alarms with their ISA-18.2 states, the evidence behind an alarm, and a fleet's units worst first.
 
-The store keeps vectors as JSON arrays already (finite numbers, null for NaN), so a window of rows is
-written by joining the stored texts, not by parsing and writing them again: a page of 1,500 rows
-costs one query.
+A window of rows costs one query: the store's vectors (float64s) are read back as they were computed
+and written as JSON numbers in their shortest round-trip digits, null for NaN (a reading not measured).
 """
 
 from __future__ import annotations
 
 import itertools
 import json
+import math
 from typing import NamedTuple
 
 from ..monitor.store import Run, Store
@@ -55,45 +55,48 @@ def rows(store: Store, run: Run, *, after: int | None = None, first: int | None 
     if high is not None:
         where += " AND r.t <= ? AND (r.t - ?) % ? = 0"
         params += [high, low, step]
+    decode = _decoder(store, run)
     try:
-        found = store.db.execute(f"{ROWS} WHERE {where} ORDER BY r.t" + (f" LIMIT {most}" if most else ""),
-                                 params).fetchall()
-        text = _columns(found)
-        json.loads(text)  # a cell edited by hand, or damaged, would break the page's JSON
-    except (store.db.errors, ValueError, TypeError):
-        readable = store.readable(f"{ROWS} WHERE r.run = ? AND r.t > ? ORDER BY r.t", run, _checked, [], low - 1)
+        found = [decode(row) for row in store.db.execute(
+            f"{ROWS} WHERE {where} ORDER BY r.t" + (f" LIMIT {most}" if most else ""), params)]
+    except (store.db.errors, ValueError, TypeError):  # a cell edited by hand, or damaged: the rows that read
+        readable = store.readable(f"{ROWS} WHERE r.run = ? AND r.t > ? ORDER BY r.t", run, decode, [], low - 1)
         window = itertools.takewhile(lambda row: high is None or row[0] <= high,
                                      (row for row in readable if (row[0] - low) % step == 0))
         found = list(itertools.islice(window, most))
-        text = _columns(found)
-    return Rows(text, len(found), found[-1][0] if found else None)
+    return Rows(_columns(found), len(found), found[-1][0] if found else None)
 
 
 ROWS = ("SELECT r.t, s.time, r.map_mode, r.alarm, r.posterior, s.y, r.y_pred, r.y_sd, r.evidence_mode, r.evidence "
         "FROM result r JOIN sample s ON s.run = r.run AND s.t = r.t")
 
 
+NAMES = ("t", "time", "map_mode", "alarm", "posterior", "y", "y_pred", "y_sd", "evidence_mode", "evidence")
+VECTOR_COLUMNS = (4, 5, 6, 7, 9)  # the ROWS columns that hold vectors
+
+
 def _columns(found) -> str:
-    """Rows of the ROWS query as the page's JSON columns, the stored vectors' texts joined as they are."""
-    columns = list(zip(*found)) or [()] * 10
-    plain = [json.dumps(list(c)) for c in columns[:4]]
-    vectors = ["[" + ",".join("null" if v is None else v for v in c) + "]" for c in columns[4:8]]
-    names = ("t", "time", "map_mode", "alarm", "posterior", "y", "y_pred", "y_sd")
-    parts = [f'"{n}":{v}' for n, v in zip(names, plain + vectors)]
-    parts.append(f'"evidence_mode":{json.dumps(list(columns[8]))}')
-    parts.append('"evidence":[' + ",".join("null" if v is None else v for v in columns[9]) + "]")
-    return "{" + ",".join(parts) + "}"
+    """Decoded rows of the ROWS query as the page's JSON columns (a vector's NaN as null)."""
+    columns = list(zip(*found)) or [()] * len(NAMES)
+    return "{" + ",".join(
+        f'"{name}":' + (json.dumps(list(column), separators=(",", ":")).replace("NaN", "null")
+                        if i in VECTOR_COLUMNS else json.dumps(list(column)))
+        for i, (name, column) in enumerate(zip(NAMES, columns))) + "}"
 
 
-def _checked(row):
-    """A row of the ROWS query whose cells are what the store writes; a ValueError otherwise."""
-    t, time, mode, alarm, *_ = row
-    if not (isinstance(mode, str) and alarm in (0, 1) and (time is None or type(time) in (int, float))):
-        raise ValueError("a row the store did not write")
-    for i in (4, 5, 6, 7, 9):
-        if row[i] is not None and not (isinstance(row[i], str) and isinstance(json.loads(row[i]), list)):
-            raise ValueError("a vector the store did not write")
-    return row
+def _decoder(store: Store, run: Run):
+    """decode(row) of a row of the ROWS query: its vectors as lists of numbers (None for NULL); a
+    ValueError for cells the store did not write."""
+    ny = len(run.outputs)
+    sizes = dict(zip(VECTOR_COLUMNS, (len(run.modes), ny, ny, ny, ny)))
+
+    def decode(row):
+        t, time, mode, alarm, *_ = row
+        if not (isinstance(mode, str) and alarm in (0, 1) and (time is None or type(time) in (int, float))):
+            raise ValueError("a row the store did not write")
+        return tuple(store.db.unvector(cell, sizes[i]).tolist() if i in sizes and cell is not None else cell
+                     for i, cell in enumerate(row))
+    return decode
 
 
 def _last_t(store: Store, run: Run) -> int:
@@ -118,26 +121,23 @@ def evidence(store: Store, run: Run, alarm: int) -> dict:
         return {"alarm": alarm, "rows": 0, "outputs": []}
     end = found.cleared_t - 1 if found.cleared_t is not None else _last_t(store, run)
     total, rows = {}, 0
+    ny = len(run.outputs)
+
+    def decode(row):
+        t, mode, terms = row
+        return t, mode, None if terms is None else store.db.unvector(terms, ny).tolist()
+
     readable = store.readable("SELECT t, evidence_mode, evidence FROM result WHERE run = ? AND t > ? ORDER BY t", run,
-                              _evidence, [], found.raised_t - 1)  # rows of a damaged store that do not read: left out
+                              decode, [], found.raised_t - 1)  # rows of a damaged store that do not read: left out
     for _, mode, terms in itertools.takewhile(lambda row: row[0] <= end, readable):
         if mode != found.mode or terms is None:
             continue
         rows += 1
         for name, value in zip(run.outputs, terms):
-            if value is not None:
+            if not math.isnan(value):
                 total[name] = total.get(name, 0.0) + value
     outputs = sorted(({"name": n, "nats": v} for n, v in total.items()), key=lambda o: -o["nats"])
     return {"alarm": alarm, "mode": found.mode, "rows": rows, "outputs": outputs}
-
-
-def _evidence(row):
-    """(t, evidence_mode, the evidence's terms or None) of a row; a ValueError for cells the store did not write."""
-    t, mode, text = row
-    terms = None if text is None else json.loads(text)
-    if terms is not None and not (isinstance(terms, list) and all(v is None or type(v) in (int, float) for v in terms)):
-        raise ValueError("evidence the store did not write")
-    return t, mode, terms
 
 
 # What makes a unit need an operator, worst first (the overview's order): an alarm state, or a fault
@@ -168,6 +168,7 @@ def fleet(store: Store, opened: str | None) -> dict:
         rank = (ATTENTION.index(attention) if attention else len(ATTENTION), -states.count(attention), order)
         ranked.append((rank, {"unit": name, "plant": run.plant, "modes": run.modes, "healthy": healthy, "t": t,
                               "time": time, "mode": mode, "attention": attention, "alarms": open_,
-                              "probability": None if mode is None else json.loads(posterior)[run.modes.index(mode)],
+                              "probability": None if mode is None else
+                              float(store.db.unvector(posterior, len(run.modes))[run.modes.index(mode)]),
                               "shelved": sum(a["state"] == "shelved" for a in listed)}))
     return {"opened": opened, "units": [unit for _, unit in sorted(ranked, key=lambda pair: pair[0])]}
