@@ -1,7 +1,8 @@
 """What the monitor's tests against live servers share: the bundled dryer recording, free ports on
-127.0.0.1, mosquitto brokers and a publisher, a webhook receiver, bounded waits on a running
-monitor, queries of its store, and the tables to compare."""
+127.0.0.1, mosquitto brokers and a publisher, a webhook receiver, OPC UA certificates, bounded
+waits on a running monitor, queries of its store, and the tables to compare."""
 
+import asyncio
 import csv
 import getpass
 import http.server
@@ -194,6 +195,18 @@ def publish(port, messages, topic="dryer", ca_file=None):
     finally:
         client.disconnect()
         client.loop_stop()
+
+
+def certificate(folder, name, use):
+    """A self-signed certificate (DER) and its private key (PEM) for 127.0.0.1, for OPC UA's `use`
+    (SERVER_AUTH, CLIENT_AUTH)."""
+    from asyncua.crypto.cert_gen import setup_self_signed_certificate
+    from cryptography.x509.oid import ExtendedKeyUsageOID
+
+    cert, key = folder / f"{name}.der", folder / f"{name}.pem"
+    asyncio.run(setup_self_signed_certificate(key, cert, f"urn:jmlgdsl:test:{name}", "127.0.0.1",
+                                              [getattr(ExtendedKeyUsageOID, use)], {"commonName": name}))
+    return cert, key
 
 
 class Receiver:

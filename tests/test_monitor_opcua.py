@@ -15,7 +15,8 @@ from datetime import datetime, timedelta, timezone
 
 import pytest
 from conftest import jmlgdsl_command
-from monitor_servers import DATA, SPEC, WAIT, exported, expected_table, free_port, query, stop, until
+from monitor_servers import (DATA, SPEC, WAIT, certificate, exported, expected_table, free_port, query, stop,
+                             until)
 
 
 asyncua = pytest.importorskip("asyncua")
@@ -157,17 +158,6 @@ def test_recording_written_to_nodes_is_diagnosed_as_run_diagnoses_it(plants, tag
     kinds = dict(sqlite3.connect(store).execute("SELECT kind, count(*) FROM event WHERE kind != 'disconnect' "
                                                 "GROUP BY kind"))
     assert kinds == {"start": 1, "connect": 1}
-
-
-def certificate(folder, name, use):
-    """A self-signed certificate (DER) and its private key (PEM) for 127.0.0.1."""
-    from asyncua.crypto.cert_gen import setup_self_signed_certificate
-    from cryptography.x509.oid import ExtendedKeyUsageOID
-
-    cert, key = folder / f"{name}.der", folder / f"{name}.pem"
-    asyncio.run(setup_self_signed_certificate(key, cert, f"urn:jmlgdsl:test:{name}", "127.0.0.1",
-                                              [getattr(ExtendedKeyUsageOID, use)], {"commonName": name}))
-    return cert, key
 
 
 def test_an_encrypting_endpoint_is_used_with_the_client_certificate_and_refused_without(plants, tags, tmp_path):

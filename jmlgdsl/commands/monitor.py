@@ -91,6 +91,21 @@ def register(subparsers):
     out.add_argument("--notify-token-env", metavar="VAR",
                      help="the environment variable that holds a token sent as 'Authorization: Bearer TOKEN'")
     out.add_argument("--notify-token-file", metavar="FILE", help="the file that holds that token (first line)")
+    out.add_argument("--opcua-server", metavar="URL",
+                     help="opc.tcp://HOST:PORT/PATH: serve each plant's (or unit's) most probable mode, every mode's "
+                          "probability and the alarm as OPC UA nodes, and each alarm as an Alarms & Conditions "
+                          "OffNormalAlarm whose Acknowledge and shelving methods act as the page's buttons do")
+    out.add_argument("--opcua-server-username", metavar="NAME",
+                     help="the user name the --opcua-server lets in (default: anonymous clients)")
+    out.add_argument("--opcua-server-password-env", metavar="VAR",
+                     help="the environment variable that holds that user's password")
+    out.add_argument("--opcua-server-password-file", metavar="FILE",
+                     help="the file that holds that user's password (first line)")
+    out.add_argument("--opcua-server-security", metavar="POLICY,MODE",
+                     help="the --opcua-server's only endpoint, e.g. Basic256Sha256,SignAndEncrypt (default None: no "
+                          "security)")
+    out.add_argument("--opcua-server-certificate", metavar="FILE", help="the --opcua-server's certificate")
+    out.add_argument("--opcua-server-private-key", metavar="FILE", help="the --opcua-server's private key")
     add_filter_options(p)
     add_alarm_options(p)
     p.add_argument("--lag", type=int, default=0, metavar="L",
@@ -151,16 +166,27 @@ def main(args) -> int:
     for option in ("notify_token_env", "notify_token_file"):
         if getattr(args, option) is not None and args.notify is None:
             raise JmlgError(f"--{option.replace('_', '-')} is for the --notify webhook: give --notify")
-    if (args.publish or args.notify) and args.cluster:
-        raise JmlgError(f"{'--publish' if args.publish else '--notify'} is not yet taken with --cluster; run the "
-                        "fleet's monitor without it")
-    sinks = open_sinks(publish=args.publish, notify=args.notify, client_id=args.client_id or f"jmlgdsl-{model.name}",
+    for option in ("opcua_server_username", "opcua_server_password_env", "opcua_server_password_file",
+                   "opcua_server_security", "opcua_server_certificate", "opcua_server_private_key"):
+        if getattr(args, option) is not None and args.opcua_server is None:
+            raise JmlgError(f"--{option.replace('_', '-')} is for the --opcua-server: give --opcua-server")
+    given = [option for option in ("publish", "notify", "opcua_server") if getattr(args, option)]
+    if given and args.cluster:
+        raise JmlgError(f"--{given[0].replace('_', '-')} is not yet taken with --cluster; run the fleet's monitor "
+                        "without it")
+    password = store_password(args)
+    sinks = open_sinks(publish=args.publish, notify=args.notify, opcua_server=args.opcua_server,
+                       client_id=args.client_id or f"jmlgdsl-{model.name}",
                        credentials=credentials(args.publish_username, args.publish_password_env,
                                                args.publish_password_file, "--publish-"),
                        ca_file=args.publish_ca_file,
-                       token=secret("notify-token", args.notify_token_env, args.notify_token_file))
+                       token=secret("notify-token", args.notify_token_env, args.notify_token_file),
+                       server=dict(store=args.store, password=password, units=units,
+                                   credentials=credentials(args.opcua_server_username, args.opcua_server_password_env,
+                                                           args.opcua_server_password_file, "--opcua-server-"),
+                                   security=args.opcua_server_security, certificate=args.opcua_server_certificate,
+                                   private_key=args.opcua_server_private_key))
     stop = stopped_by_signals()
-    password = store_password(args)
     page = start_page(args, args.store, password=password, unit=units and units[0])
     try:
         if args.cluster:

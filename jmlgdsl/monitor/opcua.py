@@ -65,7 +65,7 @@ class OpcuaSource:
         self.name = self.url = f"opc.tcp://{host}:{port}/{path}"
         self.nodes = _nodes(tags)
         self.credentials = credentials
-        self.security = _security(security, certificate, private_key)
+        self.security = security_options(security, certificate, private_key)
         self._stop = threading.Event()
         self._thread = None
 
@@ -202,22 +202,25 @@ def _nodes(tags):
     return nodes
 
 
-def _security(security, certificate, private_key):
-    """(policy, mode, certificate, private key) from --security POLICY,MODE; None without it."""
+def security_options(security, certificate, private_key, options: str = "--", whose: str = "client"):
+    """(policy, mode, certificate, private key) from --security POLICY,MODE and the `whose` (the
+    client's, or with `options` "--opcua-server-" the server's) --certificate and --private-key; None
+    without it."""
     if security is None:
         if certificate or private_key:
-            raise JmlgError("--certificate and --private-key go with --security POLICY,MODE")
+            raise JmlgError(f"{options}certificate and {options}private-key go with {options}security POLICY,MODE")
         return None
     policy, _, mode = security.partition(",")
     policies = sorted(name[len("SecurityPolicy"):] for name in dir(security_policies)
                       if name.startswith("SecurityPolicy") and name not in ("SecurityPolicy", "SecurityPolicyNone",
                                                                              "SecurityPolicyFactory"))
     if policy not in policies or mode not in MODES:
-        raise JmlgError(f"--security {security}: give POLICY,MODE with POLICY one of {', '.join(policies)} and "
-                        f"MODE {' or '.join(MODES)}")
+        raise JmlgError(f"{options}security {security}: give POLICY,MODE with POLICY one of {', '.join(policies)} "
+                        f"and MODE {' or '.join(MODES)}")
     if not certificate or not private_key:
-        raise JmlgError(f"--security {security}: give the client's --certificate and --private-key files")
-    for option, path in (("--certificate", certificate), ("--private-key", private_key)):
+        raise JmlgError(f"{options}security {security}: give the {whose}'s {options}certificate and "
+                        f"{options}private-key files")
+    for option, path in ((f"{options}certificate", certificate), (f"{options}private-key", private_key)):
         try:
             with open(path, "rb"):
                 pass

@@ -1,9 +1,9 @@
-"""The monitor's conclusions sent on to the plant's own systems (`--publish`, `--notify`), read back
-from the store after each commit: the store is the outbox, so nothing is sent that a crash could
-take back, and nothing committed is lost to a crash.
+"""The monitor's conclusions sent on to the plant's own systems (`--publish`, `--notify`,
+`--opcua-server`), read back from the store after each commit: the store is the outbox, so nothing
+is sent that a crash could take back, and nothing committed is lost to a crash.
 
 **The sink contract.** A sink (jmlgdsl.monitor.publish's MQTT publisher, jmlgdsl.monitor.webhook's
-webhook; an OPC UA server or another later) is an object with
+webhook, jmlgdsl.monitor.opcua_server's OPC UA server; another later) is an object with
 
     name            the key of its delivery marks in the store (no secret in it) and of its events
     takes_states    True: every row's state and every alarm transition; False: the transitions only
@@ -36,6 +36,8 @@ import dataclasses
 import json
 import queue
 
+from .store import row_state
+
 
 TRANSITIONS = {"acknowledge": "acknowledged", "shelve": "shelved", "unshelve": "unshelved"}  # an action's name
 FLUSH = 3.0  # seconds the sinks have to deliver what they were handed when the monitor stops
@@ -57,10 +59,13 @@ class Conclusion:
         return json.dumps(self.body).encode()
 
 
-def open_sinks(*, publish: str | None = None, notify: str | None = None, client_id: str = "jmlgdsl",
-               credentials=None, ca_file: str | None = None, token: str | None = None) -> list:
+def open_sinks(*, publish: str | None = None, notify: str | None = None, opcua_server: str | None = None,
+               client_id: str = "jmlgdsl", credentials=None, ca_file: str | None = None, token: str | None = None,
+               server: dict | None = None) -> list:
     """The sinks --publish (an MQTT broker, with its credentials and certificate authority; its client
-    id `client_id`-publish) and --notify (a webhook, with its bearer token) name, not yet started."""
+    id `client_id`-publish), --notify (a webhook, with its bearer token) and --opcua-server (an OPC UA
+    server, with `server` the keywords of jmlgdsl.monitor.opcua_server.OpcuaServer) name, not yet
+    started."""
     sinks = []
     if publish is not None:
         from .publish import MqttPublisher
@@ -70,6 +75,10 @@ def open_sinks(*, publish: str | None = None, notify: str | None = None, client_
         from .webhook import Webhook
 
         sinks.append(Webhook(notify, token=token))
+    if opcua_server is not None:
+        from .opcua_server import OpcuaServer
+
+        sinks.append(OpcuaServer(opcua_server, **(server or {})))
     return sinks
 
 
@@ -200,14 +209,8 @@ class Outbox:
 
     def _state(self, feed, record, row, opened) -> Conclusion:
         """A row's state: its mode, every mode's probability and the alarm."""
-        t, time, mode, posterior, alarm = row
-        probabilities = self.store.db.unvector(posterior, len(record.modes)).tolist()
-        position = (t, feed.handed[record.id][1])
-        body = {"plant": self.plant, "unit": record.unit, "run": record.id, "t": t, "time": time, "mode": mode,
-                "probability": probabilities[record.modes.index(mode)],
-                "modes": dict(zip(record.modes, probabilities)), "alarm": bool(alarm), "alarm_id": opened,
-                "redelivered": feed.redelivered(record.id, t=t)}
-        return Conclusion(record.id, record.unit, "state", body, position)
+        body = {**row_state(self.store, self.plant, record, row, opened), "redelivered": feed.redelivered(record.id, t=row[0])}
+        return Conclusion(record.id, record.unit, "state", body, (row[0], feed.handed[record.id][1]))
 
     def _transition(self, feed, record, alarm: int, transition: str, position, actions: int, **facts) -> Conclusion:
         """An alarm's transition with its ISA-18.2 state after it (the rows handed so far and the actions

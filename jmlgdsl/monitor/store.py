@@ -188,6 +188,17 @@ def now() -> str:
     return datetime.now(timezone.utc).isoformat()
 
 
+def row_state(store: "Store", plant: str, record: Run, row, opened: int | None) -> dict:
+    """A row's state as the sinks of the conclusions show it (jmlgdsl.monitor.outbox): `row` is the
+    result's (t, time, map_mode, posterior, alarm) of the run `record` in `store`, `opened` the id of
+    the alarm open at it (None: none)."""
+    t, time, mode, posterior, alarm = row
+    probabilities = store.db.unvector(posterior, len(record.modes)).tolist()
+    return {"plant": plant, "unit": record.unit, "run": record.id, "t": t, "time": time, "mode": mode,
+            "probability": probabilities[record.modes.index(mode)], "modes": dict(zip(record.modes, probabilities)),
+            "alarm": bool(alarm), "alarm_id": opened}
+
+
 def damaged(path: str, damage: list[str]) -> str:
     """What a damaged store says of itself, and what to do."""
     found = "; ".join(line for problem in damage for line in problem.splitlines() if not line.startswith("***"))
