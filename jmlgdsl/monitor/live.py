@@ -27,7 +27,7 @@ from ..infer.units import Stacked
 from ..errors import JmlgError
 from .assemble import Assembler, Event
 from .outbox import Outbox
-from .store import Commit, Store
+from .store import TIMES, Commit, Store
 from ..version import VERSION
 
 IDLE = 0.1  # seconds without input before the monitor commits and moves the wall clock on
@@ -249,6 +249,8 @@ class Monitor:
         elif kind == "event":
             for watch in watches:
                 watch.event(item[1])
+        elif kind == "times":
+            watches[0].times = item[1]
         elif kind == "fatal":
             raise MonitorError(item[1])
         return kind == "end"
@@ -311,6 +313,8 @@ class Watch:
         self.pending = collections.deque()  # rows for the fleet's filter
         self.previous = None  # the last finished row's estimate, for the next row's predictive band
         self.rows, self.position, self.resumed = 0, None, False
+        self.times = None  # how a source of rows writes their times (TimeFormat), once it says
+        self.timed = TIMES in run.options  # whether the run records that (an assembler's source: its own)
         self.samples, self.results, self.events = [], [], []
         self.dirty = False
         self.nan_sd = np.full(monitor.model.ny, np.nan)
@@ -387,8 +391,12 @@ class Watch:
         state = {"assembler": self.assembler, "previous": self.previous}
         if fleet is not None:
             state["filter"] = fleet.filter.state(self.index)
+        times = None
+        if not self.timed and self.samples:
+            times = self.times if self.assembler is None else self.assembler.times
+            self.timed = times is not None
         return Commit(self.run.id, self.samples, self.results, self.events, self.rows, self.diagnosis.checkpoint(),
-                      seal(state, MONITOR_STATE, MONITOR_KINDS), self.position)
+                      seal(state, MONITOR_STATE, MONITOR_KINDS), self.position, times)
 
 
 def unresumable(store, run, saved, reason) -> str:
@@ -434,7 +442,7 @@ def _open_run(store, model, spec, options, unit, new_run):
                                f"{run.plant!r}, fingerprint {run.model_sha256[:12]}) than this spec (plant "
                                f"{model.name!r}, fingerprint {model_sha[:12]}); give the spec it was "
                                f"started with, or --new-run to start a new run in the store")
-        for key in sorted(set(run.options) | set(options)):
+        for key in sorted(set(run.options) - {TIMES} | set(options)):  # TIMES: the store's own record
             if run.options.get(key) != _plain(options.get(key)):
                 raise MonitorError(f"the store {store.path} holds a run{whose} started with {key} "
                                    f"{run.options.get(key)!r}, not {options.get(key)!r}; restart it with "
