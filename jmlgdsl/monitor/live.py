@@ -242,18 +242,34 @@ class Monitor:
             self.tokens.append(token)
         elif kind == "malformed":
             _, message, token = item
+            self._event(watches, unit, Event("malformed", None, message))
             for watch in watches:
-                watch.event(Event("malformed", None, message))
                 watch.arrived()
             self.tokens.append(token)
         elif kind == "event":
-            for watch in watches:
-                watch.event(item[1])
+            self._event(watches, unit, item[1])
         elif kind == "times":
             watches[0].times = item[1]
         elif kind == "fatal":
             raise MonitorError(item[1])
         return kind == "end"
+
+    def _event(self, watches, unit, event: Event):
+        """A source's event for a unit, or (unit None) for every unit (their one connection's): kept in
+        each unit's run, and logged once, as the monitor's."""
+        for watch in watches:
+            watch.event(event, logged=unit is not None)
+        if unit is None:
+            self.tell(event)
+
+    def tell(self, event: Event, name: str | None = None):
+        """Log an event (of unit `name`, when given): of the late ones between two commits (a broker
+        delivering again what a killed monitor had not acknowledged: up to a batch), only the first."""
+        if event.kind == "late" and self.late_unlogged is not None:
+            self.late_unlogged += 1
+            return
+        self.late_unlogged = 0 if event.kind == "late" else self.late_unlogged
+        self.log(f"{name + ': ' if name else ''}{event.kind}: {event.tag + ': ' if event.tag else ''}{event.detail}")
 
     def step(self, least: int = 1):
         """Step the fleet's filter over the rows handed to it, a row of each unit that has one at a time,
@@ -370,20 +386,15 @@ class Watch:
         self.monitor.finished += 1
         self.previous = done.step
 
-    def event(self, event: Event):
-        """Keep an event for the next commit, and log it: of the late ones between two commits (a broker
-        delivering again what a killed monitor had not acknowledged: up to a batch), only the first."""
+    def event(self, event: Event, logged: bool = True):
+        """Keep an event for the next commit, and log it (unless `logged` is False: the monitor logs it)."""
         monitor = self.monitor
         self.events.append(event)
         self.dirty = True
         monitor.counts[event.kind] = monitor.counts.get(event.kind, 0) + 1
         self.since[event.kind] = self.since.get(event.kind, 0) + 1
-        if event.kind == "late" and monitor.late_unlogged is not None:
-            monitor.late_unlogged += 1
-            return
-        monitor.late_unlogged = 0 if event.kind == "late" else monitor.late_unlogged
-        monitor.log(f"{self.name + ': ' if self.name else ''}{event.kind}: {event.tag + ': ' if event.tag else ''}"
-                    f"{event.detail}")
+        if logged:
+            monitor.tell(event, self.name)
 
     def commit(self) -> Commit:
         """This unit's part of the next commit: its rows, results and events, and its state after them."""

@@ -481,9 +481,14 @@ class Store:
         return _Transaction(self.db)
 
     # ------------------------------------------------------------------ reading back
-    def counts(self, run: int) -> dict:
-        """{kind: number} of a run's events."""
-        return dict(self.db.execute("SELECT kind, count(*) FROM event WHERE run = ? GROUP BY kind", (run,)))
+    def counts(self, run: int, after: int = 0) -> dict:
+        """{kind: number} of a run's events (of those after the event of id `after`, when given)."""
+        return dict(self.db.execute("SELECT kind, count(*) FROM event WHERE run = ? AND id > ? GROUP BY kind",
+                                    (run, after)))
+
+    def newest_event(self) -> int:
+        """The id of the newest event in the store (0 for none): what comes after it is newer."""
+        return self.db.execute("SELECT coalesce(max(id), 0) FROM event").fetchone()[0]
 
     def write_table(self, run: Run, stream) -> Exported:
         """The result table of a run's finished rows, as `jmlgdsl run -o` writes it for the same rows;
