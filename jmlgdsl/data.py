@@ -433,7 +433,8 @@ class Rows:
             where = f"{source}:{line}"
             if len(cells) < len(names) or any(c.strip() for c in cells[len(names):]):
                 hint = "; decimal commas (1,5) split numbers in two: write 1.5" if len(cells) > len(names) else ""
-                raise DataError(f"{where}: {plural(len(cells), 'cell')}, but the header has {plural(len(names), 'column')}{hint}")
+                raise DataError(f"{where}: {plural(len(cells), 'cell')}, but the header has "
+                                f"{plural(len(names), 'column')}{hint}")
             y = np.array([_number(cells, c, n, where) for c, n in zip(y_cols, model.outputs)])
             u = np.array([_number(cells, c, n, where) for c, n in zip(u_cols, model.inputs)])
             lacking = np.isnan(u) & np.isnan(defaults)
