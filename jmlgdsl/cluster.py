@@ -3,7 +3,10 @@ fleet's monitor (`jmlgdsl monitor --units ... --cluster ADDRESS`), the history o
 (`jmlgdsl run SPEC *.csv -o OUT/ --cluster ADDRESS`) and the sweeps of `jmlgdsl bench`.
 
 `--cluster auto` starts a Ray on this machine for the one command, every one of its servers bound
-to 127.0.0.1 (reachable from this machine only) and stopped with the command; `--cluster
+to 127.0.0.1 (reachable from this machine only) and stopped with the command, however it ends: Ray
+ends the processes it starts when the command dies, but not those its raylet starts (its dashboard
+and runtime-env agents, about 160 MB, were left running after a `kill -9`), so a small reaper
+process watches the command's processes and ends them once it is gone; `--cluster
 HOST:PORT` joins a cluster started with `ray start --head` (docs/fleet.md). Ray is an extra
 (pip install 'jmlgdsl[cluster]'), imported only here and only when a cluster is asked for. Usage
 statistics, which Ray would otherwise offer to send, stay off.
@@ -17,9 +20,12 @@ statistics, which Ray would otherwise offer to send, stay off.
 from __future__ import annotations
 
 import contextlib
+import inspect
 import ipaddress
 import os
+import re
 import socket
+import subprocess
 import sys
 
 from .errors import JmlgError
@@ -27,15 +33,20 @@ from .errors import JmlgError
 LOCAL = "auto"
 REACH = 5.0  # seconds a cluster's head has to answer
 POLL = 0.2  # seconds between looks at a stop event while tasks run
+COLOUR = re.compile(r"\x1b\[[0-9;]*[A-Za-z]")  # a terminal's colour (or other CSI) code
+_report = None  # where Ray's messages for this process go (connect's `report`)
+_reaper = None  # the reaper of the local Ray this process started (a subprocess.Popen), while it runs
 
 
 class ClusterError(JmlgError):
     """No cluster: Ray missing, an address that answers nothing."""
 
 
-def connect(address: str):
+def connect(address: str, report=None):
     """This process joined to the Ray cluster at `address` ('auto': a new local one on the loopback);
-    returns the ray module. A process joins one cluster: a second call returns the same."""
+    returns the ray module. A process joins one cluster: a second call returns the same. Ray's own
+    messages for this process (a worker that died, a task tried again) go to `report(text)`, one line
+    each without Ray's colour codes (default: standard error, after `ray: `)."""
     os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
     if "ray" not in sys.modules:  # Ray reads its authentication mode once, when it is imported
         os.environ.setdefault("RAY_AUTH_MODE", "token")  # as `ray start` sets up: the token in ~/.ray/auth_token
@@ -58,11 +69,123 @@ def connect(address: str):
     if ray.is_initialized():
         return ray
     options = dict(include_dashboard=False, log_to_driver=False, configure_logging=False)
+    if address == LOCAL:
+        _start_reaper()
     try:
         ray.init(address="local" if address == LOCAL else address, **options)
     except (ConnectionError, RuntimeError, ValueError) as exc:
+        _stop_reaper()
         raise ClusterError(f"--cluster {address}: cannot join the Ray cluster ({exc})") from None
+    if _reaper is not None:
+        _reaper.stdin.write(b"started\n")  # the processes this one started since the reaper are Ray's
+        _reaper.stdin.flush()
+    _messages_to(report or (lambda text: print(f"ray: {text}", file=sys.stderr, flush=True)))
     return ray
+
+
+def _messages_to(report):
+    """Hand Ray's messages for the driver to `report`, each as one line of plain text. Ray prints them
+    itself (in colour, over several lines, to standard output, whatever `log_to_driver` says) through
+    its worker module's print_to_stdstream, with no switch to turn them off: that function is replaced
+    for its raylet's messages (a Ray without it goes on printing them its own way)."""
+    global _report
+    from ray._private import worker
+
+    _report = report
+    printed = getattr(worker, "print_to_stdstream", None)
+    if printed is None or printed.__module__ == __name__:  # none, or replaced already
+        return
+
+    def print_to_stdstream(data, ignore_prefix):
+        if data.get("pid") != "raylet":
+            return printed(data, ignore_prefix)
+        for text in data.get("lines", ()):
+            _report(plain(text))
+
+    worker.print_to_stdstream = print_to_stdstream
+
+
+def plain(text: str) -> str:
+    """Text on one line without terminal colour codes (Ray's ESC [33m ...)."""
+    return " ".join(COLOUR.sub("", text).split())
+
+
+def _start_reaper():
+    """Start the reaper of the local Ray's processes (on Linux: it reads /proc), which ends them once
+    this process is gone, killed too. It runs in a session of its own (a Ctrl-C meant for the command
+    does not reach it), learns which processes are Ray's from a line this process writes once Ray has
+    started, and of this process's end from the end of the pipe it reads."""
+    global _reaper
+    if _reaper is None and os.path.isdir("/proc"):
+        program = (f"# jmlgdsl: ends the local Ray's processes of process {os.getpid()} once it ends\n"
+                   + inspect.getsource(_reap) + f"\n_reap({os.getpid()})\n")
+        _reaper = subprocess.Popen([sys.executable, "-c", program], stdin=subprocess.PIPE,
+                                   stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+
+
+def _stop_reaper():
+    """End the reaper: what Ray left, if anything, is ended before this returns."""
+    global _reaper
+    if _reaper is not None:
+        _reaper.stdin.close()
+        _reaper.wait()
+        _reaper = None
+
+
+def _reap(parent: int):
+    """The reaper's program, run on its own by `python -c` (so it imports nothing of jmlgdsl). Ray's
+    processes are those `parent` started after the reaper and before it wrote a line to the reaper's
+    standard input (Ray had started), and their descendants: every half second it notes them, each
+    with its start time. When its standard input ends (`parent` is gone, however it ended) it ends
+    those still running, SIGTERM and two seconds later SIGKILL. A process whose start time differs
+    is another that took the number: it is left alone, as is any other process of `parent`'s."""
+    import os
+    import select
+    import signal
+    import sys
+    import time
+
+    def processes():
+        """{pid: (parent pid, start time)} of every process /proc shows running (zombies left out)."""
+        found = {}
+        for pid in filter(str.isdigit, os.listdir("/proc")):
+            try:
+                with open(f"/proc/{pid}/stat") as stat:
+                    state, ppid, *fields = stat.read().rpartition(")")[2].split()
+            except (OSError, ValueError):
+                continue
+            if state != "Z":
+                found[int(pid)] = (int(ppid), int(fields[17]))
+        return found
+
+    me = os.getpid()
+    born = processes()[me][1]
+    roots, seen = None, {}  # Ray's first processes; pid -> start time of every process of Ray's seen
+    while True:
+        if select.select([sys.stdin], [], [], 0.5)[0]:
+            if not os.read(sys.stdin.fileno(), 1 << 12):
+                break
+            if roots is None:
+                roots = {pid for pid, (ppid, start) in processes().items()
+                         if ppid == parent and start >= born and pid != me}
+        table = processes()
+        for pid, (ppid, start) in table.items():
+            ancestor = pid
+            while ancestor not in (roots or ()) and ancestor in table and ancestor not in (parent, 0, 1):
+                ancestor = table[ancestor][0]
+            if ancestor in (roots or ()):
+                seen[pid] = start
+    for kill in (signal.SIGTERM, signal.SIGKILL):
+        table = processes()
+        left = [pid for pid, start in seen.items() if table.get(pid, (None, None))[1] == start]
+        for pid in left:
+            try:
+                os.kill(pid, kill)
+            except OSError:
+                pass
+        if not left:
+            return
+        time.sleep(2)
 
 
 def _reachable(address: str) -> str:
@@ -83,16 +206,17 @@ def disconnect():
     ray = sys.modules.get("ray")
     if ray is not None and ray.is_initialized():
         ray.shutdown()
+    _stop_reaper()
 
 
 @contextlib.contextmanager
-def joined(address: str | None):
-    """`connect(address)` for the block, then `disconnect()`; the ray module, or None (and nothing
-    joined) for address None."""
+def joined(address: str | None, report=None):
+    """`connect(address, report)` for the block, then `disconnect()`; the ray module, or None (and
+    nothing joined) for address None."""
     if address is None:
         yield None
         return
-    ray = connect(address)
+    ray = connect(address, report)
     try:
         yield ray
     finally:

@@ -22,8 +22,8 @@ import re
 import sys
 import warnings
 import weakref
-from dataclasses import dataclass, field
-from datetime import datetime, timezone
+from dataclasses import asdict, dataclass, field
+from datetime import datetime, timedelta, timezone
 from typing import Iterator
 
 import numpy as np
@@ -94,6 +94,70 @@ class Data:
     source: str
     anomaly: np.ndarray | None = None  # (T,) 0/1 labels
     changepoint: np.ndarray | None = None  # (T,) 0/1 labels
+
+
+@dataclass(frozen=True)
+class TimeFormat:
+    """How a source writes its rows' times, so that they are written back as it wrote them: seconds
+    in a `time` column, or clock times in a `datetime` column as ISO 8601 text, the date and the time
+    of day joined by `separator`, with `zone` after them ('' for none: UTC, 'Z', or an offset such as
+    '+01:00', the times then written at that offset) and `fraction` digits of a second (more where a
+    time needs them: nothing is rounded away)."""
+
+    column: str = "time"  # "time" (seconds) or "datetime" (clock times)
+    separator: str = "T"
+    zone: str = "Z"
+    fraction: int = 0
+
+    @classmethod
+    def of_stamp(cls, text: str) -> "TimeFormat":
+        """The format of an ISO time stamp as a file writes it ('2020-03-09 10:14:33')."""
+        text = text.strip()
+        stamp = datetime.fromisoformat(text)
+        offset = stamp.utcoffset()
+        if offset is None:
+            zone = ""
+        elif text.endswith("Z"):
+            zone = "Z"
+        else:
+            sign, minutes = "-" if offset < timedelta(0) else "+", abs(offset) // timedelta(minutes=1)
+            zone = f"{sign}{minutes // 60:02d}:{minutes % 60:02d}"
+        fraction = re.search(r":\d\d[.,](\d+)", text)
+        extended = len(text) > 10 and text[4] == "-"
+        return cls("datetime", text[10] if extended else "T", zone, min(len(fraction.group(1)), 6) if fraction else 0)
+
+    @classmethod
+    def from_json(cls, value) -> "TimeFormat":
+        """The format as_json wrote; seconds for anything else (a store that recorded none)."""
+        try:
+            found = cls(**value)
+        except TypeError:
+            return cls()
+        usable = (found.column in ("time", "datetime") and isinstance(found.separator, str)
+                  and len(found.separator) == 1 and re.fullmatch(r"|Z|[-+]\d\d:\d\d", str(found.zone))
+                  and type(found.fraction) is int and 0 <= found.fraction <= 6)
+        return found if usable else cls()
+
+    def as_json(self) -> dict:
+        return asdict(self)
+
+    def write(self, seconds: float) -> str:
+        """A time (seconds; since 1970, UTC, for clock times) as the source writes it: whole seconds
+        without a fraction ('1583752474', not '1583752474.0'); a clock time with the source's digits of
+        a second, or 3 or 6 where they do not hold it. A ValueError for a clock time beyond the
+        calendar's years."""
+        if self.column == "time":
+            return repr(float(seconds)).removesuffix(".0")
+        zone = (timezone.utc if self.zone in ("", "Z") else
+                datetime.fromisoformat("2000-01-01T00:00:00" + self.zone).tzinfo)
+        try:
+            stamp = datetime.fromtimestamp(seconds, zone)
+        except (OverflowError, OSError, ValueError):
+            raise ValueError(f"{seconds!r} s is not a time of the calendar") from None
+        micro = f"{stamp.microsecond:06d}"
+        digits = next(d for d in (self.fraction, 3, 6) if micro[d:].strip("0") == "" or d == 6)
+        return (stamp.strftime("%Y-%m-%d") + self.separator + stamp.strftime("%H:%M:%S")
+                + ("." + micro[:digits] if digits else "") + self.zone)
 
 
 _READING = weakref.WeakSet()  # the files open for reading, which no table may be written over
@@ -310,67 +374,87 @@ class _TimeCheck:
         return 1e-3 * self.dt + 1e-9 * (time - self.first) + 4 * math.ulp(time) + self.resolution
 
 
-def iter_rows(stream, model, source="<data>", outputs=True) -> Iterator[Row]:
+def iter_rows(stream, model, source="<data>", outputs=True) -> "Rows":
     """Rows of a CSV stream as they arrive (lines are read one at a time, so a pipe works on-line).
 
     `model` is a Model or the Columns to read by. With outputs=False the output columns may be
     absent (input-only files, for simulation).
     """
-    model = Columns.of(model)
-    records = _records(stream, source)
-    _, header = next(records, (0, None))
-    if header is None:
-        raise DataError(f"{source}: no header line (expected columns {', '.join(model.outputs)})")
-    names = [name.strip().lstrip("\ufeff") for name in header]  # spreadsheets may add a BOM
-    index = {name: i for i, name in enumerate(names)}
+    return Rows(stream, model, source, outputs)
 
-    def column(name, required):
-        """The cell index of a column the model uses; None when it is absent and not required."""
-        if names.count(name) > 1:
-            raise DataError(f"{source}: column {name!r} appears {names.count(name)} times in the header")
-        if name in index:
-            return index[name]
-        spelled = [i for i, h in enumerate(names) if re.sub(r"\W", "_", h) == name]
-        if len(spelled) == 1:  # a header such as 'Volume Flow Rate' for the name Volume_Flow_Rate
-            return spelled[0]
-        if required:
-            raise DataError(f"{source}: missing column {name!r}; the header has {', '.join(header)}"
-                            f"{suggest(name, header)}")
-        return None
 
-    y_cols = [column(n, outputs) for n in model.outputs]
-    u_cols = [column(n, math.isnan(d)) for n, d in zip(model.inputs, model.input_defaults)]
-    t_col, stamp_col, mode_col = column("time", False), column("datetime", False), column("mode", False)
-    anomaly_col, change_col = column("anomaly", False), column("changepoint", False)
-    defaults = model.input_defaults
-    time_col = stamp_col if t_col is None else t_col  # with both, `time` is the time axis
-    check_time = (None if time_col is None else  # time stamps are kept to the microsecond
-                  _TimeCheck(names[time_col], model.dt, 1e-6 if t_col is None else 0.0))
-    measured = np.zeros(model.ny, bool)
+class Rows:
+    """The rows iter_rows reads, one at a time, and `times`: how the stream writes its times (a
+    TimeFormat once a row with a time has been read; None before, and for a stream without times)."""
 
-    for line, cells in records:
-        where = f"{source}:{line}"
-        if len(cells) < len(names) or any(c.strip() for c in cells[len(names):]):
-            hint = "; decimal commas (1,5) split numbers in two: write 1.5" if len(cells) > len(names) else ""
-            raise DataError(f"{where}: {plural(len(cells), 'cell')}, but the header has {plural(len(names), 'column')}{hint}")
-        y = np.array([_number(cells, c, n, where) for c, n in zip(y_cols, model.outputs)])
-        u = np.array([_number(cells, c, n, where) for c, n in zip(u_cols, model.inputs)])
-        lacking = np.isnan(u) & np.isnan(defaults)
-        if lacking.any():
-            name = model.inputs[int(np.argmax(lacking))]
-            raise DataError(f"{where}: column {name!r}: missing value and the input has no default")
-        time = _timestamp(cells, stamp_col, where) if t_col is None else _number(cells, t_col, "time", where)
-        if check_time is not None:
-            check_time(time, cells[time_col], where)
-        measured |= ~np.isnan(y)
-        yield Row(line, time, y, np.where(np.isnan(u), defaults, u), _mode(cells, mode_col, model.modes, where),
-                  _label(cells, anomaly_col, "anomaly", where), _label(cells, change_col, "changepoint", where))
-    for name, col, default in zip(model.inputs, u_cols, defaults):
-        if col is None:
-            _warn(f"{source}: no column {name!r}: input {name} took its default {default:g} throughout")
-    for name, col, seen in zip(model.outputs, y_cols, measured):
-        if col is not None and not seen:
-            _warn(f"{source}: column {name!r} has no values: output {name} was never measured")
+    def __init__(self, stream, model, source: str, outputs: bool):
+        self.times = None
+        self._rows = self._read(stream, Columns.of(model), source, outputs)
+
+    def __iter__(self) -> Iterator[Row]:
+        return self
+
+    def __next__(self) -> Row:
+        return next(self._rows)
+
+    def _read(self, stream, model, source, outputs):
+        records = _records(stream, source)
+        _, header = next(records, (0, None))
+        if header is None:
+            raise DataError(f"{source}: no header line (expected columns {', '.join(model.outputs)})")
+        names = [name.strip().lstrip("\ufeff") for name in header]  # spreadsheets may add a BOM
+        index = {name: i for i, name in enumerate(names)}
+
+        def column(name, required):
+            """The cell index of a column the model uses; None when it is absent and not required."""
+            if names.count(name) > 1:
+                raise DataError(f"{source}: column {name!r} appears {names.count(name)} times in the header")
+            if name in index:
+                return index[name]
+            spelled = [i for i, h in enumerate(names) if re.sub(r"\W", "_", h) == name]
+            if len(spelled) == 1:  # a header such as 'Volume Flow Rate' for the name Volume_Flow_Rate
+                return spelled[0]
+            if required:
+                raise DataError(f"{source}: missing column {name!r}; the header has {', '.join(header)}"
+                                f"{suggest(name, header)}")
+            return None
+
+        y_cols = [column(n, outputs) for n in model.outputs]
+        u_cols = [column(n, math.isnan(d)) for n, d in zip(model.inputs, model.input_defaults)]
+        t_col, stamp_col, mode_col = column("time", False), column("datetime", False), column("mode", False)
+        anomaly_col, change_col = column("anomaly", False), column("changepoint", False)
+        defaults = model.input_defaults
+        time_col = stamp_col if t_col is None else t_col  # with both, `time` is the time axis
+        check_time = (None if time_col is None else  # time stamps are kept to the microsecond
+                      _TimeCheck(names[time_col], model.dt, 1e-6 if t_col is None else 0.0))
+        measured = np.zeros(model.ny, bool)
+
+        for line, cells in records:
+            where = f"{source}:{line}"
+            if len(cells) < len(names) or any(c.strip() for c in cells[len(names):]):
+                hint = "; decimal commas (1,5) split numbers in two: write 1.5" if len(cells) > len(names) else ""
+                raise DataError(f"{where}: {plural(len(cells), 'cell')}, but the header has "
+                                f"{plural(len(names), 'column')}{hint}")
+            y = np.array([_number(cells, c, n, where) for c, n in zip(y_cols, model.outputs)])
+            u = np.array([_number(cells, c, n, where) for c, n in zip(u_cols, model.inputs)])
+            lacking = np.isnan(u) & np.isnan(defaults)
+            if lacking.any():
+                name = model.inputs[int(np.argmax(lacking))]
+                raise DataError(f"{where}: column {name!r}: missing value and the input has no default")
+            time = _timestamp(cells, stamp_col, where) if t_col is None else _number(cells, t_col, "time", where)
+            if self.times is None and time is not None and time == time:
+                self.times = TimeFormat() if t_col is not None else TimeFormat.of_stamp(cells[stamp_col])
+            if check_time is not None:
+                check_time(time, cells[time_col], where)
+            measured |= ~np.isnan(y)
+            yield Row(line, time, y, np.where(np.isnan(u), defaults, u), _mode(cells, mode_col, model.modes, where),
+                      _label(cells, anomaly_col, "anomaly", where), _label(cells, change_col, "changepoint", where))
+        for name, col, default in zip(model.inputs, u_cols, defaults):
+            if col is None:
+                _warn(f"{source}: no column {name!r}: input {name} took its default {default:g} throughout")
+        for name, col, seen in zip(model.outputs, y_cols, measured):
+            if col is not None and not seen:
+                _warn(f"{source}: column {name!r} has no values: output {name} was never measured")
 
 
 def _mode(cells, col, modes, where):

@@ -7,6 +7,7 @@ import warnings
 import numpy as np
 import pytest
 from scipy.stats import multivariate_normal
+from conftest import ROOT
 from test_language_gaps import TANK  # a one-tank ODE plant with a sag mode that sets its own input
 
 import jmlgdsl
@@ -16,6 +17,7 @@ from jmlgdsl.data import Data
 from jmlgdsl.errors import SpecError, SpecWarning
 from jmlgdsl.fitting import Family, FitError, fit
 from jmlgdsl.fitting.estimate import _covariance, _look_alike, hessian
+from jmlgdsl.fitting.rewrite import fitted_text
 from jmlgdsl.fitting.likelihood import labelled_loglik
 from jmlgdsl.infer import filter as run_filter
 from jmlgdsl.infer.engine import FilterError
@@ -237,16 +239,36 @@ def test_the_fitted_spec_keeps_the_text_and_compiles_to_the_fitted_model(fitted)
     text = fitted.text
     assert text.startswith("# Fitted by 'jmlgdsl fit' to sim.csv: log-likelihood ")
     g, tau = fitted.estimate[:2]
-    assert f"param g = {g:.10g}, tau = {tau:.10g}   # fitted g = {g:.4g} ± {fitted.se[0]:.2g}, prior " \
-           f"LogNormal(log(2), 0.3); fitted tau = {tau:.4g} ± {fitted.se[1]:.2g}, prior LogNormal(log(30), 0.3); " \
-           "unknown gain and time constant" in text
+    assert f"param g = {g:.10g}, tau = {tau:.10g}   # unknown gain and time constant\n" \
+           f"    # fitted g = {g:.4g} ± {fitted.se[0]:.2g}, prior LogNormal(log(2), 0.3)\n" \
+           f"    # fitted tau = {tau:.4g} ± {fitted.se[1]:.2g}, prior LogNormal(log(30), 0.3)\n" in text
     assert "output temp [degC]                 # air temperature" in text
-    assert f"noise process 0.05, measurement {fitted.estimate[3]:.10g}  # fitted noise.measurement" in text
+    assert f"noise process 0.05, measurement {fitted.estimate[3]:.10g}\n    # fitted noise.measurement" in text
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # no unknowns are left: no warnings
         model = compile_text(text)
     for name in ("A", "F", "f", "D", "mu0"):
         np.testing.assert_allclose(getattr(model, name), getattr(fitted.model, name), rtol=1e-9)
+
+
+def test_a_line_of_many_unknowns_is_written_back_readably_and_reads_back_as_fitted():
+    """Four priors on one line had come back as one line of about 400 characters: each fitted value's
+    comment now has a line of its own, and the spec reads back with the fitted values."""
+    path = ROOT / "examples" / "fit" / "dryer_physical.jmlg"
+    spec = parse_text(path.read_text(), str(path))
+    family = Family(spec)
+    estimate = np.linspace(44.0, 56.0, len(family.unknowns))
+    text = fitted_text(spec, family.unknowns, estimate, np.full(len(estimate), 0.05))
+    assert {line for line in text.splitlines() if len(line) > 100} <= set(spec.lines)  # only the user's own
+    assert ("param T_normal = 44, T_fan = 45.71428571, T_grill = 47.42857143, T_both = 49.14285714\n"
+            "    # fitted T_normal = 44 ± 0.05, prior Normal(50, 5)\n"
+            "    # fitted T_fan = 45.71 ± 0.05, prior Normal(50, 5)\n") in text
+    again = parse_text(text, "fitted.jmlg")
+    with pytest.raises(FitError, match="no unknowns"):
+        Family(again)  # every prior became its value
+    model, expected = compile_text(text), family.model(estimate)
+    for name in ("A", "F", "f", "mu0", "D"):
+        np.testing.assert_allclose(getattr(model, name), getattr(expected, name), rtol=1e-9)
 
 
 def test_unknowns_the_data_cannot_tell_apart_or_do_not_inform_are_named():

@@ -395,6 +395,9 @@ def test_mqtt_units_on_one_connection_resume_after_a_kill(broker, tmp_path):
     finally:
         ended(first, second)
     assert at_kill >= 600 and "resumed its session" in err
+    # the one connection is one line (each unit's run keeps its event): it had been a line per unit
+    assert re.findall(r"^monitor: .*connect: .*$", err, re.M) == [
+        f"monitor: connect: connected to 127.0.0.1:{port} (as jmlgdsl-dryer, resumed its session)"]
     for i, unit in enumerate(UNITS, 1):  # the first half of the messages: 245 rows of each unit
         resumed = re.search(rf"^monitor: {unit}: resume: run {i} resumed after row (\d+)$", err, re.M)
         assert resumed and 0 < int(resumed[1]) < len(rows[unit]), err

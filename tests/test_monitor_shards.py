@@ -5,6 +5,7 @@ every unit's exported table equals the uninterrupted `jmlgdsl run` of its file, 
 stored twice. Also the refusals of the options that go with a cluster."""
 
 import os
+import re
 import signal
 import subprocess
 import threading
@@ -15,11 +16,33 @@ from conftest import jmlgdsl_command
 from monitor_servers import LINES, SPEC, WAIT, query, stop, until
 
 from jmlgdsl.cli import main
-from jmlgdsl.monitor.shards import split
+from jmlgdsl.cluster import plain
+from jmlgdsl.monitor.shards import ray_told, split
 
 pytest.importorskip("ray", reason="Ray is not installed (pip install '.[cluster]')")
 
 UNITS = ["p1", "p2", "p3", "p4"]
+
+
+RAY_TEXT = ("A worker died or was killed while executing a task by an unexpected system "
+            "error. To troubleshoot the problem, check the logs for the dead worker. Lease ID: 0100 Worker ID: b004 "
+            "Node ID: 1079 Worker IP address: 127.0.0.1 Worker port: 38945 Worker PID: 13003 Worker exit type: "
+            "SYSTEM_ERROR Worker exit detail: Worker unexpectedly exits with a connection error code 2. End of "
+            "file. Some common causes include: (1) the process was killed by the OOM killer due to high memory\n"
+            "usage, (2) ray stop --force was called, or (3) the worker crashed unexpectedly.")
+
+
+def test_rays_messages_are_one_plain_line_in_the_monitors_words():
+    """What Ray's raylet tells the driver (as print_to_stdstream is handed it), as the monitor logs it."""
+    said = []
+    report = ray_told(said.append)
+    report(plain(RAY_TEXT))
+    report(plain("Task Shard.run failed. There are infinite retries remaining, so the task "
+                 "will be retried. Error: The actor is temporarily unavailable"))
+    report(plain("\x1b[33mSomething\x1b[0m\n  else happened"))
+    assert said == ["a shard's process (pid 13003) ended (SYSTEM_ERROR: Worker unexpectedly exits with a connection "
+                    "error code 2); Ray starts it again, and its units resume from their last commit",
+                    "ray: Something else happened"]
 
 
 def test_units_are_split_into_contiguous_shards_of_nearly_equal_size():
@@ -108,6 +131,13 @@ def test_a_killed_shard_is_restarted_and_every_unit_table_equals_the_uninterrupt
         if monitor.poll() is None:
             monitor.kill()
     assert "4 units in 2 shards on the Ray cluster auto" in err
+    # the shard's death is one line of the monitor's own, without Ray's colour codes
+    assert "\x1b" not in err and re.findall(r"^monitor: a shard's process.*$", err, re.M) == [
+        f"monitor: a shard's process (pid {victim}) ended (SYSTEM_ERROR: Worker unexpectedly exits with a connection "
+        "error code 2); Ray starts it again, and its units resume from their last commit"]
+    # counted in the store: the killed shard's rows and events before its restart too
+    assert (f"dryer: 2400 rows diagnosed in the runs of 4 units (1..4) of {store} by 2 shards (2400 in all); "
+            "events: resume 2, start 4") in err
     for unit in UNITS:
         assert query(store, f"SELECT count(DISTINCT r.t) || ',' || min(r.t) || ',' || max(r.t) FROM result r "
                             f"JOIN run ON run.id = r.run WHERE run.unit = '{unit}'") == "600,1,600"
@@ -154,3 +184,51 @@ def test_a_shard_never_makes_a_store_of_its_own(tmp_path):
         Shard(jmlgdsl.load(SPEC), str(missing), None, None, monitor_options(), {}, ["p1"], 1,
               {"url": str(tmp_path / "{unit}.csv"), "follow": False})
     assert not missing.exists()
+
+
+def processes() -> dict[int, tuple[int, str]]:
+    """{pid: (parent pid, start time)} of every running process, as /proc shows them."""
+    table = {}
+    for pid in filter(str.isdigit, os.listdir("/proc")):
+        try:
+            with open(f"/proc/{pid}/stat") as stat:
+                state, ppid, *fields = stat.read().rpartition(")")[2].split()
+        except OSError:
+            continue
+        if state != "Z":
+            table[int(pid)] = (int(ppid), fields[17])
+    return table
+
+
+def descendants(parent: int) -> dict[int, str]:
+    """{pid: start time} of the running processes descended from `parent`."""
+    table, found = processes(), {}
+    for pid, (ppid, start) in table.items():
+        while ppid not in (parent, 0, 1) and ppid in table:
+            ppid = table[ppid][0]
+        if ppid == parent:
+            found[pid] = start
+    return found
+
+
+def test_a_monitor_killed_with_sigkill_leaves_no_process_of_its_local_ray(tmp_path):
+    """Ray ends the processes it starts when the command dies, but its raylet's agents (dashboard,
+    runtime env: about 160 MB) outlived a `kill -9` of the monitor; the reaper ends them."""
+    for unit in ("p1", "p2"):
+        (tmp_path / f"{unit}.csv").write_text("".join(LINES[:51]))
+    store = str(tmp_path / "fleet.db")
+    monitor = subprocess.Popen([*jmlgdsl_command(), "monitor", SPEC, "--units", "p1,p2", "--source",
+                                str(tmp_path / "{unit}.csv"), "--store", store, "--cluster", "auto", "--shards", "1"],
+                               stderr=subprocess.PIPE, text=True)
+    try:
+        until(lambda: rows_of(store, "p2") == 50, "unit p2's rows", monitor)
+        started = descendants(monitor.pid)
+        agents = [pid for pid in started if open(f"/proc/{pid}/cmdline", "rb").read().startswith(b"ray::")]
+        assert len(agents) >= 3  # the dashboard and runtime-env agents and the shard, at least
+    finally:
+        monitor.kill()
+        monitor.communicate()
+    deadline = time.monotonic() + WAIT
+    while left := {pid for pid, (_, start) in processes().items() if started.get(pid) == start}:
+        assert time.monotonic() < deadline, f"processes of the killed monitor's Ray still run: {sorted(left)}"
+        time.sleep(0.2)

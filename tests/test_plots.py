@@ -1,14 +1,18 @@
 """Figures: study plots from bench records, the diagnosis figure, and `jmlgdsl plot` on a run table."""
 
+import sqlite3
+
 import matplotlib.image
 import numpy as np
 import pytest
+from conftest import ROOT
 from infer_models import dryer
 
 import jmlgdsl
 from jmlgdsl.diagnosis import figure as run_figure
 from jmlgdsl.studies import figures, sweep
 from jmlgdsl.cli import main
+from jmlgdsl.monitor.databases import SQLite
 
 RECORDS = [
     {"data": "d", "filter": f, "particles": n, "run": r, "error": 50.0 / n + r, "ms_per_step": 0.1 * n,
@@ -149,3 +153,47 @@ def test_plot_command_user_errors(run_table, tmp_path, capsys):
     bad.write_text("\n".join(lines) + "\n")
     assert main(["plot", str(bad), "-o", out]) == 2
     assert "bad.csv:4: column 'p_normal': 'x' is not a number" in capsys.readouterr().err
+
+
+def test_run_plot_draws_residuals_over_their_predicted_sd_and_the_files_anomaly_labels(tmp_path, monkeypatch):
+    """Residuals in raw units put sensors of different scales on one axis (SKAB's Voltage flattened
+    the other seven): `run --plot` draws each over its one-step predictive sd, and the file's
+    `anomaly` column as bands."""
+    data = tmp_path / "labelled.csv"
+    lines = (ROOT / "examples" / "dryer_seq1.csv").read_text().splitlines()
+    data.write_text("\n".join([lines[0] + ",anomaly"] + [f"{line},{int(line.split(',')[3] != 'normal')}"
+                                                          for line in lines[1:]]) + "\n")
+    seen = {}
+    monkeypatch.setattr(run_figure, "diagnosis_figure", lambda path, *args, **kw: seen.update(args=args, kw=kw))
+    assert main(["run", str(ROOT / "specs" / "dryer.jmlg"), str(data), "--plot", str(tmp_path / "f.png")]) == 0
+    _, _, _, y, y_pred, _ = seen["args"]
+    sd, anomaly = seen["kw"]["y_sd"], seen["kw"]["anomaly"]
+    assert sd.shape == y.shape and np.isnan(sd[0]).all() and (sd[1:] > 0).all()
+    z = ((y - y_pred) / sd)[1:, 0]
+    normal = np.array([line.split(",")[3] == "normal" for line in lines[1:]])[1:]
+    assert 0.7 < z[normal].std() < 1.5  # the healthy rows' standardised residuals: unit spread
+    np.testing.assert_array_equal(anomaly, [int(line.split(",")[3] != "normal") for line in lines[1:]])
+    monkeypatch.undo()
+    # the store's y_sd of a monitor over the same rows is the same spread
+    store = tmp_path / "dryer.db"
+    assert main(["monitor", str(ROOT / "specs" / "dryer.jmlg"), "--source", str(data), "--store", str(store),
+                 "--no-follow"]) == 0
+    stored = [SQLite.unvector(v, 1)[0] for (v,) in sqlite3.connect(store).execute("SELECT y_sd FROM result ORDER BY t")]
+    np.testing.assert_allclose(np.array(stored[1:], float), sd[1:, 0], rtol=1e-9)
+
+
+def test_the_residual_panel_draws_standardised_residuals_and_anomaly_bands(tmp_path):
+    T = 40
+    time = np.arange(1.0, T + 1)
+    y, y_pred = np.zeros((T, 2)), np.zeros((T, 2))
+    y[:, 0], y[:, 1] = 300.0, 0.3  # a volt and a tenth of a bar off: 3 sd each
+    sd = np.column_stack([np.full(T, 100.0), np.full(T, 0.1)])
+    anomaly = (np.arange(T) >= 20).astype(int)
+    fig = run_figure.diagnosis_figure(tmp_path / "z.png", ["a", "b"], np.full((T, 2), 0.5), time, y, y_pred,
+                                      ["Voltage", "Pressure"], y_sd=sd, anomaly=anomaly)
+    residuals = [ax for ax in fig.axes if ax.get_label() != "<colorbar>"][-1]
+    drawn = [line.get_ydata() for line in residuals.get_lines() if line.get_label() in ("Voltage", "Pressure")]
+    np.testing.assert_allclose(drawn, 3.0)
+    assert residuals.get_ylabel() == "residual / its\npredicted sd"
+    bands = [p for p in residuals.patches]
+    assert len(bands) == 1 and bands[0].get_label() == "true anomaly"

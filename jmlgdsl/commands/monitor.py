@@ -190,42 +190,42 @@ def main(args) -> int:
     page = start_page(args, args.store, password=password, unit=units and units[0])
     try:
         if args.cluster:
-            stopped = _sharded(args, model, password, options, tags, units, recipe, stop, banks)
+            stopped, count = _sharded(args, model, password, options, tags, units, recipe, stop, banks)
         else:
             with Store(args.store, password=password) as store:
                 monitor = Monitor(model, store, source, spec=_text(args.spec), options=options, tags=tags,
-                                  units=units, new_run=args.new_run, banks=banks, sinks=sinks,
-                                  log=lambda text: print(f"monitor: {text}", file=sys.stderr, flush=True))
-                stopped = [monitor.run(stop)]
+                                  units=units, new_run=args.new_run, banks=banks, sinks=sinks, log=_log)
+                stopped = monitor.run(stop)
     finally:
         if page is not None:
             page.stop()
-    counts = {}
-    for part in stopped:
-        for kind, n in part.events.items():
-            counts[kind] = counts.get(kind, 0) + n
-    events = ", ".join(f"{kind} {n}" for kind, n in sorted(counts.items()))
-    runs = sorted(run for part in stopped for run in part.runs)
+    events = ", ".join(f"{kind} {n}" for kind, n in sorted(stopped.events.items()))
+    runs = sorted(stopped.runs)
     where = f"run {runs[0]}" if units is None else f"the runs of {plural(len(units), 'unit')} ({runs[0]}..{runs[-1]})"
-    shards = f" by {plural(len(stopped), 'shard')}" if args.cluster else ""
-    print(f"{model.name}: {sum(part.rows for part in stopped)} rows diagnosed in {where} of {args.store}{shards} "
-          f"({sum(part.stored for part in stopped)} in all){'; events: ' + events if events else ''}", file=sys.stderr)
+    shards = f" by {plural(count, 'shard')}" if args.cluster else ""
+    print(f"{model.name}: {stopped.rows} rows diagnosed in {where} of {args.store}{shards} "
+          f"({stopped.stored} in all){'; events: ' + events if events else ''}", file=sys.stderr)
     return 0
 
 
+def _log(text: str):
+    """The monitor's log: a line on standard error."""
+    print(f"monitor: {text}", file=sys.stderr, flush=True)
+
+
 def _sharded(args, model, password, options, tags, units, recipe, stop, banks):
-    """The fleet's units in shards on a Ray cluster: each shard's Stopped."""
+    """The fleet's units in shards on a Ray cluster: what they did (a Stopped) and how many shards."""
     from ..cluster import joined
-    from ..monitor.shards import run_shards
+    from ..monitor.shards import ray_told, run_shards
     from ..names import plural
 
-    with joined(args.cluster) as ray:
+    with joined(args.cluster, report=ray_told(_log)) as ray:
         stop = stopped_by_signals(stop)  # Ray puts its own handlers in when it starts
         count = min(len(units), args.shards or max(1, int(ray.cluster_resources().get("CPU", 1))))
-        print(f"monitor: {plural(len(units), 'unit')} in {plural(count, 'shard')} on the Ray cluster "
-              f"{args.cluster}", file=sys.stderr, flush=True)
+        _log(f"{plural(len(units), 'unit')} in {plural(count, 'shard')} on the Ray cluster {args.cluster}")
         return run_shards(ray, model, args.store, password, spec=_text(args.spec), options=options, tags=tags,
-                          units=units, count=count, source=recipe, new_run=args.new_run, stop=stop, banks=banks)
+                          units=units, count=count, source=recipe, new_run=args.new_run, stop=stop,
+                          banks=banks), count
 
 
 def stopped_by_signals(stop=None):

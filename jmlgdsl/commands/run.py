@@ -37,8 +37,8 @@ def register(subparsers):
                                           "several data files, a folder: OUTDIR/NAME.csv for each NAME.csv "
                                           "given, every table written only once all of them are done")
     p.add_argument("--plot", metavar="FILE.png",
-                   help="draw the mode posterior over time, the MAP and true modes, and measured vs "
-                        "predicted outputs with residuals")
+                   help="draw the mode posterior over time, the MAP and true modes, measured vs predicted "
+                        "outputs, and the residuals over their predicted sd, with the file's anomaly labels")
     add_alarm_options(p)
     p.add_argument("--cluster", metavar="auto|HOST:PORT",
                    help="with several data files: diagnose them on a Ray cluster, the files split into as many "

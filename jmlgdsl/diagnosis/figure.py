@@ -17,13 +17,18 @@ def _mode_colors(K):
 
 
 def diagnosis_figure(path, mode_names, posterior, time, y, y_pred, output_names, true_modes=None,
-                     time_label="time (s)", output_units=None, title="", given="the data so far"):
+                     time_label="time (s)", output_units=None, title="", given="the data so far", y_sd=None,
+                     anomaly=None):
     """One run at a glance: MAP (and true) mode over time, the mode posterior as a heat map, then for
-    each output the measured and predicted values, and the residuals.
+    each output the measured and predicted values, and the residuals: divided by the prediction's
+    standard deviation when `y_sd` is given, so that outputs of different units and noise share one
+    scale (raw, a voltage's residuals flatten those of the other sensors), else as measured.
 
     posterior (T, K); time (T,); y, y_pred (T, ny) with NaN where not measured; true_modes (T,) indices
     or None; output_units maps output names to unit text; `given` says what the posterior is
-    conditioned on (the filter's data so far, or a smoother's).
+    conditioned on (the filter's data so far, or a smoother's); y_sd (T, ny) the one-step predictive
+    standard deviation (NaN where not known); anomaly (T,) the data's 0/1 anomaly labels, shaded under
+    the residuals.
     """
     posterior = np.asarray(posterior, dtype=float)
     y, y_pred = np.atleast_2d(np.asarray(y, float).T).T, np.atleast_2d(np.asarray(y_pred, float).T).T
@@ -70,12 +75,17 @@ def diagnosis_figure(path, mode_names, posterior, time, y, y_pred, output_names,
 
     ax = axes[-1]
     residuals = y - y_pred
+    if y_sd is not None:
+        residuals = residuals / np.atleast_2d(np.asarray(y_sd, float).T).T
+        for level in (-3, 3):
+            ax.axhline(level, color="0.5", lw=0.6, ls=":")
     for j in range(ny):
         ax.plot(time, residuals[:, j], lw=0.7, label=output_names[j])
     ax.axhline(0, color="black", lw=0.6)
-    ax.set_ylabel("residual\n(measured −\npredicted)")
-    if ny > 1:
-        ax.legend(loc="upper right", fontsize="small", ncol=min(ny, 4))
+    ax.set_ylabel("residual / its\npredicted sd" if y_sd is not None else "residual\n(measured −\npredicted)")
+    shaded = _shade_anomaly(ax, edges, anomaly)
+    if ny > 1 or shaded:
+        ax.legend(loc="upper right", fontsize="small", ncol=min(ny + shaded, 4))
     ax.set_xlabel(time_label)
     ax.set_xlim(edges[0], edges[-1])
     fig.suptitle(title or "Mode diagnosis")
@@ -102,9 +112,21 @@ def _shade_true_modes(ax, edges, true_modes, colors):
         ax.axvspan(edges[a], edges[b], color=colors[modes[a]], alpha=0.12, lw=0)
 
 
-def result_figure(result, path, true_modes=None, title=""):
+def _shade_anomaly(ax, edges, anomaly) -> bool:
+    """The rows the data label anomalous (1) as light red bands; whether there are any."""
+    if anomaly is None or not np.any(np.asarray(anomaly) == 1):
+        return False
+    marked = np.r_[False, np.asarray(anomaly) == 1, False]
+    starts, ends = np.flatnonzero(marked[1:] & ~marked[:-1]), np.flatnonzero(~marked[1:] & marked[:-1])
+    for k, (a, b) in enumerate(zip(starts, ends)):
+        ax.axvspan(edges[a], edges[b], color="tab:red", alpha=0.15, lw=0, label="true anomaly" if k == 0 else None)
+    return True
+
+
+def result_figure(result, path, true_modes=None, title="", y_sd=None, anomaly=None):
     """The diagnosis figure of a filter Result; the outputs drawn are those it filtered (prediction +
-    residual), so a pre-filtered run shows the pre-filtered signal."""
+    residual), so a pre-filtered run shows the pre-filtered signal; `y_sd` and `anomaly` as
+    diagnosis_figure takes them."""
     model = result.model
     time = model.dt * np.arange(1, result.T + 1)
     who = result.algorithm + (f", {plural(result.particles, 'particle')}" if result.particles else "")
@@ -112,4 +134,4 @@ def result_figure(result, path, true_modes=None, title=""):
     return diagnosis_figure(path, model.modes, result.mode_posterior, time, result.y_pred + result.residuals,
                             result.y_pred, model.outputs, true_modes=true_modes, output_units=model.units,
                             title=title or f"{model.name}: mode diagnosis ({who})",
-                            given=given(result.lag))
+                            given=given(result.lag), y_sd=y_sd, anomaly=anomaly)

@@ -10,6 +10,7 @@ import numpy as np
 from ..infer import Result
 from ..infer.table import TableWriter
 from ..output import replacing
+from .prediction import predictive_sd
 
 
 class TableSink:
@@ -63,13 +64,26 @@ class Kept:
                                                      f.seconds), lag=f.lag)
 
     def draw(self, diagnosis, path):
-        """The figure of the kept rows (`figure.result_figure`), written whole or not at all."""
+        """The figure of the kept rows (`figure.result_figure`), with their residuals standardised
+        and the data's anomaly labels, written whole or not at all."""
         from .figure import result_figure
 
+        result = self.result(diagnosis)
         with replacing(path) as temporary:
-            result_figure(self.result(diagnosis), temporary, true_modes=self.true_modes())
+            result_figure(result, temporary, true_modes=self.labels("mode"), y_sd=self.predictive_sd(result),
+                          anomaly=self.labels("anomaly"))
 
-    def true_modes(self) -> np.ndarray | None:
-        """(T,) the true mode of every kept row, or None unless every row has one."""
-        modes = [d.row.mode for d in self.rows]
-        return None if any(m is None for m in modes) else np.array(modes)
+    def predictive_sd(self, result) -> np.ndarray:
+        """(T, ny) the standard deviation of each row's one-step prediction, from the estimate after the
+        row before it (NaN for the first row)."""
+        sd = np.full(result.y_pred.shape, np.nan)
+        if result.T > 1:
+            u = np.array([d.row.u for d in self.rows[1:]]).reshape(result.T - 1, result.model.nu)
+            sd[1:] = predictive_sd(result.model, result.mode_posterior[:-1], result.state_mean[:-1],
+                                   result.state_cov[:-1], u)
+        return sd
+
+    def labels(self, name: str) -> np.ndarray | None:
+        """(T,) a label of every kept row (mode, anomaly), or None unless every row has one."""
+        values = [getattr(d.row, name) for d in self.rows]
+        return None if any(v is None for v in values) else np.array(values)

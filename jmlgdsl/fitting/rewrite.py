@@ -1,11 +1,15 @@
 """The fitted spec: the user's own text with each prior replaced by its fitted value and a comment
-that keeps the estimate's standard error and the prior it came from, so the file reads as before."""
+that keeps the estimate's standard error and the prior it came from, so the file reads as before.
+A line of one unknown keeps its comment at its end; a line of several, or one that would grow past
+WIDTH characters, has a comment line of its own below it for each."""
 
 from __future__ import annotations
 
 import math
 
 from ..lang.syntax import Pos, Spec
+
+WIDTH = 100  # characters a line of the fitted spec with its comment at its end may take
 
 
 def fitted_text(spec: Spec, unknowns, estimate, se, header: str = "") -> str:
@@ -28,12 +32,16 @@ def fitted_text(spec: Spec, unknowns, estimate, se, header: str = "") -> str:
         shown = "se unknown" if not math.isfinite(error) else f"± {error:.2g}"
         comments.setdefault(u.end.line - 1, []).append(f"fitted {u.name} = {value:.4g} {shown}, prior {prior}")
     for line, notes in comments.items():
-        hash_at = _comment_column(spec.lines[line])
-        note = "; ".join(notes)
-        if hash_at is None:
-            edits.append((starts[line] + len(spec.lines[line]),) * 2 + (f"  # {note}",))
+        original, end = spec.lines[line], starts[line] + len(spec.lines[line])
+        hash_at = _comment_column(original)
+        grown = sum(len(new) - (b - a) for a, b, new in edits if starts[line] <= a and b <= end)
+        if len(notes) > 1 or len(original) + grown + len(notes[0]) + 4 > WIDTH:
+            indent = original[:len(original) - len(original.lstrip())] + "    "
+            edits.append((end, end, "".join(f"\n{indent}# {note}" for note in notes)))
+        elif hash_at is None:
+            edits.append((end, end, f"  # {notes[0]}"))
         else:
-            edits.append((starts[line] + hash_at, starts[line] + hash_at + 1, f"# {note};"))
+            edits.append((starts[line] + hash_at, starts[line] + hash_at + 1, f"# {notes[0]};"))
     for a, b, new in sorted(edits, reverse=True):
         text = text[:a] + new + text[b:]
     lead = "".join(f"# {line}\n" if line else "#\n" for line in header.splitlines())

@@ -33,11 +33,11 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
-from datetime import datetime, timezone
+from datetime import datetime
 
 import numpy as np
 
-from ..data import Row
+from ..data import Row, TimeFormat
 
 AHEAD = 60.0  # seconds a reading may be stamped past the wall clock it arrives at
 HORIZON = 10  # sample times (beyond the grace) a message may be stamped past the stream's newest reading
@@ -54,16 +54,16 @@ class Event:
     time: float | None = None  # the data time it concerns, seconds
 
 
+CLOCK = TimeFormat("datetime")  # ISO 8601, UTC: events' clock times, and the rows' of a source that writes such
+
+
 def clock_time(seconds: float) -> str:
     """Seconds since 1970 as an ISO 8601 time, UTC ('2026-11-27T02:35:18Z'; with the fraction of a
     second where there is one); a time beyond the calendar's years as seconds."""
     try:
-        stamp = datetime.fromtimestamp(seconds, timezone.utc)
-    except (OverflowError, OSError, ValueError):
+        return CLOCK.write(seconds)
+    except ValueError:
         return f"{seconds!r} s"
-    fraction = stamp.microsecond
-    timespec = "seconds" if not fraction else "milliseconds" if fraction % 1000 == 0 else "microseconds"
-    return stamp.isoformat(timespec=timespec).replace("+00:00", "Z")
 
 
 def _late(readings, at) -> Event:
@@ -117,6 +117,12 @@ class Assembler:
         self.wall = True  # every reading so far took its arrival time: the wall clock may close rows
         self.ahead = []  # messages held ahead of the stream, [[(name, value, time)]], in a row
         self.iso = False  # the source writes its times as clock times (ISO 8601 text, OPC UA's stamps)
+
+    @property
+    def times(self) -> TimeFormat:
+        """How the source writes its rows' times: clock times where it writes them so or its readings
+        take their arrival's (ISO 8601, UTC), else seconds."""
+        return CLOCK if self.iso or self.wall else TimeFormat()
 
     def at(self, time: float) -> str:
         """A time as the source writes it, for events: ISO 8601 (UTC) where it writes clock times or

@@ -28,14 +28,15 @@ def connected(where: str, detail: str) -> Event:
     return Event("connect", None, f"connected to {where} ({detail})")
 
 
-def unreachable(where: str, why, delay: float | None = None) -> Event:
-    """A connection attempt that failed; `delay`: when the next one is (None: the client library's)."""
-    again = "trying again" if delay is None else f"trying again in {delay:g} s"
-    return Event("disconnect", None, f"cannot reach {where} ({why}); {again}")
+def unreachable(where: str, why, delay: float) -> Event:
+    """A connection attempt that failed; the next one is `delay` seconds later."""
+    return Event("disconnect", None, f"cannot reach {where} ({why}); trying again in {delay:g} s")
 
 
-def lost(where: str, why) -> Event:
-    return Event("disconnect", None, f"lost the connection to {where} ({why}); reconnecting")
+def lost(where: str, why, delay: float) -> Event:
+    """A connection that was up and is lost; the first attempt to connect again is `delay` seconds later."""
+    again = "reconnecting now" if delay == 0 else f"reconnecting in {delay:g} s"
+    return Event("disconnect", None, f"lost the connection to {where} ({why}); {again}")
 
 
 def refused(source: str, who: str, why, options: str = "--") -> str:

@@ -102,7 +102,8 @@ class CsvSource:
 
     def start(self, put, position: dict | None):
         """Read rows in a thread: put(("row", row, position)) for each, put(("event", Event)) for a bad
-        line, put(("end",)) at the end (of standard input, or of an unfollowed file)."""
+        line, put(("end",)) at the end (of standard input, or of an unfollowed file), and before the
+        first row with a time put(("times", TimeFormat)): how the file writes its times."""
         if self.path == "-":
             stream = sys.stdin.buffer
         else:
@@ -119,11 +120,16 @@ class CsvSource:
         try:
             lines = Lines(stream, self.name, self.follow and self.path != "-", self._stop, offset, line)
             failed = None  # the line of the last bad one: the same again means the header is at fault
+            told = None  # how the file writes its times, once put
             while not self._stop.is_set():
                 try:
-                    for row in iter_rows(lines, self.model, self.name):
+                    rows = iter_rows(lines, self.model, self.name)
+                    for row in rows:
                         if self._stop.is_set():
                             return
+                        if told is None and rows.times is not None:
+                            told = rows.times
+                            put(("times", told))
                         put(("row", row, {"offset": lines.offset, "line": lines.line}))
                     break
                 except DataError as exc:

@@ -27,7 +27,7 @@ from ..infer.units import Stacked
 from ..errors import JmlgError
 from .assemble import Assembler, Event
 from .outbox import Outbox
-from .store import Commit, Store
+from .store import TIMES, Commit, Store
 from ..version import VERSION
 
 IDLE = 0.1  # seconds without input before the monitor commits and moves the wall clock on
@@ -242,16 +242,34 @@ class Monitor:
             self.tokens.append(token)
         elif kind == "malformed":
             _, message, token = item
+            self._event(watches, unit, Event("malformed", None, message))
             for watch in watches:
-                watch.event(Event("malformed", None, message))
                 watch.arrived()
             self.tokens.append(token)
         elif kind == "event":
-            for watch in watches:
-                watch.event(item[1])
+            self._event(watches, unit, item[1])
+        elif kind == "times":
+            watches[0].times = item[1]
         elif kind == "fatal":
             raise MonitorError(item[1])
         return kind == "end"
+
+    def _event(self, watches, unit, event: Event):
+        """A source's event for a unit, or (unit None) for every unit (their one connection's): kept in
+        each unit's run, and logged once, as the monitor's."""
+        for watch in watches:
+            watch.event(event, logged=unit is not None)
+        if unit is None:
+            self.tell(event)
+
+    def tell(self, event: Event, name: str | None = None):
+        """Log an event (of unit `name`, when given): of the late ones between two commits (a broker
+        delivering again what a killed monitor had not acknowledged: up to a batch), only the first."""
+        if event.kind == "late" and self.late_unlogged is not None:
+            self.late_unlogged += 1
+            return
+        self.late_unlogged = 0 if event.kind == "late" else self.late_unlogged
+        self.log(f"{name + ': ' if name else ''}{event.kind}: {event.tag + ': ' if event.tag else ''}{event.detail}")
 
     def step(self, least: int = 1):
         """Step the fleet's filter over the rows handed to it, a row of each unit that has one at a time,
@@ -311,6 +329,8 @@ class Watch:
         self.pending = collections.deque()  # rows for the fleet's filter
         self.previous = None  # the last finished row's estimate, for the next row's predictive band
         self.rows, self.position, self.resumed = 0, None, False
+        self.times = None  # how a source of rows writes their times (TimeFormat), once it says
+        self.timed = TIMES in run.options  # whether the run records that (an assembler's source: its own)
         self.samples, self.results, self.events = [], [], []
         self.dirty = False
         self.nan_sd = np.full(monitor.model.ny, np.nan)
@@ -366,20 +386,15 @@ class Watch:
         self.monitor.finished += 1
         self.previous = done.step
 
-    def event(self, event: Event):
-        """Keep an event for the next commit, and log it: of the late ones between two commits (a broker
-        delivering again what a killed monitor had not acknowledged: up to a batch), only the first."""
+    def event(self, event: Event, logged: bool = True):
+        """Keep an event for the next commit, and log it (unless `logged` is False: the monitor logs it)."""
         monitor = self.monitor
         self.events.append(event)
         self.dirty = True
         monitor.counts[event.kind] = monitor.counts.get(event.kind, 0) + 1
         self.since[event.kind] = self.since.get(event.kind, 0) + 1
-        if event.kind == "late" and monitor.late_unlogged is not None:
-            monitor.late_unlogged += 1
-            return
-        monitor.late_unlogged = 0 if event.kind == "late" else monitor.late_unlogged
-        monitor.log(f"{self.name + ': ' if self.name else ''}{event.kind}: {event.tag + ': ' if event.tag else ''}"
-                    f"{event.detail}")
+        if logged:
+            monitor.tell(event, self.name)
 
     def commit(self) -> Commit:
         """This unit's part of the next commit: its rows, results and events, and its state after them."""
@@ -387,8 +402,12 @@ class Watch:
         state = {"assembler": self.assembler, "previous": self.previous}
         if fleet is not None:
             state["filter"] = fleet.filter.state(self.index)
+        times = None
+        if not self.timed and self.samples:
+            times = self.times if self.assembler is None else self.assembler.times
+            self.timed = times is not None
         return Commit(self.run.id, self.samples, self.results, self.events, self.rows, self.diagnosis.checkpoint(),
-                      seal(state, MONITOR_STATE, MONITOR_KINDS), self.position)
+                      seal(state, MONITOR_STATE, MONITOR_KINDS), self.position, times)
 
 
 def unresumable(store, run, saved, reason) -> str:
@@ -434,7 +453,7 @@ def _open_run(store, model, spec, options, unit, new_run):
                                f"{run.plant!r}, fingerprint {run.model_sha256[:12]}) than this spec (plant "
                                f"{model.name!r}, fingerprint {model_sha[:12]}); give the spec it was "
                                f"started with, or --new-run to start a new run in the store")
-        for key in sorted(set(run.options) | set(options)):
+        for key in sorted(set(run.options) - {TIMES} | set(options)):  # TIMES: the store's own record
             if run.options.get(key) != _plain(options.get(key)):
                 raise MonitorError(f"the store {store.path} holds a run{whose} started with {key} "
                                    f"{run.options.get(key)!r}, not {options.get(key)!r}; restart it with "

@@ -60,24 +60,28 @@ class MqttSource:
         def hand(item, unit=None):
             put(item if self.units is None else (unit, item))
 
+        waits = Waits()
+
         def on_connect(client, userdata, flags, reason, properties):
             if reason.is_failure:
                 if reason.value in REFUSED:
                     client.disconnect()
                     hand(("fatal", bus.refused(self.name, "broker", reason)))
                 else:
-                    hand(("event", bus.unreachable(where, f"it refused the connection: {reason}")))
+                    hand(("event", bus.unreachable(where, f"it refused the connection: {reason}", waits.next())))
                 return
+            waits.connected()
             self.connected(client, flags, hand)
 
         def on_connect_fail(client, userdata):
             error = sys.exc_info()[1]  # paho calls this while it handles the connection's OSError
             fatal = bus.untrusted(self.name, self.port, error)
-            hand(("fatal", fatal) if fatal else ("event", bus.unreachable(where, error or "no answer")))
+            hand(("fatal", fatal) if fatal else
+                 ("event", bus.unreachable(where, error or "no answer", waits.next())))
 
         def on_disconnect(client, userdata, flags, reason, properties):
             if self.client is not None:
-                hand(("event", bus.lost(where, reason)))
+                hand(("event", bus.lost(where, closed(reason), waits.next())))
 
         def on_message(client, userdata, message):
             # Every message is handed on, as readings or as one `malformed` event, and so acknowledged
@@ -135,6 +139,31 @@ def _topic(message) -> str:
         return message.topic
     except UnicodeDecodeError:
         return "(not UTF-8 text)"
+
+
+class Waits:
+    """The waits of a paho client made by paho_client between its attempts to connect (1 s, doubling
+    to 30 s, from 1 s again once connected), so that an event can say when the next attempt is."""
+
+    def __init__(self):
+        self.connected()
+
+    def connected(self):
+        self._delays = bus.delays()
+
+    def next(self) -> float:
+        """The wait before the next attempt, after one that failed or a connection lost."""
+        return next(self._delays)
+
+
+def closed(reason) -> str:
+    """Why paho says a connection ended, in words: a connection the broker closed (a broker stopped
+    or restarted, a network that dropped it) is its 'Unspecified error'."""
+    if reason == "Unspecified error":
+        return "the broker closed the connection: it stopped or restarted, or the network between dropped it"
+    if reason == "Keep alive timeout":
+        return "no answer from the broker within the keep-alive time"
+    return str(reason)
 
 
 def paho_client(client_id: str, credentials, ca_file, clean_session: bool = True, tls: bool = False) -> mqtt.Client:

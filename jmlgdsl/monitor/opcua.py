@@ -108,7 +108,7 @@ class OpcuaSource:
             await self._wait(None, lost)
             await _disconnect(client)
             if lost:
-                put(("event", bus.lost(self.where, _why(lost[0]))))
+                put(("event", bus.lost(self.where, _why(lost[0]), 0)))
 
     async def _connect(self, client):
         if self.credentials is not None:

@@ -21,7 +21,7 @@ import time
 from . import bus
 from .assemble import Event
 from .fleet import PLACEHOLDER, for_unit
-from .mqtt import REFUSED, paho_client
+from .mqtt import REFUSED, Waits, closed, paho_client
 from .urls import address
 from ..errors import JmlgError
 
@@ -60,14 +60,17 @@ class MqttPublisher:
         def event(happened: Event):
             report(("event", Event("delivery", None, f"publish {self.name}: {happened.detail}"), None))
 
+        waits = Waits()
+
         def on_connect(client, userdata, flags, reason, properties):
             if reason.is_failure:
                 if reason.value in REFUSED:
                     client.disconnect()
                     report(("fatal", bus.refused(f"--publish {self.name}", "broker", reason, "--publish-"), None))
                 else:
-                    event(bus.unreachable(where, f"it refused the connection: {reason}"))
+                    event(bus.unreachable(where, f"it refused the connection: {reason}", waits.next()))
                 return
+            waits.connected()
             self.connected = True
             event(bus.connected(where, f"as {self.client_id}"))
 
@@ -77,12 +80,12 @@ class MqttPublisher:
             if fatal:
                 report(("fatal", fatal, None))
             else:
-                event(bus.unreachable(where, error or "no answer"))
+                event(bus.unreachable(where, error or "no answer", waits.next()))
 
         def on_disconnect(client, userdata, flags, reason, properties):
             self.connected = False
             if self.client is not None:
-                event(bus.lost(where, reason))
+                event(bus.lost(where, closed(reason), waits.next()))
 
         def on_publish(client, userdata, mid, reason, properties):
             self.acknowledged.put(mid)  # paho holds its own lock here: nothing more

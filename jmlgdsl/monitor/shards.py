@@ -17,6 +17,7 @@ ever resumes; `stop` ends every shard with a last commit.
 from __future__ import annotations
 
 import os
+import re
 import socket
 import threading
 from urllib.parse import urlsplit
@@ -28,6 +29,26 @@ from .databases import StoreError, is_url
 from .store import Store
 
 STOPPING = 30.0  # seconds the shards have to commit and end once stopped
+# Ray's message for the driver when a worker's process dies (Ray 2.x), with the fields said again
+DIED = re.compile(r"A worker died or was killed\b.*?Worker PID: (\d+).*?Worker exit type: (\w+)"
+                  r"(?:.*?Worker exit detail: (.*?)\.)?")
+RETRIED = re.compile(r"Task Shard\.run failed\. There are infinite retries remaining")  # ... a shard died
+
+
+def ray_told(log):
+    """Ray's messages for a fleet's monitor (jmlgdsl.cluster.connect's `report`), in its log's words: a
+    shard's process that died is one line that says what follows; that Ray tries the shard's task
+    again says nothing more; anything else is Ray's own text."""
+
+    def report(text):
+        died = DIED.search(text)
+        if died:
+            pid, kind, detail = died.groups()
+            log(f"a shard's process (pid {pid}) ended ({kind}{': ' + detail if detail else ''}); Ray starts it "
+                "again, and its units resume from their last commit")
+        elif not RETRIED.search(text):
+            log(f"ray: {text}")
+    return report
 
 
 def split(units: list, count: int) -> list[list]:
@@ -70,14 +91,33 @@ class Shard:
 
 def run_shards(ray, model, location: str, password: str | None, *, spec: str | None, options: dict, tags: dict,
                units: list, count: int, source: dict, new_run: bool = False,
-               stop: threading.Event | None = None, banks=None) -> list[Stopped]:
+               stop: threading.Event | None = None, banks=None) -> Stopped:
     """Monitor `units` in `count` shards on the joined Ray cluster until their data end or `stop` is
-    set; each shard's Stopped (of its last start). `source` holds open_bus's keywords; `banks` each
-    unit's own (model, spec text), as Monitor takes them."""
+    set; what they did, counted in the store (a shard that Ray started again returns the count of its
+    last start only). `source` holds open_bus's keywords; `banks` each unit's own (model, spec text),
+    as Monitor takes them."""
     banks = banks or [(model, spec)] * len(units)
     with Store(location, password=password) as store:  # every unit's run made or checked here, once
         name = open_bus(model=model, tags=tags, units=units, **source).name
-        open_runs(store, model, spec, recorded_options(model, options, name, tags), units, new_run, banks)
+        runs = open_runs(store, model, spec, recorded_options(model, options, name, tags), units, new_run, banks)
+        before, since = _rows(store, runs), store.newest_event()
+    parts = _shards(ray, model, location, password, spec, options, tags, units, count, source, stop, banks)
+    with Store(location, password=password, create=False) as store:
+        stored, events = _rows(store, runs), {}
+        for run in runs:
+            for kind, n in store.counts(run.id, after=since).items():
+                events[kind] = events.get(kind, 0) + n
+    return Stopped(tuple(run.id for run in runs), stored - before, stored, events, all(p.ended for p in parts))
+
+
+def _rows(store, runs) -> int:
+    """Rows diagnosed in the store's `runs`, all together."""
+    return sum(saved.rows for saved in map(store.saved, (run.id for run in runs)) if saved is not None)
+
+
+def _shards(ray, model, location, password, spec, options, tags, units, count, source, stop, banks) -> list[Stopped]:
+    """Run the shards until their data end or `stop` is set, each stopped with a last commit; each
+    shard's Stopped, of its last start."""
     # started again whenever its process dies, its run() made again there; stop() is taken while run() runs
     actor = ray.remote(max_restarts=-1, max_task_retries=-1, max_concurrency=2, num_cpus=1)(Shard)
     parts = split(list(range(len(units))), min(count, len(units)))

@@ -10,8 +10,9 @@ jmlgdsl/monitor/databases.py):
 
     run     id, started (UTC ISO time), version, plant, spec (the spec file's text), spec_sha256,
             model_sha256 (the compiled model's fingerprint), options (JSON: filter, alarm rule, lag,
-            source, ...), modes, states, outputs, inputs (JSON name lists), descriptions (JSON: mode
-            name -> the spec's description), units (JSON: name -> physical unit), unit (the unit of a
+            source, ...; `times`, how the source writes times, added with the first rows), modes,
+            states, outputs, inputs (JSON name lists), descriptions (JSON: mode name -> the spec's
+            description), units (JSON: name -> physical unit), unit (the unit of a
             fleet this run diagnoses, e.g. pump07; NULL for a monitor of one plant)
     sample  run, t, time, y, u, mode, anomaly, changepoint: every row diagnosed, as assembled
     result  run, t, map_mode, posterior, state_mean, y_pred, residual, ess, loglik, alarm: every
@@ -55,6 +56,7 @@ state was not saved, nor state ahead of its rows.
 from __future__ import annotations
 
 import csv
+import dataclasses
 import hashlib
 import json
 import math
@@ -64,6 +66,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from ..data import TimeFormat
 from ..infer.result import Step
 from ..infer.table import TableWriter
 from ..names import plural, spans
@@ -71,6 +74,7 @@ from ..version import VERSION
 from .databases import StoreError, connect
 
 SCHEMA_VERSION = 5
+TIMES = "times"  # the key of a run's options that records how its source writes times (TimeFormat)
 SCHEMA = """
 CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
 CREATE TABLE IF NOT EXISTS run (
@@ -122,6 +126,11 @@ class Run:
     units: dict  # name -> physical unit
     unit: str | None = None  # the unit of a fleet (None: a monitor of one plant)
 
+    @property
+    def times(self) -> TimeFormat:
+        """How the run's source writes its rows' times (seconds where the run records none)."""
+        return TimeFormat.from_json(self.options.get(TIMES))
+
 
 ACTIONS = ("acknowledge", "shelve", "unshelve")
 LONGEST = {"who": 100, "reason": 1000}  # characters of an action's name of who acts, and of its reason
@@ -164,6 +173,7 @@ class Commit:
     checkpoint: bytes
     monitor: bytes | None
     position: dict | None
+    times: TimeFormat | None = None  # how the source writes the rows' times, to record with the run's options
 
 
 @dataclass(frozen=True)
@@ -386,6 +396,11 @@ class Store:
     def _save(self, commit: Commit, at: str):
         run, samples, results, events = commit.run, commit.samples, commit.results, commit.events
         modes, vector = self._modes(run), self.db.vector
+        if commit.times is not None:
+            recorded = self._recorded(run)
+            options = dict(recorded.options, **{TIMES: commit.times.as_json()})
+            self.db.execute("UPDATE run SET options = ? WHERE id = ?", (json.dumps(options, sort_keys=True), run))
+            self._runs[run] = dataclasses.replace(recorded, options=options)
         self.db.executemany("INSERT INTO sample VALUES (?,?,?,?,?,?,?,?)", [
             (run, t, row.time, vector(row.y), vector(row.u), None if row.mode is None else modes[row.mode],
              row.anomaly, row.changepoint) for t, row in samples])
@@ -467,7 +482,8 @@ class Store:
         return self._recorded(run).modes
 
     def _recorded(self, run) -> Run:
-        """A run as recorded (it does not change once begun), read once."""
+        """A run as recorded, read once (it does not change once begun, but for the record of how its
+        source writes times, which its first rows' commit adds)."""
         if run not in self._runs:
             self._runs[run] = self.run(run)
         return self._runs[run]
@@ -476,9 +492,14 @@ class Store:
         return _Transaction(self.db)
 
     # ------------------------------------------------------------------ reading back
-    def counts(self, run: int) -> dict:
-        """{kind: number} of a run's events."""
-        return dict(self.db.execute("SELECT kind, count(*) FROM event WHERE run = ? GROUP BY kind", (run,)))
+    def counts(self, run: int, after: int = 0) -> dict:
+        """{kind: number} of a run's events (of those after the event of id `after`, when given)."""
+        return dict(self.db.execute("SELECT kind, count(*) FROM event WHERE run = ? AND id > ? GROUP BY kind",
+                                    (run, after)))
+
+    def newest_event(self) -> int:
+        """The id of the newest event in the store (0 for none): what comes after it is newer."""
+        return self.db.execute("SELECT coalesce(max(id), 0) FROM event").fetchone()[0]
 
     def write_table(self, run: Run, stream) -> Exported:
         """The result table of a run's finished rows, as `jmlgdsl run -o` writes it for the same rows;
@@ -503,10 +524,10 @@ class Store:
         return exported
 
     def write_samples(self, run: Run, stream) -> Exported:
-        """The rows a run diagnosed as a data file (`time`, outputs, inputs and the labels they carry),
-        every number in its shortest exact form, so `jmlgdsl run` on it diagnoses the same rows; rows
-        that cannot be read (a damaged store) are left out and named."""
-        exported, writer = Exported(0, []), None
+        """The rows a run diagnosed as a data file (their times as the source wrote them, outputs,
+        inputs and the labels they carry), every number in its shortest exact form, so `jmlgdsl run` on
+        it diagnoses the same rows; rows that cannot be read (a damaged store) are left out and named."""
+        exported, writer, times = Exported(0, []), None, run.times
         query = "SELECT t, time, y, u, mode, anomaly, changepoint FROM sample WHERE run = ? AND t > ? ORDER BY t"
         ny, nu, unvector = len(run.outputs), len(run.inputs), self.db.unvector
         labels = [name for name in ("mode", "anomaly", "changepoint") if self._labelled(run, name)]
@@ -517,14 +538,16 @@ class Store:
             if not (known["mode"] is None or known["mode"] in run.modes) or not all(
                     known[name] in (None, 0, 1) for name in ("anomaly", "changepoint")):
                 raise ValueError("labels that are not a mode's name or 0/1")
-            return _time(time), [_cell(v) for v in np.concatenate([unvector(y, ny), unvector(u, nu)])] + [
-                "" if known[name] is None else known[name] for name in labels]
+            time = _time(time)
+            values = [_cell(v) for v in np.concatenate([unvector(y, ny), unvector(u, nu)])]
+            return (None if time is None or time != time else times.write(time),
+                    values + ["" if known[name] is None else known[name] for name in labels])
 
         for time, row in self.readable(query, run, cells, exported.damaged):
             if writer is None:
                 writer, timed = csv.writer(stream, lineterminator="\n"), time is not None
-                writer.writerow((["time"] if timed else []) + run.outputs + run.inputs + labels)
-            writer.writerow(([repr(time)] if timed else []) + row)
+                writer.writerow(([times.column] if timed else []) + run.outputs + run.inputs + labels)
+            writer.writerow(([time] if timed else []) + row)
             exported = exported._replace(rows=exported.rows + 1)
         return exported
 
