@@ -1,5 +1,6 @@
-"""Sealed state: sealed state as data only, with a checksum; the bytes a checkpoint is kept in, which reading back can never make
-run code (a store that others can write, a copied file, is no way into the process that resumes).
+"""Sealed state: the bytes a checkpoint is kept in, data only and with a checksum, so that reading
+them back can never run code (a store that others can write, or a copied file, is no way into the
+process that resumes).
 
 What is saved is a tree of numbers, strings, None, lists, tuples, dicts, sets, deques, slices,
 bytes, numeric numpy arrays and scalars, numpy random generators (their bit generator's state) and
