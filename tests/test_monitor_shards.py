@@ -223,8 +223,7 @@ def test_a_monitor_killed_with_sigkill_leaves_no_process_of_its_local_ray(tmp_pa
     try:
         until(lambda: rows_of(store, "p2") == 50, "unit p2's rows", monitor)
         started = descendants(monitor.pid)
-        agents = [pid for pid in started if open(f"/proc/{pid}/cmdline", "rb").read().startswith(b"ray::")]
-        assert len(agents) >= 3  # the dashboard and runtime-env agents and the shard, at least
+        assert len(started) >= 3  # Ray's own processes (its servers, raylet and agents) and the shard, at least
     finally:
         monitor.kill()
         monitor.communicate()
