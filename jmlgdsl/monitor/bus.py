@@ -1,5 +1,6 @@
-"""What the data-bus sources (MQTT, OPC UA) share: the events of their connection, the growing delay
-between attempts to connect, and the message of a refused password.
+"""What the data-bus sources (MQTT, OPC UA) and the sinks of the conclusions share: the events of
+their connection, the growing delay between attempts to connect, the message of a refused password,
+and the draining of what their threads hand over.
 
 A bus source hands the monitor `put(("readings", [(name, value, time or None)], arrival, token))`
 (a time in seconds, or a datetime where the source writes clock times), `put(("malformed", message,
@@ -9,6 +10,7 @@ the monitor calls `acknowledge(tokens)` after the commit that holds them and `st
 
 from __future__ import annotations
 
+import queue
 import ssl
 
 from .assemble import Event
@@ -22,6 +24,17 @@ def delays():
     while True:
         yield delay
         delay = min(2 * delay, LAST_RETRY)
+
+
+def drained(waiting: queue.Queue | queue.SimpleQueue) -> list:
+    """Everything a queue holds now, oldest first, without waiting for more (what a connection's
+    thread or a sink's worker put there for the monitor's thread)."""
+    items = []
+    while True:
+        try:
+            items.append(waiting.get_nowait())
+        except queue.Empty:
+            return items
 
 
 def connected(where: str, detail: str) -> Event:

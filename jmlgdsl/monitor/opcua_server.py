@@ -51,6 +51,7 @@ from asyncua.server.internal_server import InternalServer
 from asyncua.server.internal_session import InternalSession
 
 from ..errors import JmlgError
+from . import bus
 from .assemble import Event
 from .databases import StoreError
 from .opcua import security_options
@@ -118,12 +119,7 @@ class OpcuaServer:
         self.loop.call_soon_threadsafe(self.wake.set)
 
     def delivered(self) -> list:
-        done = []
-        while True:
-            try:
-                done.append(self.done.get_nowait())
-            except queue.Empty:
-                return done
+        return bus.drained(self.done)
 
     def stop(self, wait: float):
         """Apply what was handed for up to `wait` seconds, then stop the server."""

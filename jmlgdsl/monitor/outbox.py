@@ -36,6 +36,7 @@ import dataclasses
 import json
 import queue
 
+from . import bus
 from .store import row_state
 
 
@@ -128,13 +129,8 @@ class Outbox:
         """What the sinks reported since the last call, as the monitor takes a source's items: [(index
         of the unit in `runs` or None for every unit, ("event", Event) or ("fatal", message))]; and the
         delivery marks that moved, as (sink, run, t, action) for Store.save."""
-        items = []
-        while True:
-            try:
-                report = self.reports.get_nowait()
-            except queue.Empty:
-                break
-            items.append((self.index.get(report[2]) if report[0] == "event" else None, report[:2]))
+        items = [(self.index.get(report[2]) if report[0] == "event" else None, report[:2])
+                 for report in bus.drained(self.reports)]
         return items, [mark for feed in self.feeds for mark in feed.confirmed()]
 
     def hand(self, moved=()):

@@ -110,11 +110,7 @@ class MqttPublisher:
 
     def _take(self):
         """Move what the broker acknowledged from `sent` to `done`."""
-        while True:
-            try:
-                mid = self.acknowledged.get_nowait()
-            except queue.Empty:
-                return
+        for mid in bus.drained(self.acknowledged):
             if mid in self.sent:
                 self.done.append(self.sent.pop(mid))
 

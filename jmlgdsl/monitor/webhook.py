@@ -64,12 +64,7 @@ class Webhook:
         self.waiting.put(conclusion)
 
     def delivered(self) -> list:
-        done = []
-        while True:
-            try:
-                done.append(self.done.get_nowait())
-            except queue.Empty:
-                return done
+        return bus.drained(self.done)
 
     def stop(self, wait: float):
         """Let the thread post what waits for up to `wait` seconds (none while the receiver fails), then end it."""
