@@ -160,14 +160,14 @@ def main(args) -> int:
                   ca_file=args.ca_file, security=args.security, certificate=args.certificate,
                   private_key=args.private_key, reorder=args.reorder_timeout)
     source = open_bus(model=model, tags=tags, units=units, **recipe)  # refuses a bad source before anything starts
-    for sink, what, options in (
+    for sink, what, companions in (
             ("publish", "the --publish broker",
              ("publish_username", "publish_password_env", "publish_password_file", "publish_ca_file")),
             ("notify", "the --notify webhook", ("notify_token_env", "notify_token_file")),
             ("opcua_server", "the --opcua-server", ("opcua_server_username", "opcua_server_password_env",
                                                     "opcua_server_password_file", "opcua_server_security",
                                                     "opcua_server_certificate", "opcua_server_private_key"))):
-        for option in options:
+        for option in companions:
             if getattr(args, option) is not None and getattr(args, sink) is None:
                 raise JmlgError(f"--{option.replace('_', '-')} is for {what}: give --{sink.replace('_', '-')}")
     given = [option for option in ("publish", "notify", "opcua_server") if getattr(args, option)]
