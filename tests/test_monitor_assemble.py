@@ -10,7 +10,7 @@ from conftest import ROOT
 
 import jmlgdsl
 from jmlgdsl.monitor import Assembler, TagError, read_tags
-from jmlgdsl.monitor.payload import Malformed, decode
+from jmlgdsl.monitor.sources.payload import Malformed, decode
 
 MODEL = jmlgdsl.load(ROOT / "specs" / "dryer.jmlg")  # output temp, input current (default 15), 1 s
 

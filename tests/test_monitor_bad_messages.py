@@ -15,7 +15,7 @@ from monitor_servers import expected_table, exported, samples
 
 import jmlgdsl
 from jmlgdsl.monitor import Monitor, Store, monitor_options, read_tags
-from jmlgdsl.monitor.payload import Malformed, decode
+from jmlgdsl.monitor.sources.payload import Malformed, decode
 
 MODEL = jmlgdsl.load(ROOT / "specs" / "dryer.jmlg")
 NAMES = ["temp", "current"]

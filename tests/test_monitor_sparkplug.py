@@ -27,9 +27,9 @@ from jmlgdsl.cli import main
 paho = pytest.importorskip("paho.mqtt.client")
 pytest.importorskip("google.protobuf")
 
-from jmlgdsl.monitor.payload import Malformed  # noqa: E402
-from jmlgdsl.monitor.sparkplug import Sequence  # noqa: E402
-from jmlgdsl.monitor.sparkplug_b import (BOOLEAN, DOUBLE, INT8, INT64, STRING, UINT64, Metric, Payload,  # noqa: E402
+from jmlgdsl.monitor.sources.payload import Malformed  # noqa: E402
+from jmlgdsl.monitor.sources.sparkplug import Sequence  # noqa: E402
+from jmlgdsl.monitor.sources.sparkplug_b import (BOOLEAN, DOUBLE, INT8, INT64, STRING, UINT64, Metric, Payload,  # noqa: E402
                                          decode, encode, reading)
 
 ROWS = [line.split(",") for line in LINES[1:]]  # time, current, temp, mode, temp_true
@@ -323,7 +323,7 @@ def test_a_metric_two_devices_declare_historical_readings_by_arrival_and_unknown
 
     import jmlgdsl
     from jmlgdsl.monitor import read_tags
-    from jmlgdsl.monitor.sparkplug import SparkplugSource
+    from jmlgdsl.monitor.sources.sparkplug import SparkplugSource
 
     tags = tmp_path / "tags.toml"
     tags.write_text('[tags.current]\ntime = "arrival"\n')
@@ -366,7 +366,7 @@ def test_without_protobuf_the_source_says_what_to_install(monkeypatch):
     from jmlgdsl.monitor.sources import open_bus
 
     monkeypatch.setitem(sys.modules, "google.protobuf", None)  # as if it were not installed
-    for name in ("jmlgdsl.monitor.sparkplug", "jmlgdsl.monitor.sparkplug_b"):
+    for name in ("jmlgdsl.monitor.sources.sparkplug", "jmlgdsl.monitor.sources.sparkplug_b"):
         monkeypatch.delitem(sys.modules, name)
     model = jmlgdsl.load(SPEC)
     with pytest.raises(JmlgError, match=r"a Sparkplug B source needs the protobuf package: pip install "

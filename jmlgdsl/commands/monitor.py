@@ -122,7 +122,7 @@ def main(args) -> int:
 
     from ..monitor import Monitor, Store, monitor_options, read_tags
     from ..monitor.fleet import unit_names
-    from ..monitor.outbox import open_sinks
+    from ..monitor.sinks.outbox import open_sinks
     from ..monitor.sources import credentials, open_bus, secret
     from ..diagnosis.prefilter import parse
     from ..errors import JmlgError

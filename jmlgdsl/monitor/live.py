@@ -25,8 +25,8 @@ from ..infer import DEFAULT_ALGORITHM
 from ..infer.result import Step
 from ..infer.units import Stacked
 from ..errors import JmlgError
-from .assemble import Assembler, Event
-from .outbox import Outbox
+from .rows import Assembler, Event
+from .sinks.outbox import Outbox
 from .store import TIMES, Commit, Store
 from ..version import VERSION
 

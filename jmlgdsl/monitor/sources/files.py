@@ -12,9 +12,9 @@ from __future__ import annotations
 import sys
 import threading
 
-from ..data import iter_rows
-from ..errors import DataError
-from .assemble import Event
+from ...data import iter_rows
+from ...errors import DataError
+from ..rows import Event
 
 POLL = 0.05  # seconds between looks at a followed file that has not grown
 

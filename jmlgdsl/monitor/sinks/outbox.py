@@ -2,8 +2,8 @@
 `--opcua-server`), read back from the store after each commit: the store is the outbox, so nothing
 is sent that a crash could take back, and nothing committed is lost to a crash.
 
-**The sink contract.** A sink (jmlgdsl.monitor.publish's MQTT publisher, jmlgdsl.monitor.webhook's
-webhook, jmlgdsl.monitor.opcua_server's OPC UA server; another later) is an object with
+**The sink contract.** A sink (jmlgdsl.monitor.sinks.publish's MQTT publisher, jmlgdsl.monitor.sinks.webhook's
+webhook, jmlgdsl.monitor.sinks.opcua_server's OPC UA server; another later) is an object with
 
     name            the key of its delivery marks in the store (no secret in it) and of its events
     takes_states    True: every row's state and every alarm transition; False: the transitions only
@@ -36,8 +36,8 @@ import dataclasses
 import json
 import queue
 
-from . import bus
-from .store import row_state
+from ..sources import bus
+from ..store import row_state
 
 
 TRANSITIONS = {"acknowledge": "acknowledged", "shelve": "shelved", "unshelve": "unshelved"}  # an action's name
@@ -65,7 +65,7 @@ def open_sinks(*, publish: str | None = None, notify: str | None = None, opcua_s
                server: dict | None = None) -> list:
     """The sinks --publish (an MQTT broker, with its credentials and certificate authority; its client
     id `client_id`-publish), --notify (a webhook, with its bearer token) and --opcua-server (an OPC UA
-    server, with `server` the keywords of jmlgdsl.monitor.opcua_server.OpcuaServer) name, not yet
+    server, with `server` the keywords of jmlgdsl.monitor.sinks.opcua_server.OpcuaServer) name, not yet
     started."""
     sinks = []
     if publish is not None:

@@ -45,9 +45,9 @@ import json
 import threading
 import time
 
-from ..errors import JmlgError
+from ...errors import JmlgError
 from . import bus
-from .assemble import Event
+from ..rows import Event
 from .mqtt import MqttSource
 from .payload import Malformed
 from .sparkplug_b import BOOLEAN, Metric, Payload, decode, encode, reading
@@ -132,7 +132,7 @@ class _Node:
 
 
 class SparkplugSource(MqttSource):
-    """Sparkplug B edge nodes' metrics as readings (the protocol of jmlgdsl.monitor.bus); nothing to
+    """Sparkplug B edge nodes' metrics as readings (the protocol of jmlgdsl.monitor.sources.bus); nothing to
     acknowledge. `host_id` is the host application's id, also its MQTT client id; `reorder` the
     seconds a gap in a node's seq numbers waits for its messages."""
 

@@ -1,9 +1,9 @@
 """Which source a --source URL names, and the password a source uses (never from the command line).
 
-    path/to/data.csv, -              CsvSource (jmlgdsl.monitor.follow)
-    mqtt://HOST:PORT/PREFIX          MqttSource (jmlgdsl.monitor.mqtt); mqtts:// over TLS
-    opc.tcp://HOST:PORT/PATH         OpcuaSource (jmlgdsl.monitor.opcua)
-    sparkplug://HOST:PORT/GROUP/...  SparkplugSource (jmlgdsl.monitor.sparkplug); sparkplugs:// over TLS
+    path/to/data.csv, -              CsvSource (jmlgdsl.monitor.sources.files)
+    mqtt://HOST:PORT/PREFIX          MqttSource (jmlgdsl.monitor.sources.mqtt); mqtts:// over TLS
+    opc.tcp://HOST:PORT/PATH         OpcuaSource (jmlgdsl.monitor.sources.opcua)
+    sparkplug://HOST:PORT/GROUP/...  SparkplugSource (jmlgdsl.monitor.sources.sparkplug); sparkplugs:// over TLS
 
 and, for the units of a fleet, the same with {unit} in them (jmlgdsl.monitor.fleet).
 """
@@ -13,9 +13,9 @@ from __future__ import annotations
 import os
 from urllib.parse import urlsplit
 
-from ..errors import JmlgError
-from .fleet import PLACEHOLDER, FleetError, UnitSources, for_unit, unit_tags
-from .follow import CsvSource
+from ...errors import JmlgError
+from ..fleet import PLACEHOLDER, FleetError, UnitSources, for_unit, unit_tags
+from .files import CsvSource
 
 
 def credentials(username: str | None, env: str | None, path: str | None,

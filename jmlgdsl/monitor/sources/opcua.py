@@ -29,7 +29,7 @@ from datetime import datetime, timezone
 from asyncua import Client, ua
 from asyncua.crypto import security_policies
 
-from ..errors import JmlgError
+from ...errors import JmlgError
 from . import bus
 from .payload import Malformed, number
 from .tags import TagError
@@ -53,7 +53,7 @@ class Stop(Exception):
 
 
 class OpcuaSource:
-    """A server's data changes as readings (the protocol of jmlgdsl.monitor.bus); nothing to
+    """A server's data changes as readings (the protocol of jmlgdsl.monitor.sources.bus); nothing to
     acknowledge. `security`: "POLICY,MODE" (e.g. "Basic256Sha256,SignAndEncrypt") with the client's
     `certificate` and `private_key` files."""
 

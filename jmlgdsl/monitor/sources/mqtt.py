@@ -19,7 +19,7 @@ import time
 import paho.mqtt.client as mqtt
 
 from . import bus
-from .fleet import PLACEHOLDER, for_unit, unit_tags
+from ..fleet import PLACEHOLDER, for_unit, unit_tags
 from .payload import Malformed, decode
 from .urls import address
 

@@ -1,5 +1,5 @@
 """The monitor's conclusions published on an MQTT broker (`monitor --publish mqtt://HOST:PORT/PREFIX`,
-or mqtts:// over TLS): a sink of jmlgdsl.monitor.outbox, on a connection of its own (client id the
+or mqtts:// over TLS): a sink of jmlgdsl.monitor.sinks.outbox, on a connection of its own (client id the
 source's with -publish, a clean session):
 
     PREFIX/state    each diagnosed row's state, retained (a subscriber that comes later is sent the latest)
@@ -18,19 +18,19 @@ import queue
 import sys
 import time
 
-from . import bus
-from .assemble import Event
-from .fleet import PLACEHOLDER, for_unit
-from .mqtt import REFUSED, Waits, closed, paho_client
-from .urls import address
-from ..errors import JmlgError
+from ..sources import bus
+from ..rows import Event
+from ..fleet import PLACEHOLDER, for_unit
+from ..sources.mqtt import REFUSED, Waits, closed, paho_client
+from ..sources.urls import address
+from ...errors import JmlgError
 
 WINDOW = 1_000  # messages sent and not yet acknowledged by the broker, at most (the rest wait in the store)
 TOPICS = {"state": "state", "transition": "alarm"}  # a conclusion's kind -> the last level of its topic
 
 
 class MqttPublisher:
-    """A sink (jmlgdsl.monitor.outbox) that publishes each conclusion on an MQTT broker."""
+    """A sink (jmlgdsl.monitor.sinks.outbox) that publishes each conclusion on an MQTT broker."""
 
     takes_states = True
 

@@ -13,7 +13,7 @@ from __future__ import annotations
 import queue
 import ssl
 
-from .assemble import Event
+from ..rows import Event
 
 FIRST_RETRY, LAST_RETRY = 1.0, 30.0  # seconds between connection attempts: doubling from the first to the last
 
