@@ -123,7 +123,8 @@ def main(args) -> int:
     from ..monitor import Monitor, Store, monitor_options, read_tags
     from ..monitor.fleet import unit_names
     from ..monitor.sinks.outbox import open_sinks
-    from ..monitor.sources import credentials, open_bus, secret
+    from ..monitor.sources import Connection, open_source
+    from ..monitor.sources.bus import credentials, secret
     from ..diagnosis.prefilter import parse
     from ..errors import JmlgError
     from ..names import plural
@@ -155,11 +156,11 @@ def main(args) -> int:
         print(f"monitor: unit specs for {len(units) - len(missing)} of {plural(len(units), 'unit')} from "
               f"{args.unit_specs}" + (f"; {', '.join(missing)} with {args.spec}" if missing else ""),
               file=sys.stderr, flush=True)
-    recipe = dict(url=args.source, follow=not args.no_follow, client_id=args.client_id,
-                  credentials=credentials(args.username, args.password_env, args.password_file),
-                  ca_file=args.ca_file, security=args.security, certificate=args.certificate,
-                  private_key=args.private_key, reorder=args.reorder_timeout)
-    source = open_bus(model=model, tags=tags, units=units, **recipe)  # refuses a bad source before anything starts
+    recipe = Connection(args.source, follow=not args.no_follow, client_id=args.client_id,
+                        credentials=credentials(args.username, args.password_env, args.password_file),
+                        ca_file=args.ca_file, security=args.security, certificate=args.certificate,
+                        private_key=args.private_key, reorder=args.reorder_timeout)
+    source = open_source(recipe, model, tags, units)  # refuses a bad source before anything starts
     for sink, what, companions in (
             ("publish", "the --publish broker",
              ("publish_username", "publish_password_env", "publish_password_file", "publish_ca_file")),

@@ -19,7 +19,8 @@ state, and acknowledges them to the source only after that commit.
     (1000, True, '1000,1000,fan,4.15205481e-05,0')
 """
 
-from .rows import Assembler, Event
+from .rows import Assembler
+from .sources.contract import Event
 from .sources.files import CsvSource
 from .live import Monitor, MonitorError, Stopped, monitor_options
 from .store import Store, StoreError

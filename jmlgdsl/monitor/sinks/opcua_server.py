@@ -52,7 +52,7 @@ from asyncua.server.internal_session import InternalSession
 
 from ...errors import JmlgError
 from ..sources import bus
-from ..rows import Event
+from ..sources.contract import Event, Fatal
 from ..databases import StoreError
 from ..sources.opcua import security_options
 from ..store import LONGEST, Store, row_state
@@ -143,17 +143,16 @@ class OpcuaServer:
         try:
             server = await self._open()
         except (OSError, StoreError, ua.UaError, asyncio.TimeoutError) as exc:
-            report(("fatal", f"--opcua-server {self.name}: cannot serve ({getattr(exc, 'strerror', None) or exc})",
-                    None))
+            report(Fatal(f"--opcua-server {self.name}: cannot serve ({getattr(exc, 'strerror', None) or exc})"))
         except Exception as exc:  # what the thread would otherwise take with it unseen
-            report(("fatal", f"--opcua-server {self.name}: cannot serve ({type(exc).__name__}: {exc})", None))
+            report(Fatal(f"--opcua-server {self.name}: cannot serve ({type(exc).__name__}: {exc})"))
         if server is None:
             if self.store is not None:
                 self.store.close()
             return
-        report(("event", Event("delivery", None, f"opcua-server {self.name}: serving {len(self.served)} "
-                                                 f"unit{'s' * (len(self.served) != 1)}, security "
-                                                 f"{','.join(self.security[:2]) if self.security else 'None'}"), None))
+        report(Event("delivery", None, f"opcua-server {self.name}: serving {len(self.served)} "
+                                       f"unit{'s' * (len(self.served) != 1)}, security "
+                                       f"{','.join(self.security[:2]) if self.security else 'None'}"))
         try:
             while not self.closing:
                 await self.wake.wait()
@@ -164,7 +163,7 @@ class OpcuaServer:
                     self.applied += 1
                     self.done.put(conclusion)
         except Exception as exc:  # what the thread would otherwise take with it unseen
-            report(("fatal", f"--opcua-server {self.name}: stopped serving ({type(exc).__name__}: {exc})", None))
+            report(Fatal(f"--opcua-server {self.name}: stopped serving ({type(exc).__name__}: {exc})"))
         finally:
             await server.stop()
             self.store.close()

@@ -7,10 +7,10 @@ webhook, jmlgdsl.monitor.sinks.opcua_server's OPC UA server; another later) is a
 
     name            the key of its delivery marks in the store (no secret in it) and of its events
     takes_states    True: every row's state and every alarm transition; False: the transitions only
-    start(report)   connect, in threads of its own; report(("event", Event, run or None)) tells what
-                    befell its delivery (an event of that run, or of every run), report(("fatal",
-                    message, None)) what trying again cannot mend; `report` may be called from any
-                    thread
+    start(report)   connect, in threads of its own; report(Event, run) tells what befell its
+                    delivery (an event of that run; without a run, of every run), report(Fatal(message))
+                    what trying again cannot mend (jmlgdsl.monitor.sources.contract's items, as the
+                    monitor takes a source's); `report` may be called from any thread
     room()          how many more conclusions it takes now (its queue is bounded: the rest wait in
                     the store)
     send(c)         take a Conclusion, in order; never waits for the far side
@@ -117,7 +117,11 @@ class Outbox:
         if fresh:
             self.store.save([], fresh)
         for sink in self.sinks:
-            sink.start(self.reports.put)
+            sink.start(self._report)
+
+    def _report(self, item, run: int | None = None):
+        """A sink's report (an Event or a Fatal, of a run or of every run), from any thread."""
+        self.reports.put((item, run))
 
     def _end(self, run) -> tuple:
         """(newest row t, newest action id) of a run in the store."""
@@ -127,10 +131,9 @@ class Outbox:
 
     def collect(self) -> tuple[list, list]:
         """What the sinks reported since the last call, as the monitor takes a source's items: [(index
-        of the unit in `runs` or None for every unit, ("event", Event) or ("fatal", message))]; and the
-        delivery marks that moved, as (sink, run, t, action) for Store.save."""
-        items = [(self.index.get(report[2]) if report[0] == "event" else None, report[:2])
-                 for report in bus.drained(self.reports)]
+        of the unit in `runs` or None for every unit, an Event or a Fatal)]; and the delivery marks
+        that moved, as (sink, run, t, action) for Store.save."""
+        items = [(self.index.get(run), item) for item, run in bus.drained(self.reports)]
         return items, [mark for feed in self.feeds for mark in feed.confirmed()]
 
     def hand(self, moved=()):

@@ -19,7 +19,7 @@ import sys
 import time
 
 from ..sources import bus
-from ..rows import Event
+from ..sources.contract import Event, Fatal
 from ..fleet import PLACEHOLDER, for_unit
 from ..sources.mqtt import REFUSED, Waits, closed, paho_client
 from ..sources.urls import address
@@ -58,7 +58,7 @@ class MqttPublisher:
         where = f"{self.host}:{self.port}"
 
         def event(happened: Event):
-            report(("event", Event("delivery", None, f"publish {self.name}: {happened.detail}"), None))
+            report(Event("delivery", None, f"publish {self.name}: {happened.detail}"))
 
         waits = Waits()
 
@@ -66,7 +66,7 @@ class MqttPublisher:
             if reason.is_failure:
                 if reason.value in REFUSED:
                     client.disconnect()
-                    report(("fatal", bus.refused(f"--publish {self.name}", "broker", reason, "--publish-"), None))
+                    report(Fatal(bus.refused(f"--publish {self.name}", "broker", reason, "--publish-")))
                 else:
                     event(bus.unreachable(where, f"it refused the connection: {reason}", waits.next()))
                 return
@@ -78,7 +78,7 @@ class MqttPublisher:
             error = sys.exc_info()[1]  # paho calls this while it handles the connection's OSError
             fatal = bus.untrusted(f"--publish {self.name}", self.port, error, "--publish-ca-file")
             if fatal:
-                report(("fatal", fatal, None))
+                report(Fatal(fatal))
             else:
                 event(bus.unreachable(where, error or "no answer", waits.next()))
 

@@ -20,7 +20,7 @@ import urllib.request
 from urllib.parse import urlsplit
 
 from ..sources import bus
-from ..rows import Event
+from ..sources.contract import Event
 from ...errors import JmlgError
 from ...version import VERSION
 
@@ -86,15 +86,15 @@ class Webhook:
                     break
                 failures, delay = failures + 1, next(delays)
                 self.failing = True
-                report(("event", Event("delivery", None, f"notify {self.name}: alarm {conclusion.body['alarm']} "
-                                                         f"{conclusion.body['transition']}: {why}; trying again in "
-                                                         f"{delay:g} s"), conclusion.run))
+                report(Event("delivery", None, f"notify {self.name}: alarm {conclusion.body['alarm']} "
+                                               f"{conclusion.body['transition']}: {why}; trying again in {delay:g} s"),
+                       conclusion.run)
                 if self.closing.wait(delay):
                     return
             if failures:
                 self.failing = False
-                report(("event", Event("delivery", None, f"notify {self.name}: delivered after {failures} failed "
-                                                         f"attempt{'s' * (failures > 1)}"), conclusion.run))
+                report(Event("delivery", None, f"notify {self.name}: delivered after {failures} failed "
+                                               f"attempt{'s' * (failures > 1)}"), conclusion.run)
             self.done.put(conclusion)
 
     def _post(self, conclusion) -> str | None:

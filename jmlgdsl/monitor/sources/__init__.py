@@ -1,114 +1,90 @@
-"""Which source a --source URL names, and the password a source uses (never from the command line).
+"""The sources of a live monitor, one module per protocol, each behind the one contract of
+`contract` (the items a source hands over, and what the monitor asks of it), found by the scheme
+of the --source URL:
 
-    path/to/data.csv, -              CsvSource (jmlgdsl.monitor.sources.files)
-    mqtt://HOST:PORT/PREFIX          MqttSource (jmlgdsl.monitor.sources.mqtt); mqtts:// over TLS
-    opc.tcp://HOST:PORT/PATH         OpcuaSource (jmlgdsl.monitor.sources.opcua)
-    sparkplug://HOST:PORT/GROUP/...  SparkplugSource (jmlgdsl.monitor.sources.sparkplug); sparkplugs:// over TLS
+    path/to/data.csv, -              files: a CSV file followed as it grows, or standard input
+    mqtt://HOST:PORT/PREFIX          mqtt: an MQTT broker's topics; mqtts:// over TLS
+    opc.tcp://HOST:PORT/PATH         opcua: an OPC UA server's nodes
+    sparkplug://HOST:PORT/GROUP/...  sparkplug: Sparkplug B edge nodes; sparkplugs:// over TLS
+    udp://HOST:PORT                  udp: datagrams sent to HOST:PORT
 
-and, for the units of a fleet, the same with {unit} in them (jmlgdsl.monitor.fleet).
+and, for the units of a fleet, the same with {unit} in them (jmlgdsl.monitor.fleet). A new source
+is a module with `open_source(connection, model, tags, units)` and its line in SCHEMES.
 """
 
 from __future__ import annotations
 
-import os
+import importlib
+from dataclasses import dataclass
 from urllib.parse import urlsplit
 
 from ...errors import JmlgError
-from ..fleet import PLACEHOLDER, FleetError, UnitSources, for_unit, unit_tags
-from .files import CsvSource
 
 
-def credentials(username: str | None, env: str | None, path: str | None,
-                options: str = "--") -> tuple[str, str] | None:
-    """(user name, password) from --username and the password's environment variable or file (or the
-    options that begin with `options` instead, e.g. --publish-username); None without a user name.
-    The password is read here and never shown."""
-    password = secret(f"{options[2:]}password", env, path)
-    if username is None:
-        if password is not None:
-            raise JmlgError(f"{options}password-{'env' if env else 'file'}: a password needs {options}username")
-        return None
-    return username, password or ""
+@dataclass(frozen=True)
+class Connection:
+    """How to reach a source: its URL (or file, or -) and the connection's options, None where not
+    given; `shard`: the index of a fleet's shard that opens it (each shard's session its own)."""
+
+    url: str
+    follow: bool = True  # a CSV file: followed as it grows
+    client_id: str | None = None
+    credentials: tuple[str, str] | None = None  # (user name, password): jmlgdsl.monitor.sources.bus.credentials
+    ca_file: str | None = None
+    security: str | None = None  # OPC UA's POLICY,MODE, with the client's certificate and private key
+    certificate: str | None = None
+    private_key: str | None = None
+    reorder: float | None = None  # Sparkplug B: seconds a gap in a node's seq numbers waits
+    shard: int | None = None
 
 
-def secret(what: str, env: str | None, path: str | None) -> str | None:
-    """A secret from the environment variable --WHAT-env names or the first line of the file --WHAT-file
-    names (never from the command line, where the process list shows it); None without either."""
-    if env and path:
-        raise JmlgError(f"--{what}-env and --{what}-file: give one of them")
-    if env:
-        if env not in os.environ:
-            raise JmlgError(f"--{what}-env: the environment variable {env} is not set")
-        return os.environ[env]
-    if path:
-        try:
-            with open(path, encoding="utf-8") as stream:
-                return stream.readline().rstrip("\r\n")
-        except OSError as exc:
-            raise JmlgError(f"--{what}-file: cannot read {path}: {exc.strerror}") from None
-        except UnicodeDecodeError:
-            raise JmlgError(f"--{what}-file: {path} is not UTF-8 text") from None
-    return None
+# the connection's options, as the command line names them -> their field of Connection
+OPTIONS = {"--username": "credentials", "--client-id": "client_id", "--ca-file": "ca_file", "--security": "security",
+           "--certificate": "certificate", "--private-key": "private_key", "--reorder-timeout": "reorder"}
 
 
-def open_bus(url: str, model, tags, *, follow: bool = True, client_id: str | None = None, credentials=None,
-             ca_file: str | None = None, security: str | None = None, certificate: str | None = None,
-             private_key: str | None = None, reorder: float | None = None, units=None):
-    """The source a --source URL names (not yet started), of the named `units` of a fleet when given;
-    an option its kind does not take is refused."""
-    scheme = urlsplit(url).scheme if "://" in url else ""
-    given = {"--username": credentials is not None, "--client-id": client_id, "--ca-file": ca_file,
-             "--security": security, "--certificate": certificate, "--private-key": private_key,
-             "--reorder-timeout": reorder is not None}
-    if scheme in ("mqtt", "mqtts"):
-        from .mqtt import MqttSource
+@dataclass(frozen=True)
+class Scheme:
+    """A kind of source: the module of this package that opens it, what it is called in messages, the
+    connection options (OPTIONS' keys) it takes, and what it needs beyond jmlgdsl's own dependencies:
+    (the module it imports, the package that has it, jmlgdsl's extra that installs it)."""
 
-        _refuse(url, "an MQTT source", given, "--security", "--certificate", "--private-key", "--reorder-timeout")
-        return MqttSource(url, model, tags, client_id=client_id or f"jmlgdsl-{model.name}",
-                          credentials=credentials, ca_file=ca_file, units=units)
-    if scheme == "opc.tcp":
-        from .opcua import OpcuaSource
-
-        _refuse(url, "an OPC UA source", given, "--client-id", "--ca-file", "--reorder-timeout")
-        if units is not None:
-            plain = sorted(name for name, tag in tags.items() if PLACEHOLDER not in (tag.node or ""))
-            if plain:
-                raise FleetError(f"--units with an OPC UA source: the tag file's node id of {plain[0]} holds no "
-                                 f"{PLACEHOLDER}, so every unit would read the same node")
-            return UnitSources([OpcuaSource(url, model, unit_tags(tags, unit), credentials=credentials,
-                                            security=security, certificate=certificate, private_key=private_key)
-                                for unit in units], url)
-        return OpcuaSource(url, model, tags, credentials=credentials, security=security, certificate=certificate,
-                           private_key=private_key)
-    if scheme in ("sparkplug", "sparkplugs"):
-        try:
-            from .sparkplug import REORDER, SparkplugSource
-        except ModuleNotFoundError as exc:
-            if not (exc.name or "").startswith("google"):
-                raise
-            raise JmlgError(f"--source {url}: a Sparkplug B source needs the protobuf package: pip install "
-                            "'jmlgdsl[sparkplug]'") from None
-        _refuse(url, "a Sparkplug B source", given, "--security", "--certificate", "--private-key")
-        if units is not None:
-            raise FleetError("--units with a Sparkplug B source: not supported; run a monitor for each edge node "
-                             "or device (--source sparkplug://HOST:PORT/GROUP/EDGE_NODE/DEVICE)")
-        return SparkplugSource(url, model, tags, host_id=client_id or f"jmlgdsl-{model.name}",
-                               credentials=credentials, ca_file=ca_file,
-                               reorder=REORDER if reorder is None else reorder)
-    if scheme:
-        raise JmlgError(f"--source {url}: unknown scheme {scheme!r}; use a CSV file, -, mqtt://, mqtts://, "
-                        "opc.tcp://, sparkplug:// or sparkplugs://")
-    _refuse(url, "a CSV source", given, *given)
-    if units is not None:
-        if PLACEHOLDER not in url:
-            raise FleetError(f"--units with a CSV source: give the files as a template with {PLACEHOLDER} in it, "
-                             f"e.g. data/{PLACEHOLDER}.csv, not {url}")
-        return UnitSources([CsvSource(for_unit(url, unit), model, follow) for unit in units], url)
-    return CsvSource(url, model, follow)
+    module: str
+    kind: str
+    takes: tuple = ()
+    needs: tuple | None = None
 
 
-def _refuse(url, kind, given, *options):
-    """An error naming the first of `options` given for a source that does not take it."""
-    for option in options:
-        if given[option]:
-            raise JmlgError(f"--source {url}: {kind} takes no {option}")
+MQTT = ("--username", "--client-id", "--ca-file")
+OPCUA = ("--username", "--security", "--certificate", "--private-key")
+SPARKPLUG = ("--username", "--client-id", "--ca-file", "--reorder-timeout")
+SCHEMES = {  # a URL's scheme ("" for a file or -) -> its kind of source
+    "": Scheme("files", "a CSV source"),
+    "mqtt": Scheme("mqtt", "an MQTT source", MQTT), "mqtts": Scheme("mqtt", "an MQTT source", MQTT),
+    "opc.tcp": Scheme("opcua", "an OPC UA source", OPCUA),
+    "sparkplug": Scheme("sparkplug", "a Sparkplug B source", SPARKPLUG, ("google", "protobuf", "sparkplug")),
+    "sparkplugs": Scheme("sparkplug", "a Sparkplug B source", SPARKPLUG, ("google", "protobuf", "sparkplug")),
+    "udp": Scheme("udp", "a UDP source"),
+}
+
+
+def open_source(connection: Connection, model, tags, units=None):
+    """The source (not yet started) a connection names, of the named `units` of a fleet when given;
+    an option its kind does not take is refused, as is a URL of no known scheme."""
+    url = connection.url
+    scheme = SCHEMES.get(urlsplit(url).scheme if "://" in url else "")
+    if scheme is None:
+        known = ["a CSV file", "-"] + [f"{name}://" for name in SCHEMES if name]
+        raise JmlgError(f"--source {url}: unknown scheme {urlsplit(url).scheme!r}; use {', '.join(known[:-1])} or "
+                        f"{known[-1]}")
+    try:
+        module = importlib.import_module(f"{__name__}.{scheme.module}")
+    except ModuleNotFoundError as exc:
+        if scheme.needs is None or not (exc.name or "").startswith(scheme.needs[0]):
+            raise
+        raise JmlgError(f"--source {url}: {scheme.kind} needs the {scheme.needs[1]} package: pip install "
+                        f"'jmlgdsl[{scheme.needs[2]}]'") from None
+    for option, field in OPTIONS.items():
+        if option not in scheme.takes and getattr(connection, field) not in (None, ""):
+            raise JmlgError(f"--source {url}: {scheme.kind} takes no {option}")
+    return module.open_source(connection, model, tags, units)
