@@ -28,6 +28,24 @@ RANGE = re.compile(r"^(?P<stem>.*?)(?P<first>\d+)\.\.(?P=stem)(?P<last>\d+)$")
 NAME = re.compile(r"^[A-Za-z0-9_.-]+$")  # a unit's name goes into topics, file names and SQL values
 
 
+# the fleet's options on the command line (flag -> argparse's keywords); --shards is the command's own
+COMMAND_LINE = {
+    "--units": dict(metavar="NAMES", help="watch the units of a fleet with one spec: names and ranges such as "
+                    "pump01..pump200,spare; {unit} in --source and in the tag file stands for each one's name (a CSV "
+                    "file per unit, data/{unit}.csv; MQTT topics PREFIX/{unit}/NAME on one connection; OPC UA node "
+                    "ids). Each unit has its own run in the store, named by its unit column (docs/fleet.md)"),
+    "--unit-specs": dict(metavar="DIR", help="with --units: diagnose each unit with its own spec DIR/UNIT.jmlg (the "
+                         "spec fitted to that unit: jmlgdsl fit SPEC units/*.csv -o DIR/), SPEC for a unit without "
+                         "one; its run records its spec, and the units still step together, each under its own "
+                         "numbers"),
+    "--cluster": dict(metavar="auto|HOST:PORT", help="with --units: spread the units over a Ray cluster, a shard of "
+                      "units per actor, each with its own connection to the source and the store (auto: a Ray on this "
+                      "machine for this command, reachable from 127.0.0.1 only; HOST:PORT: a cluster started with ray "
+                      "start --head). A shard whose process dies is started again and resumes from its last commit. "
+                      "Needs pip install 'jmlgdsl[cluster]'"),
+}
+
+
 class FleetError(JmlgError):
     """A unit list or a template that cannot name a fleet's units."""
 

@@ -44,6 +44,15 @@ HORIZON = 10  # sample times (beyond the grace) a message may be stamped past th
 FOLLOWED = 3  # messages ahead of the stream, in a row, that show it has moved on
 
 
+# the assembler's options on the command line (flag -> argparse's keywords)
+COMMAND_LINE = {
+    "--grace": dict(type=float, metavar="SECONDS", help="a row waits this long (in the readings' time) for its "
+                    "missing readings (default 2 sample times)"),
+    "--stale": dict(type=float, metavar="SECONDS", help="a tag without a reading for this long is stale (default 10 "
+                    "sample times)"),
+    "--max-gap": dict(type=float, default=3600.0, metavar="SECONDS", help="a gap without any reading up to this long "
+                      "is diagnosed as rows of missing readings; a longer one is skipped (default 3600)"),
+}
 CLOCK = TimeFormat("datetime")  # ISO 8601, UTC: events' clock times, and the rows' of a source that writes such
 
 

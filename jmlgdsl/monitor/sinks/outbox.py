@@ -60,29 +60,6 @@ class Conclusion:
         return json.dumps(self.body).encode()
 
 
-def open_sinks(*, publish: str | None = None, notify: str | None = None, opcua_server: str | None = None,
-               client_id: str = "jmlgdsl", credentials=None, ca_file: str | None = None, token: str | None = None,
-               server: dict | None = None) -> list:
-    """The sinks --publish (an MQTT broker, with its credentials and certificate authority; its client
-    id `client_id`-publish), --notify (a webhook, with its bearer token) and --opcua-server (an OPC UA
-    server, with `server` the keywords of jmlgdsl.monitor.sinks.opcua_server.OpcuaServer) name, not yet
-    started."""
-    sinks = []
-    if publish is not None:
-        from .publish import MqttPublisher
-
-        sinks.append(MqttPublisher(publish, client_id=f"{client_id}-publish", credentials=credentials, ca_file=ca_file))
-    if notify is not None:
-        from .webhook import Webhook
-
-        sinks.append(Webhook(notify, token=token))
-    if opcua_server is not None:
-        from .opcua_server import OpcuaServer
-
-        sinks.append(OpcuaServer(opcua_server, **(server or {})))
-    return sinks
-
-
 class Outbox:
     """The sinks of a monitor's runs (`runs`: the store's Run records, `plant` the plant's name): `start()`
     before the first commit, `collect()` and `hand(moved)` around each commit, `close()` at the end."""

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from urllib.parse import urlsplit
 
 from ...errors import JmlgError
+from .bus import credentials
 
 
 @dataclass(frozen=True)
@@ -38,7 +39,23 @@ class Connection:
     shard: int | None = None
 
 
-# the connection's options, as the command line names them -> their field of Connection
+# the connection's options on the command line (flag -> argparse's keywords)
+COMMAND_LINE = {
+    "--client-id": dict(help="MQTT client id of the persistent session; for Sparkplug B, the host application's id "
+                        "(default jmlgdsl-PLANT)"),
+    "--username": dict(help="user name at the broker or server"),
+    "--password-env": dict(metavar="VAR", help="the environment variable that holds the password"),
+    "--password-file": dict(metavar="FILE", help="the file that holds the password (its first line)"),
+    "--ca-file": dict(metavar="FILE", help="certificate authority for mqtts:// (default the system's)"),
+    "--security": dict(metavar="POLICY,MODE", help="OPC UA security, e.g. Basic256Sha256,SignAndEncrypt (default "
+                       "None: no security)"),
+    "--certificate": dict(metavar="FILE", help="the client's OPC UA certificate (with --security)"),
+    "--private-key": dict(metavar="FILE", help="the client's OPC UA private key (with --security)"),
+    "--reorder-timeout": dict(type=float, metavar="SECONDS", help="Sparkplug B: how long a gap in an edge node's seq "
+                              "numbers waits for its messages before they are given up and the node is asked for a "
+                              "rebirth (default 2)"),
+}
+# the options a kind of source may refuse -> their field of Connection
 OPTIONS = {"--username": "credentials", "--client-id": "client_id", "--ca-file": "ca_file", "--security": "security",
            "--certificate": "certificate", "--private-key": "private_key", "--reorder-timeout": "reorder"}
 
@@ -66,6 +83,15 @@ SCHEMES = {  # a URL's scheme ("" for a file or -) -> its kind of source
     "sparkplugs": Scheme("sparkplug", "a Sparkplug B source", SPARKPLUG, ("google", "protobuf", "sparkplug")),
     "udp": Scheme("udp", "a UDP source"),
 }
+
+
+def connection(given: dict) -> Connection:
+    """The Connection the command line gives: `given` holds its options' values by their names, as
+    argparse stores them (source, no_follow, client_id, ...); the password is read here."""
+    return Connection(given["source"], follow=not given["no_follow"], client_id=given["client_id"],
+                      credentials=credentials(given["username"], given["password_env"], given["password_file"]),
+                      ca_file=given["ca_file"], security=given["security"], certificate=given["certificate"],
+                      private_key=given["private_key"], reorder=given["reorder_timeout"])
 
 
 def open_source(connection: Connection, model, tags, units=None):

@@ -31,7 +31,7 @@ from ...data import TimeFormat
 class Event:
     """Something the store keeps beside the rows: its kind, the tag (or None) and what happened."""
 
-    kind: str  # connect, disconnect, gap, stale, fresh, late, future, ahead, jump, duplicate, out_of_order, malformed, ...
+    kind: str  # connect, disconnect, gap, stale, fresh, late, malformed, ... (docs/monitor.md)
     tag: str | None
     detail: str
     time: float | None = None  # the data time it concerns, seconds
