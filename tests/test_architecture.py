@@ -171,3 +171,50 @@ def test_the_pin_sees_an_import_of_the_evaluator(tmp_path):
     path.write_text("from ..lang.evaluate import evaluate_number\nfrom ..lang.plant import Plant\n")
     assert language_imports("jmlgdsl.compile.lower", path) == [("jmlgdsl.lang.evaluate", {"evaluate_number"}),
                                                                (CHECKED_PLANT, {"Plant"})]
+
+
+SOURCES = "jmlgdsl.monitor.sources"
+CONTRACT = f"{SOURCES}.contract"
+BEYOND_SOURCES = ("jmlgdsl.monitor.store", "jmlgdsl.monitor.databases", "jmlgdsl.monitor.live",
+                  "jmlgdsl.monitor.sinks", "jmlgdsl.monitor.shards", "jmlgdsl.page")
+
+
+def test_the_sources_read_and_hand_over_and_know_nothing_of_the_store_or_the_page():
+    found = {name: targets for name, targets in graph().items() if name.startswith(SOURCES + ".")}
+    assert CONTRACT in found
+    for name, targets in found.items():
+        assert not {t for t in targets if t.startswith(BEYOND_SOURCES)}, name
+
+
+def test_every_scheme_is_a_module_whose_sources_keep_the_contract():
+    """A new source is a module of monitor/sources with open_source, and its line in SCHEMES; each
+    source class in it has what the monitor asks of one (the contract's Source: rows, start,
+    acknowledge, stop)."""
+    import importlib
+    import inspect
+
+    from jmlgdsl.monitor.sources import SCHEMES
+    from jmlgdsl.monitor.sources.contract import Source
+
+    asked = ({name for name in vars(Source) if not name.startswith("_")} | set(Source.__annotations__)) - {"name"}
+    for scheme in SCHEMES.values():
+        try:
+            module = importlib.import_module(f"{SOURCES}.{scheme.module}")
+        except ModuleNotFoundError:
+            assert scheme.needs is not None, scheme
+            continue
+        assert callable(module.open_source), scheme
+        classes = [c for _, c in inspect.getmembers(module, inspect.isclass)
+                   if c.__module__ == module.__name__ and hasattr(c, "start")]
+        assert classes, scheme
+        for source in classes:  # (`name` is each instance's own)
+            assert asked <= set(dir(source)), source
+
+
+def test_the_monitor_takes_sources_through_the_contract_and_the_registry_only():
+    """live.py and shards.py name no protocol: the monitor takes the contract's items, the shards open
+    their source through the scheme registry."""
+    edges = graph()
+    protocols = {t for t in edges if t.startswith(SOURCES + ".") and t != CONTRACT}
+    for name in ("jmlgdsl.monitor.live", "jmlgdsl.monitor.shards"):
+        assert not edges[name] & protocols, name

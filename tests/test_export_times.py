@@ -14,6 +14,7 @@ import jmlgdsl
 from jmlgdsl.cli import main
 from jmlgdsl.data import TimeFormat
 from jmlgdsl.monitor import Monitor, Store, monitor_options, read_tags
+from jmlgdsl.monitor.sources.contract import End, Readings
 
 MODEL = jmlgdsl.load(ROOT / "specs" / "dryer.jmlg")
 START = datetime.datetime(2020, 3, 9, 11, 14, 33, tzinfo=datetime.timezone.utc)
@@ -72,9 +73,9 @@ class Stamped:
     def start(self, put, position):
         for token, r in enumerate(recording()[:200]):
             stamp = START + datetime.timedelta(seconds=float(r["time"]))
-            put(("readings", [("temp", float(r["temp"]), stamp), ("current", float(r["current"]), stamp)],
+            put(Readings([("temp", float(r["temp"]), stamp), ("current", float(r["current"]), stamp)],
                  stamp.timestamp(), token))
-        put(("end",))
+        put(End())
 
     def acknowledge(self, tokens):
         pass

@@ -31,7 +31,7 @@ from jmlgdsl.compile.lower import compile_text
 from jmlgdsl.data import read_csv
 from jmlgdsl.errors import DataError, SpecError
 from jmlgdsl.infer import FilterError
-from jmlgdsl.monitor.payload import Malformed, decode
+from jmlgdsl.monitor.sources.payload import Malformed, decode
 
 ROOT = Path(__file__).resolve().parents[1]
 LONG = os.environ.get("JMLGDSL_FUZZ") == "1"

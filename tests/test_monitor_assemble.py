@@ -10,7 +10,8 @@ from conftest import ROOT
 
 import jmlgdsl
 from jmlgdsl.monitor import Assembler, TagError, read_tags
-from jmlgdsl.monitor.payload import Malformed, decode
+from jmlgdsl.monitor.sources.contract import End, Readings
+from jmlgdsl.monitor.sources.payload import Malformed, decode
 
 MODEL = jmlgdsl.load(ROOT / "specs" / "dryer.jmlg")  # output temp, input current (default 15), 1 s
 
@@ -224,10 +225,10 @@ def test_a_monitor_logs_the_first_late_message_of_a_batch_and_counts_the_rest(tm
 
         def start(self, put, position):
             for t in range(1, 4):
-                put(("readings", [("temp", 50.0, float(t)), ("current", 15.0, float(t))], 0.0, t))
+                put(Readings([("temp", 50.0, float(t)), ("current", 15.0, float(t))], 0.0, t))
             for k in range(40):  # the first row's readings again, after it was diagnosed
-                put(("readings", [("temp", 50.0, 1.0)], 0.0, 100 + k))
-            put(("end",))
+                put(Readings([("temp", 50.0, 1.0)], 0.0, 100 + k))
+            put(End())
 
         def acknowledge(self, tokens):
             pass
@@ -265,14 +266,14 @@ def test_a_stalled_diagnosis_is_an_event_once_until_a_row_comes(tmp_path, monkey
 
         def publish(self, put):
             for t in range(1, 4):
-                put(("readings", [("temp", 50.0, float(t)), ("current", 15.0, float(t))], 0.0, t))
+                put(Readings([("temp", 50.0, float(t)), ("current", 15.0, float(t))], 0.0, t))
             for first in (True, False):
                 for k in range(20):  # the first row's readings again and again
                     time.sleep(0.01)
-                    put(("readings", [("temp", 50.0, 1.0)], 0.0, 100 + k))
+                    put(Readings([("temp", 50.0, 1.0)], 0.0, 100 + k))
                 if first:
-                    put(("readings", [("temp", 50.0, 4.0), ("current", 15.0, 4.0)], 0.0, 4))
-            put(("end",))
+                    put(Readings([("temp", 50.0, 4.0), ("current", 15.0, 4.0)], 0.0, 4))
+            put(End())
 
         def acknowledge(self, tokens):
             pass

@@ -15,7 +15,8 @@ from monitor_servers import expected_table, exported, samples
 
 import jmlgdsl
 from jmlgdsl.monitor import Monitor, Store, monitor_options, read_tags
-from jmlgdsl.monitor.payload import Malformed, decode
+from jmlgdsl.monitor.sources.contract import End, Readings, Unreadable
+from jmlgdsl.monitor.sources.payload import Malformed, decode
 
 MODEL = jmlgdsl.load(ROOT / "specs" / "dryer.jmlg")
 NAMES = ["temp", "current"]
@@ -40,10 +41,10 @@ class Published:
         for token, (topic, payload) in enumerate(self.messages):
             name = None if topic == "dryer" else topic.removeprefix("dryer/")
             try:
-                put(("readings", decode(payload.encode(), name, NAMES), time.time(), token))
+                put(Readings(decode(payload.encode(), name, NAMES), time.time(), token))
             except Malformed as exc:
-                put(("malformed", f"topic {topic}: {exc}", token))
-        put(("end",))
+                put(Unreadable(f"topic {topic}: {exc}", token))
+        put(End())
 
     def acknowledge(self, tokens):
         pass

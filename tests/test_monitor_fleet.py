@@ -213,7 +213,7 @@ def test_a_rao_blackwellised_fleet_stopped_and_resumed_gives_each_unit_its_run_t
     table `jmlgdsl run` writes for its file with the same filter and seed."""
     import jmlgdsl
     from jmlgdsl.monitor import Monitor, Store, monitor_options, read_tags
-    from jmlgdsl.monitor.sources import open_bus
+    from jmlgdsl.monitor.sources import Connection, open_source
 
     data, store = tmp_path / "data", str(tmp_path / "fleet.db")
     source = write_files(data)
@@ -229,7 +229,7 @@ def test_a_rao_blackwellised_fleet_stopped_and_resumed_gives_each_unit_its_run_t
 
     threading.Thread(target=watch, daemon=True).start()
     with Store(store) as opened:
-        monitor = Monitor(model, opened, open_bus(url=source, model=model, tags=tags, units=UNITS, follow=False),
+        monitor = Monitor(model, opened, open_source(Connection(source, follow=False), model, tags, UNITS),
                           spec=SPEC, options=monitor_options(algorithm="la-rbpf", particles=5, seed=3), tags=tags,
                           units=UNITS)
         assert monitor.fleet is not None and monitor.fleet.filter.algorithm == "la-rbpf"
@@ -325,7 +325,7 @@ def test_stopped_while_its_files_run_far_ahead_it_lets_their_readers_go_and_resu
     import jmlgdsl
     from jmlgdsl.monitor import Monitor, Store, monitor_options
     from jmlgdsl.monitor.live import QUEUE
-    from jmlgdsl.monitor.sources import open_bus
+    from jmlgdsl.monitor.sources import Connection, open_source
 
     rows = QUEUE  # per unit: three units' rows are three queues' worth
     folder = tmp_path / "units"
@@ -335,7 +335,7 @@ def test_stopped_while_its_files_run_far_ahead_it_lets_their_readers_go_and_resu
     model = jmlgdsl.load(SPEC)
 
     def monitor(stop=None):
-        source = open_bus(url=str(folder / "{unit}.csv"), model=model, tags={}, units=UNITS, follow=False)
+        source = open_source(Connection(str(folder / "{unit}.csv"), follow=False), model, {}, UNITS)
         with Store(str(tmp_path / "fleet.db")) as store:
             stopped = Monitor(model, store, source, spec=SPEC, options=monitor_options(), tags={},
                               units=UNITS).run(stop)

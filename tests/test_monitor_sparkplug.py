@@ -27,9 +27,9 @@ from jmlgdsl.cli import main
 paho = pytest.importorskip("paho.mqtt.client")
 pytest.importorskip("google.protobuf")
 
-from jmlgdsl.monitor.payload import Malformed  # noqa: E402
-from jmlgdsl.monitor.sparkplug import Sequence  # noqa: E402
-from jmlgdsl.monitor.sparkplug_b import (BOOLEAN, DOUBLE, INT8, INT64, STRING, UINT64, Metric, Payload,  # noqa: E402
+from jmlgdsl.monitor.sources.payload import Malformed  # noqa: E402
+from jmlgdsl.monitor.sources.sparkplug import Sequence  # noqa: E402
+from jmlgdsl.monitor.sources.sparkplug_b import (BOOLEAN, DOUBLE, INT8, INT64, STRING, UINT64, Metric, Payload,  # noqa: E402
                                          decode, encode, reading)
 
 ROWS = [line.split(",") for line in LINES[1:]]  # time, current, temp, mode, temp_true
@@ -323,7 +323,8 @@ def test_a_metric_two_devices_declare_historical_readings_by_arrival_and_unknown
 
     import jmlgdsl
     from jmlgdsl.monitor import read_tags
-    from jmlgdsl.monitor.sparkplug import SparkplugSource
+    from jmlgdsl.monitor.sources.contract import Event, Readings, Unreadable
+    from jmlgdsl.monitor.sources.sparkplug import SparkplugSource
 
     tags = tmp_path / "tags.toml"
     tags.write_text('[tags.current]\ntime = "arrival"\n')
@@ -342,7 +343,7 @@ def test_a_metric_two_devices_declare_historical_readings_by_arrival_and_unknown
     message("DBIRTH", 1, values(ROWS[0], by_name=True), device="a")
     message("DBIRTH", 2, [Metric("temp", 1, 1_000, DOUBLE, 20.0)], device="b")
     message("DDATA", 3, values(ROWS[1], historical=True) + [Metric(None, 7, 3_000, DOUBLE, 1.0)], device="a")
-    events = [(item[1].kind, item[1].detail) for item in items if item[0] == "event"]
+    events = [(item.kind, item.detail) for item in items if isinstance(item, Event)]
     assert events == [("birth", "edge node gateway is online (NBIRTH, bdSeq 3): no metric of the tags"),
                       ("birth", "device gateway/a is online (DBIRTH): temp, current"),
                       ("birth", "device gateway/b is online (DBIRTH): no metric of the tags"),
@@ -350,10 +351,10 @@ def test_a_metric_two_devices_declare_historical_readings_by_arrival_and_unknown
                                "place them"),
                       ("rebirth", "asked edge node gateway for a rebirth: its metrics of aliases 7 are not in its "
                                   "birth")]
-    assert [item[1] for item in items if item[0] == "malformed"] == [
+    assert [item.message for item in items if isinstance(item, Unreadable)] == [
         "device gateway/b: its metric 'temp' of temp is also device gateway/a's, which keeps it (name the edge node "
         "and device in --source)"]
-    assert [item[1] for item in items if item[0] == "readings"] == [
+    assert [item.readings for item in items if isinstance(item, Readings)] == [
         [("temp", 50.60301681, 1.0), ("current", 15.0, 1.0)], [("temp", 50.57489308, 2.0)]]
     assert [(topic, [(m.name, m.value) for m in command.metrics]) for topic, command in sent] == [
         ("spBv1.0/plant/NCMD/gateway", [("Node Control/Rebirth", True)])]
@@ -363,12 +364,12 @@ def test_without_protobuf_the_source_says_what_to_install(monkeypatch):
     import jmlgdsl
     from jmlgdsl.errors import JmlgError
     from jmlgdsl.monitor import read_tags
-    from jmlgdsl.monitor.sources import open_bus
+    from jmlgdsl.monitor.sources import Connection, open_source
 
     monkeypatch.setitem(sys.modules, "google.protobuf", None)  # as if it were not installed
-    for name in ("jmlgdsl.monitor.sparkplug", "jmlgdsl.monitor.sparkplug_b"):
+    for name in ("jmlgdsl.monitor.sources.sparkplug", "jmlgdsl.monitor.sources.sparkplug_b"):
         monkeypatch.delitem(sys.modules, name)
     model = jmlgdsl.load(SPEC)
     with pytest.raises(JmlgError, match=r"a Sparkplug B source needs the protobuf package: pip install "
                                         r"'jmlgdsl\[sparkplug\]'"):
-        open_bus("sparkplug://127.0.0.1/plant", model, read_tags(None, model))
+        open_source(Connection("sparkplug://127.0.0.1/plant"), model, read_tags(None, model))

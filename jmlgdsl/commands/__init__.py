@@ -106,7 +106,7 @@ def add_store_password_options(p):
 
 def store_password(args) -> str | None:
     """The password --store-password-env or --store-password-file gives (None without either)."""
-    from ..monitor.sources import secret
+    from ..monitor.sources.bus import secret
 
     return secret("store-password", args.store_password_env, args.store_password_file)
 
@@ -128,7 +128,7 @@ def start_page(args, store_path, run: int | None = None, password: str | None = 
     says where on standard error."""
     import sys
 
-    from ..monitor.sources import secret
+    from ..monitor.sources.bus import secret
     from ..page import Page, parse_address
 
     if args.http is None:

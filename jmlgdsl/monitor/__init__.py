@@ -19,11 +19,12 @@ state, and acknowledges them to the source only after that commit.
     (1000, True, '1000,1000,fan,4.15205481e-05,0')
 """
 
-from .assemble import Assembler, Event
-from .follow import CsvSource
+from .rows import Assembler
+from .sources.contract import Event
+from .sources.files import CsvSource
 from .live import Monitor, MonitorError, Stopped, monitor_options
 from .store import Store, StoreError
-from .tags import Tag, TagError, read_tags
+from .sources.tags import Tag, TagError, read_tags
 
 __all__ = ["Assembler", "Event", "CsvSource", "Monitor", "MonitorError", "Stopped", "monitor_options", "Store",
            "StoreError", "Tag", "TagError", "read_tags"]

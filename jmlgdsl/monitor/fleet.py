@@ -9,7 +9,8 @@ file stands for each unit's name:
     opc.tcp://HOST:PORT/PATH         a tag file whose node ids hold {unit}: a session per unit
 
 Each unit has its run in the store (the run's `unit` column names it) and every commit holds the
-rows and state of every unit that moved (jmlgdsl.monitor.live).
+rows and state of every unit that moved (jmlgdsl.monitor.live). A source that reads each unit on
+a connection of its own is one source of them all (jmlgdsl.monitor.sources.units).
 
     >>> unit_names("pump01..pump03,spare")
     ['pump01', 'pump02', 'pump03', 'spare']
@@ -19,13 +20,30 @@ from __future__ import annotations
 
 import dataclasses
 import re
-import threading
 
 from ..errors import JmlgError
 
 PLACEHOLDER = "{unit}"
 RANGE = re.compile(r"^(?P<stem>.*?)(?P<first>\d+)\.\.(?P=stem)(?P<last>\d+)$")
 NAME = re.compile(r"^[A-Za-z0-9_.-]+$")  # a unit's name goes into topics, file names and SQL values
+
+
+# the fleet's options on the command line (flag -> argparse's keywords); --shards is the command's own
+COMMAND_LINE = {
+    "--units": dict(metavar="NAMES", help="watch the units of a fleet with one spec: names and ranges such as "
+                    "pump01..pump200,spare; {unit} in --source and in the tag file stands for each one's name (a CSV "
+                    "file per unit, data/{unit}.csv; MQTT topics PREFIX/{unit}/NAME on one connection; OPC UA node "
+                    "ids). Each unit has its own run in the store, named by its unit column (docs/fleet.md)"),
+    "--unit-specs": dict(metavar="DIR", help="with --units: diagnose each unit with its own spec DIR/UNIT.jmlg (the "
+                         "spec fitted to that unit: jmlgdsl fit SPEC units/*.csv -o DIR/), SPEC for a unit without "
+                         "one; its run records its spec, and the units still step together, each under its own "
+                         "numbers"),
+    "--cluster": dict(metavar="auto|HOST:PORT", help="with --units: spread the units over a Ray cluster, a shard of "
+                      "units per actor, each with its own connection to the source and the store (auto: a Ray on this "
+                      "machine for this command, reachable from 127.0.0.1 only; HOST:PORT: a cluster started with ray "
+                      "start --head). A shard whose process dies is started again and resumes from its last commit. "
+                      "Needs pip install 'jmlgdsl[cluster]'"),
+}
 
 
 class FleetError(JmlgError):
@@ -64,45 +82,3 @@ def unit_tags(tags: dict, unit: str) -> dict:
     """A tag file's tags for one unit (its topics and node ids with {unit} replaced)."""
     return {name: dataclasses.replace(tag, topic=for_unit(tag.topic, unit), node=for_unit(tag.node, unit))
             for name, tag in tags.items()}
-
-
-class UnitSources:
-    """One source per unit, as one source of a fleet: each unit's items handed over as (unit index,
-    item), its acknowledgement tokens as (unit index, token), its position as the list of the
-    units' positions; the data end once every unit's have."""
-
-    def __init__(self, sources, name: str):
-        self.sources, self.name = list(sources), name
-        self.rows = self.sources[0].rows
-        self._ended, self._lock = 0, threading.Lock()
-
-    def start(self, put, positions):
-        def unit_put(i):
-            def handed(item):
-                kind = item[0]
-                if kind in ("readings", "malformed"):
-                    item = item[:-1] + ((i, item[-1]),)
-                if kind == "end":
-                    with self._lock:  # the sources' threads end at their own moments
-                        self._ended += 1
-                        last = self._ended == len(self.sources)
-                    if last:
-                        put((None, item))
-                    return
-                put((i, item))
-            return handed
-
-        for i, (source, position) in enumerate(zip(self.sources, positions)):
-            source.start(unit_put(i), position)
-
-    def acknowledge(self, tokens):
-        mine = [[] for _ in self.sources]
-        for i, token in tokens:
-            mine[i].append(token)
-        for source, given in zip(self.sources, mine):
-            if given:
-                source.acknowledge(given)
-
-    def stop(self):
-        for source in self.sources:
-            source.stop()

@@ -25,8 +25,9 @@ from ..infer import DEFAULT_ALGORITHM
 from ..infer.result import Step
 from ..infer.units import Stacked
 from ..errors import JmlgError
-from .assemble import Assembler, Event
-from .outbox import Outbox
+from .rows import Assembler
+from .sources.contract import End, Event, Fatal, Readings, Row, Source, Times, Unreadable
+from .sinks.outbox import Outbox
 from .store import TIMES, Commit, Store
 from ..version import VERSION
 
@@ -96,7 +97,7 @@ class Monitor:
     refused, and the units still step together, each under its own numbers. `sinks` (jmlgdsl.monitor.
     outbox) are sent what each commit holds, and the operators' actions on its alarms."""
 
-    def __init__(self, model, store: Store, source, *, spec: str | None, options: dict, tags: dict,
+    def __init__(self, model, store: Store, source: Source, *, spec: str | None, options: dict, tags: dict,
                  units=None, new_run: bool = False, log=None, banks=None, sinks=()):
         self.model, self.store, self.source, self.log = model, store, source, log or (lambda text: None)
         self.options = recorded_options(model, options, source.name, tags)
@@ -227,32 +228,32 @@ class Monitor:
                        dict(self.counts), ended)
 
     def _handle(self, unit, item) -> bool:
-        """Take one item from the source for a unit (None: for every unit); True at the end of the data."""
-        kind = item[0]
+        """Take one item from the source (jmlgdsl.monitor.sources.contract) for a unit (None: for every
+        unit); True at the end of the data."""
         watches = self.units if unit is None else [self.units[unit]]
-        if kind == "row":
-            _, row, watches[0].position = item
-            watches[0].feed(row)
-        elif kind == "readings":
-            _, readings, arrival, token = item
-            watches[0].assembled(*watches[0].assembler.add(
-                [(name, self.tags[name].value(value), stamp) for name, value, stamp in readings], arrival))
-            watches[0].dirty = True  # the assembler holds the readings: it is saved before they are acknowledged
-            watches[0].arrived()
-            self.tokens.append(token)
-        elif kind == "malformed":
-            _, message, token = item
-            self._event(watches, unit, Event("malformed", None, message))
-            for watch in watches:
-                watch.arrived()
-            self.tokens.append(token)
-        elif kind == "event":
-            self._event(watches, unit, item[1])
-        elif kind == "times":
-            watches[0].times = item[1]
-        elif kind == "fatal":
-            raise MonitorError(item[1])
-        return kind == "end"
+        match item:
+            case Row():
+                watches[0].position = item.position
+                watches[0].feed(item.row)
+            case Readings():
+                watches[0].assembled(*watches[0].assembler.add(
+                    [(name, self.tags[name].value(value), stamp) for name, value, stamp in item.readings],
+                    item.arrival))
+                watches[0].dirty = True  # the assembler holds the readings: it is saved before they are acknowledged
+                watches[0].arrived()
+                self.tokens.append(item.token)
+            case Unreadable():
+                self._event(watches, unit, Event("malformed", None, item.message))
+                for watch in watches:
+                    watch.arrived()
+                self.tokens.append(item.token)
+            case Event():
+                self._event(watches, unit, item)
+            case Times():
+                watches[0].times = item.format
+            case Fatal():
+                raise MonitorError(item.message)
+        return isinstance(item, End)
 
     def _event(self, watches, unit, event: Event):
         """A source's event for a unit, or (unit None) for every unit (their one connection's): kept in

@@ -16,15 +16,15 @@ ever resumes; `stop` ends every shard with a last commit.
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import re
 import socket
 import threading
-from urllib.parse import urlsplit
 
 from ..cluster import completed
 from .live import Monitor, Stopped, open_runs, recorded_options
-from .sources import open_bus
+from .sources import Connection, open_source
 from .databases import StoreError, is_url
 from .store import Store
 
@@ -62,21 +62,19 @@ def split(units: list, count: int) -> list[list]:
 
 class Shard:
     """A Monitor of some units of a fleet, as a Ray actor runs it: made (resumed from the store) when
-    the actor starts or starts again, `run()` until `stop()`. `source` holds open_bus's keywords
-    (the URL, credentials, ...); the shard's MQTT client id is the fleet's with its index; `banks`
-    its units' own (model, spec text), as Monitor takes them."""
+    the actor starts or starts again, `run()` until `stop()`. `source` is the fleet's Connection,
+    opened as this shard's (its `index`); `banks` its units' own (model, spec text), as Monitor
+    takes them."""
 
     def __init__(self, model, location: str, password: str | None, spec: str | None, options: dict, tags: dict,
-                 units: list, index: int, source: dict, banks=None):
-        recipe = dict(source)
-        if urlsplit(recipe["url"]).scheme in ("mqtt", "mqtts"):  # a persistent session of its own
-            recipe["client_id"] = f"{recipe.get('client_id') or 'jmlgdsl-' + model.name}-{index}"
+                 units: list, index: int, source: Connection, banks=None):
         if not is_url(location) and not os.path.exists(location):
             raise StoreError(f"the store {location} is not on the machine of shard {index} ({socket.gethostname()}): "
                              "the shards of a cluster of machines share a PostgreSQL store (postgresql://...)")
         self.store = Store(location, password=password, create=False)  # made by the driver: never another here
-        self.monitor = Monitor(model, self.store, open_bus(model=model, tags=tags, units=units, **recipe), spec=spec,
-                               options=options, tags=tags, units=units, banks=banks)
+        self.monitor = Monitor(model, self.store, open_source(dataclasses.replace(source, shard=index), model, tags,
+                                                             units), spec=spec, options=options, tags=tags,
+                               units=units, banks=banks)
         self.stopping = threading.Event()
 
     def run(self) -> Stopped:
@@ -90,15 +88,15 @@ class Shard:
 
 
 def run_shards(ray, model, location: str, password: str | None, *, spec: str | None, options: dict, tags: dict,
-               units: list, count: int, source: dict, new_run: bool = False,
+               units: list, count: int, source: Connection, new_run: bool = False,
                stop: threading.Event | None = None, banks=None) -> Stopped:
     """Monitor `units` in `count` shards on the joined Ray cluster until their data end or `stop` is
     set; what they did, counted in the store (a shard that Ray started again returns the count of its
-    last start only). `source` holds open_bus's keywords; `banks` each unit's own (model, spec text),
+    last start only). `source` is the fleet's Connection; `banks` each unit's own (model, spec text),
     as Monitor takes them."""
     banks = banks or [(model, spec)] * len(units)
     with Store(location, password=password) as store:  # every unit's run made or checked here, once
-        name = open_bus(model=model, tags=tags, units=units, **source).name
+        name = open_source(source, model, tags, units).name
         runs = open_runs(store, model, spec, recorded_options(model, options, name, tags), units, new_run, banks)
         before, since = _rows(store, runs), store.newest_event()
     parts = _shards(ray, model, location, password, spec, options, tags, units, count, source, stop, banks)

@@ -12,9 +12,11 @@ from __future__ import annotations
 import sys
 import threading
 
-from ..data import iter_rows
-from ..errors import DataError
-from .assemble import Event
+from ...data import iter_rows
+from ...errors import DataError
+from ..fleet import PLACEHOLDER, FleetError, for_unit
+from .contract import End, Event, Fatal, Row, Times
+from .units import UnitSources
 
 POLL = 0.05  # seconds between looks at a followed file that has not grown
 
@@ -89,6 +91,18 @@ def _content(text: str) -> bool:
     return bool(text.strip()) and not text.lstrip().startswith("#")
 
 
+def open_source(connection, model, tags, units=None):
+    """The CSV file (or standard input) a connection names; for a fleet's units, the file of each,
+    from a template with {unit} in it."""
+    url = connection.url
+    if units is not None:
+        if PLACEHOLDER not in url:
+            raise FleetError(f"--units with a CSV source: give the files as a template with {PLACEHOLDER} in it, "
+                             f"e.g. data/{PLACEHOLDER}.csv, not {url}")
+        return UnitSources([CsvSource(for_unit(url, unit), model, connection.follow) for unit in units], url)
+    return CsvSource(url, model, connection.follow)
+
+
 class CsvSource:
     """A CSV file (followed as it grows unless follow=False) or standard input ('-'), as rows."""
 
@@ -101,9 +115,9 @@ class CsvSource:
         self._thread = None
 
     def start(self, put, position: dict | None):
-        """Read rows in a thread: put(("row", row, position)) for each, put(("event", Event)) for a bad
-        line, put(("end",)) at the end (of standard input, or of an unfollowed file), and before the
-        first row with a time put(("times", TimeFormat)): how the file writes its times."""
+        """Read rows in a thread: a Row for each, an Event for a bad line, End at the end (of standard
+        input, or of an unfollowed file), and before the first row with a time, Times: how the file
+        writes its times."""
         if self.path == "-":
             stream = sys.stdin.buffer
         else:
@@ -129,19 +143,19 @@ class CsvSource:
                             return
                         if told is None and rows.times is not None:
                             told = rows.times
-                            put(("times", told))
-                        put(("row", row, {"offset": lines.offset, "line": lines.line}))
+                            put(Times(told))
+                        put(Row(row, {"offset": lines.offset, "line": lines.line}))
                     break
                 except DataError as exc:
-                    put(("event", Event("malformed", None, str(exc))))
+                    put(Event("malformed", None, str(exc)))
                     if lines.header is None or lines.line in (lines.header[1], failed):
                         raise
                     failed = lines.line
                     lines.again()  # read on after the bad line
             if not self._stop.is_set():
-                put(("end",))
+                put(End())
         except DataError as exc:
-            put(("fatal", str(exc)))
+            put(Fatal(str(exc)))
         finally:
             if stream is not sys.stdin.buffer:
                 stream.close()

@@ -45,9 +45,10 @@ import json
 import threading
 import time
 
-from ..errors import JmlgError
+from ...errors import JmlgError
 from . import bus
-from .assemble import Event
+from ..fleet import FleetError
+from .contract import Event, Readings, Unreadable
 from .mqtt import MqttSource
 from .payload import Malformed
 from .sparkplug_b import BOOLEAN, Metric, Payload, decode, encode, reading
@@ -131,8 +132,19 @@ class _Node:
         self.aliases = {}  # place -> {alias: metric name}
 
 
+def open_source(connection, model, tags, units=None):
+    """The Sparkplug B edge nodes a connection names, read as the host application of id --client-id
+    (default jmlgdsl-PLANT)."""
+    if units is not None:
+        raise FleetError("--units with a Sparkplug B source: not supported; run a monitor for each edge node "
+                         "or device (--source sparkplug://HOST:PORT/GROUP/EDGE_NODE/DEVICE)")
+    return SparkplugSource(connection.url, model, tags, host_id=connection.client_id or f"jmlgdsl-{model.name}",
+                           credentials=connection.credentials, ca_file=connection.ca_file,
+                           reorder=REORDER if connection.reorder is None else connection.reorder)
+
+
 class SparkplugSource(MqttSource):
-    """Sparkplug B edge nodes' metrics as readings (the protocol of jmlgdsl.monitor.bus); nothing to
+    """Sparkplug B edge nodes' metrics as Readings (jmlgdsl.monitor.sources.contract); nothing to
     acknowledge. `host_id` is the host application's id, also its MQTT client id; `reorder` the
     seconds a gap in a node's seq numbers waits for its messages."""
 
@@ -190,7 +202,7 @@ class SparkplugSource(MqttSource):
         base = f"{NAMESPACE}/{self.group}"
         client.subscribe([(f"{base}/#" if self.edge is None else f"{base}/+/{self.edge}/#", 1), (self.state, 1)])
         client.publish(self.state, self._state(True), qos=1, retain=True)
-        hand(("event", bus.connected(f"{self.host}:{self.port}", f"as Sparkplug host {self.client_id}, STATE online")))
+        hand(bus.connected(f"{self.host}:{self.port}", f"as Sparkplug host {self.client_id}, STATE online"))
 
     def acknowledge(self, tokens):
         """Nothing to acknowledge: a host's session is clean, and Sparkplug data come at QoS 0."""
@@ -220,7 +232,7 @@ class SparkplugSource(MqttSource):
         try:
             payload = decode(message.payload)
         except Malformed as exc:
-            hand(("malformed", f"topic {message.topic}: {exc}", None))
+            hand(Unreadable(f"topic {message.topic}: {exc}"))
             return
         with self.lock:
             for item in self._take(verb, edge, device, payload, arrival):
@@ -251,12 +263,11 @@ class SparkplugSource(MqttSource):
             if node is None or _bdseq(payload) != node.bdseq:
                 return []  # the death of a session this host has not seen born, or an earlier one
             items = self._end(edge)
-            return items + [("event", Event("death", None, f"edge node {edge} is offline (NDEATH, bdSeq "
-                                                           f"{node.bdseq})"))]
+            return items + [Event("death", None, f"edge node {edge} is offline (NDEATH, bdSeq {node.bdseq})")]
         if node is None:
             return self._rebirth(edge, f"its {verb} came before its NBIRTH")
         if payload.seq is None:
-            return [("malformed", f"edge node {edge}: a {verb} without a seq number", None)]
+            return [Unreadable(f"edge node {edge}: a {verb} without a seq number")]
         ready, missing = node.sequence.add(payload.seq, (verb, device, payload, arrival), time.monotonic())
         return self._gave_up(edge, missing) + self._ordered(node, edge, ready)
 
@@ -268,7 +279,7 @@ class SparkplugSource(MqttSource):
                 items += self._born(node, edge, device, payload, arrival)
             elif verb == "DDEATH":
                 self._unbind(node, edge, device)
-                items.append(("event", Event("death", None, f"device {edge}/{device} is offline (DDEATH)")))
+                items.append(Event("death", None, f"device {edge}/{device} is offline (DDEATH)"))
             elif device is not None and device not in node.types:
                 items += self._rebirth(edge, f"a DDATA of device {device} came before its DBIRTH")
             else:
@@ -289,15 +300,14 @@ class SparkplugSource(MqttSource):
                 owner = self.owners.get(name)
                 if owner is not None and owner != (edge, place):
                     other = f"edge node {owner[0]}" if owner[1] is None else f"device {owner[0]}/{owner[1]}"
-                    items.append(("malformed", f"{what}: its metric {metric!r} of {name} is also {other}'s, which "
-                                               "keeps it (name the edge node and device in --source)", None))
+                    items.append(Unreadable(f"{what}: its metric {metric!r} of {name} is also {other}'s, which "
+                                            "keeps it (name the edge node and device in --source)"))
                     continue
                 self.owners[name] = (edge, place)
                 bound.append(name)
         kind = "NBIRTH" if place is None else "DBIRTH"
-        items.append(("event", Event("birth", None, f"{what} is online ({kind}"
-                                                    f"{f', bdSeq {node.bdseq}' if place is None else ''}): "
-                                                    f"{', '.join(bound) if bound else 'no metric of the tags'}")))
+        items.append(Event("birth", None, f"{what} is online ({kind}{f', bdSeq {node.bdseq}' if place is None else ''}"
+                                          f"): {', '.join(bound) if bound else 'no metric of the tags'}"))
         return items + self._readings(node, edge, place, payload, arrival)
 
     def _readings(self, node, edge, place, payload, arrival):
@@ -318,17 +328,16 @@ class SparkplugSource(MqttSource):
                 if metric.historical and stamp is None:
                     raise Malformed(f"{spec}: historical metric {name!r} without a timestamp")
             except Malformed as exc:
-                items.append(("malformed", f"{edge if place is None else f'{edge}/{place}'}: {exc}", None))
+                items.append(Unreadable(f"{edge if place is None else f'{edge}/{place}'}: {exc}"))
                 continue
             (history if metric.historical else live).append((spec, value, None if stamp is None else stamp / 1000))
         dropped = [r for r in history if r[0] in self.by_arrival]
         if dropped:
-            items.append(("event", Event("late", dropped[0][0] if len({r[0] for r in dropped}) == 1 else None,
-                                         f"{len(dropped)} historical readings of "
-                                         f"{', '.join(sorted({r[0] for r in dropped}))} not used: a tag read at its "
-                                         "arrival time cannot place them", dropped[0][2])))
+            items.append(Event("late", dropped[0][0] if len({r[0] for r in dropped}) == 1 else None,
+                               f"{len(dropped)} historical readings of {', '.join(sorted({r[0] for r in dropped}))} "
+                               "not used: a tag read at its arrival time cannot place them", dropped[0][2]))
         history = sorted((r for r in history if r[0] not in self.by_arrival), key=lambda r: r[2])
-        items += [("readings", group, arrival, None) for group in (history, live) if group]
+        items += [Readings(group, arrival) for group in (history, live) if group]
         if unknown:
             items += self._rebirth(edge, f"its metrics of aliases {', '.join(map(str, unknown))} are not in its birth")
         return items
@@ -356,7 +365,7 @@ class SparkplugSource(MqttSource):
         numbers = ", ".join(map(str, missing)) if len(missing) < 4 else f"{missing[0]}, ... {missing[-1]}"
         event = Event("sequence", None, f"edge node {edge}: seq {numbers} lost (not there within {self.reorder:g} s "
                                         f"or {HOLD} messages); the ones after went on in order")
-        return [("event", event)] + (self._rebirth(edge, "messages were lost", force=True) if ask else [])
+        return [event] + (self._rebirth(edge, "messages were lost", force=True) if ask else [])
 
     def _rebirth(self, edge, why, force=False):
         """Ask a node for a rebirth (at most once every ASK_AGAIN seconds unless `force`): an NCMD of
@@ -370,7 +379,7 @@ class SparkplugSource(MqttSource):
         client = self.client
         if client is not None:  # None once stopped
             client.publish(f"{NAMESPACE}/{self.group}/NCMD/{edge}", encode(command), qos=0)
-        return [("event", Event("rebirth", None, f"asked edge node {edge} for a rebirth: {why}"))]
+        return [Event("rebirth", None, f"asked edge node {edge} for a rebirth: {why}")]
 
     def _watched(self, edge, place) -> bool:
         """Whether the URL names this node's (place None) or this device's metrics."""

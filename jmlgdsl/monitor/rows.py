@@ -32,28 +32,27 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from dataclasses import dataclass
 from datetime import datetime
 
 import numpy as np
 
 from ..data import Row, TimeFormat
+from .sources.contract import Event
 
 AHEAD = 60.0  # seconds a reading may be stamped past the wall clock it arrives at
 HORIZON = 10  # sample times (beyond the grace) a message may be stamped past the stream's newest reading
 FOLLOWED = 3  # messages ahead of the stream, in a row, that show it has moved on
 
 
-@dataclass(frozen=True)
-class Event:
-    """Something the store keeps beside the rows: its kind, the tag (or None) and what happened."""
-
-    kind: str  # connect, disconnect, gap, stale, fresh, late, future, ahead, jump, duplicate, out_of_order, malformed, ...
-    tag: str | None
-    detail: str
-    time: float | None = None  # the data time it concerns, seconds
-
-
+# the assembler's options on the command line (flag -> argparse's keywords)
+COMMAND_LINE = {
+    "--grace": dict(type=float, metavar="SECONDS", help="a row waits this long (in the readings' time) for its "
+                    "missing readings (default 2 sample times)"),
+    "--stale": dict(type=float, metavar="SECONDS", help="a tag without a reading for this long is stale (default 10 "
+                    "sample times)"),
+    "--max-gap": dict(type=float, default=3600.0, metavar="SECONDS", help="a gap without any reading up to this long "
+                      "is diagnosed as rows of missing readings; a longer one is skipped (default 3600)"),
+}
 CLOCK = TimeFormat("datetime")  # ISO 8601, UTC: events' clock times, and the rows' of a source that writes such
 
 

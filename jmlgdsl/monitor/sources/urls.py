@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from urllib.parse import urlsplit
 
-from ..errors import JmlgError
+from ...errors import JmlgError
 
 
 def address(url: str, default_port: int, option: str = "--source"):

@@ -2,15 +2,15 @@
 `--opcua-server`), read back from the store after each commit: the store is the outbox, so nothing
 is sent that a crash could take back, and nothing committed is lost to a crash.
 
-**The sink contract.** A sink (jmlgdsl.monitor.publish's MQTT publisher, jmlgdsl.monitor.webhook's
-webhook, jmlgdsl.monitor.opcua_server's OPC UA server; another later) is an object with
+**The sink contract.** A sink (jmlgdsl.monitor.sinks.publish's MQTT publisher, jmlgdsl.monitor.sinks.webhook's
+webhook, jmlgdsl.monitor.sinks.opcua_server's OPC UA server; another later) is an object with
 
     name            the key of its delivery marks in the store (no secret in it) and of its events
     takes_states    True: every row's state and every alarm transition; False: the transitions only
-    start(report)   connect, in threads of its own; report(("event", Event, run or None)) tells what
-                    befell its delivery (an event of that run, or of every run), report(("fatal",
-                    message, None)) what trying again cannot mend; `report` may be called from any
-                    thread
+    start(report)   connect, in threads of its own; report(Event, run) tells what befell its
+                    delivery (an event of that run; without a run, of every run), report(Fatal(message))
+                    what trying again cannot mend (jmlgdsl.monitor.sources.contract's items, as the
+                    monitor takes a source's); `report` may be called from any thread
     room()          how many more conclusions it takes now (its queue is bounded: the rest wait in
                     the store)
     send(c)         take a Conclusion, in order; never waits for the far side
@@ -36,8 +36,8 @@ import dataclasses
 import json
 import queue
 
-from . import bus
-from .store import row_state
+from ..sources import bus
+from ..store import row_state
 
 
 TRANSITIONS = {"acknowledge": "acknowledged", "shelve": "shelved", "unshelve": "unshelved"}  # an action's name
@@ -58,29 +58,6 @@ class Conclusion:
 
     def json(self) -> bytes:
         return json.dumps(self.body).encode()
-
-
-def open_sinks(*, publish: str | None = None, notify: str | None = None, opcua_server: str | None = None,
-               client_id: str = "jmlgdsl", credentials=None, ca_file: str | None = None, token: str | None = None,
-               server: dict | None = None) -> list:
-    """The sinks --publish (an MQTT broker, with its credentials and certificate authority; its client
-    id `client_id`-publish), --notify (a webhook, with its bearer token) and --opcua-server (an OPC UA
-    server, with `server` the keywords of jmlgdsl.monitor.opcua_server.OpcuaServer) name, not yet
-    started."""
-    sinks = []
-    if publish is not None:
-        from .publish import MqttPublisher
-
-        sinks.append(MqttPublisher(publish, client_id=f"{client_id}-publish", credentials=credentials, ca_file=ca_file))
-    if notify is not None:
-        from .webhook import Webhook
-
-        sinks.append(Webhook(notify, token=token))
-    if opcua_server is not None:
-        from .opcua_server import OpcuaServer
-
-        sinks.append(OpcuaServer(opcua_server, **(server or {})))
-    return sinks
 
 
 class Outbox:
@@ -117,7 +94,11 @@ class Outbox:
         if fresh:
             self.store.save([], fresh)
         for sink in self.sinks:
-            sink.start(self.reports.put)
+            sink.start(self._report)
+
+    def _report(self, item, run: int | None = None):
+        """A sink's report (an Event or a Fatal, of a run or of every run), from any thread."""
+        self.reports.put((item, run))
 
     def _end(self, run) -> tuple:
         """(newest row t, newest action id) of a run in the store."""
@@ -127,10 +108,9 @@ class Outbox:
 
     def collect(self) -> tuple[list, list]:
         """What the sinks reported since the last call, as the monitor takes a source's items: [(index
-        of the unit in `runs` or None for every unit, ("event", Event) or ("fatal", message))]; and the
-        delivery marks that moved, as (sink, run, t, action) for Store.save."""
-        items = [(self.index.get(report[2]) if report[0] == "event" else None, report[:2])
-                 for report in bus.drained(self.reports)]
+        of the unit in `runs` or None for every unit, an Event or a Fatal)]; and the delivery marks
+        that moved, as (sink, run, t, action) for Store.save."""
+        items = [(self.index.get(run), item) for item, run in bus.drained(self.reports)]
         return items, [mark for feed in self.feeds for mark in feed.confirmed()]
 
     def hand(self, moved=()):

@@ -29,10 +29,13 @@ from datetime import datetime, timezone
 from asyncua import Client, ua
 from asyncua.crypto import security_policies
 
-from ..errors import JmlgError
+from ...errors import JmlgError
 from . import bus
+from ..fleet import PLACEHOLDER, FleetError, unit_tags
+from .contract import Fatal, Readings, Unreadable
 from .payload import Malformed, number
 from .tags import TagError
+from .units import UnitSources
 from .urls import address
 
 PUBLISH = 100.0  # milliseconds between the server's publish responses
@@ -52,8 +55,23 @@ class Stop(Exception):
     """What trying again would not mend; its message is the monitor's."""
 
 
+def open_source(connection, model, tags, units=None):
+    """The server a connection names; for a fleet's units, a session per unit, each reading the nodes
+    of its tags (node ids with {unit} in them)."""
+    security = dict(credentials=connection.credentials, security=connection.security,
+                    certificate=connection.certificate, private_key=connection.private_key)
+    if units is None:
+        return OpcuaSource(connection.url, model, tags, **security)
+    plain = sorted(name for name, tag in tags.items() if PLACEHOLDER not in (tag.node or ""))
+    if plain:
+        raise FleetError(f"--units with an OPC UA source: the tag file's node id of {plain[0]} holds no "
+                         f"{PLACEHOLDER}, so every unit would read the same node")
+    return UnitSources([OpcuaSource(connection.url, model, unit_tags(tags, unit), **security) for unit in units],
+                       connection.url)
+
+
 class OpcuaSource:
-    """A server's data changes as readings (the protocol of jmlgdsl.monitor.bus); nothing to
+    """A server's data changes as Readings (jmlgdsl.monitor.sources.contract); nothing to
     acknowledge. `security`: "POLICY,MODE" (e.g. "Basic256Sha256,SignAndEncrypt") with the client's
     `certificate` and `private_key` files."""
 
@@ -94,21 +112,21 @@ class OpcuaSource:
                 await self._subscribe(client, put)
             except Stop as exc:
                 await _disconnect(client)
-                put(("fatal", str(exc)))
+                put(Fatal(str(exc)))
                 return
             except (OSError, asyncio.TimeoutError, ua.UaError) as exc:
                 await _disconnect(client)
                 delay = next(delays)
-                put(("event", bus.unreachable(self.where, _why(exc), delay)))
+                put(bus.unreachable(self.where, _why(exc), delay))
                 await self._wait(delay)
                 continue
             delays = bus.delays()
-            put(("event", bus.connected(self.where, f"{len(self.nodes)} nodes, security "
-                                                    f"{self.security[0] if self.security else 'None'}")))
+            put(bus.connected(self.where, f"{len(self.nodes)} nodes, security "
+                                          f"{self.security[0] if self.security else 'None'}"))
             await self._wait(None, lost)
             await _disconnect(client)
             if lost:
-                put(("event", bus.lost(self.where, _why(lost[0]), 0)))
+                put(bus.lost(self.where, _why(lost[0]), 0))
 
     async def _connect(self, client):
         if self.credentials is not None:
@@ -177,10 +195,10 @@ class _Changes:
             try:
                 readings.append((name, _value(name, value), _stamp(value.SourceTimestamp)))
             except Malformed as exc:
-                self.put(("malformed", f"node {text}: {exc}", None))
+                self.put(Unreadable(f"node {text}: {exc}"))
         self.pending = []
         if readings:
-            self.put(("readings", readings, arrival, None))
+            self.put(Readings(readings, arrival))
 
 
 def _nodes(tags):

@@ -18,7 +18,7 @@ import math
 import re
 from datetime import datetime, timezone
 
-from ..infer.online import MAX_READING
+from ...infer.online import MAX_READING
 
 SHOWN = 60  # characters of a bad payload quoted in its message
 MAX_PAYLOAD = 1 << 16  # bytes: a sample of a thousand names fits many times over

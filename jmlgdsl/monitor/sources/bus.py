@@ -1,19 +1,16 @@
 """What the data-bus sources (MQTT, OPC UA) and the sinks of the conclusions share: the events of
-their connection, the growing delay between attempts to connect, the message of a refused password,
-and the draining of what their threads hand over.
-
-A bus source hands the monitor `put(("readings", [(name, value, time or None)], arrival, token))`
-(a time in seconds, or a datetime where the source writes clock times), `put(("malformed", message,
-token))`, `put(("event", Event))` and, for what trying again cannot mend, `put(("fatal", message))`;
-the monitor calls `acknowledge(tokens)` after the commit that holds them and `stop()` at the end.
+their connection, the growing delay between attempts to connect, the credentials they log in with
+and the message of a refused password, and the draining of what their threads hand over.
 """
 
 from __future__ import annotations
 
+import os
 import queue
 import ssl
 
-from .assemble import Event
+from ...errors import JmlgError
+from .contract import Event
 
 FIRST_RETRY, LAST_RETRY = 1.0, 30.0  # seconds between connection attempts: doubling from the first to the last
 
@@ -68,4 +65,37 @@ def untrusted(where: str, port: int, error, option: str = "--ca-file") -> str | 
                 f"authority that signed it with {option}")
     if isinstance(error, ssl.SSLError):
         return f"{where}: no TLS connection ({error.reason or error}): is {port} the broker's TLS port?"
+    return None
+
+
+def credentials(username: str | None, env: str | None, path: str | None,
+                options: str = "--") -> tuple[str, str] | None:
+    """(user name, password) from --username and the password's environment variable or file (or the
+    options that begin with `options` instead, e.g. --publish-username); None without a user name.
+    The password is read here and never shown."""
+    password = secret(f"{options[2:]}password", env, path)
+    if username is None:
+        if password is not None:
+            raise JmlgError(f"{options}password-{'env' if env else 'file'}: a password needs {options}username")
+        return None
+    return username, password or ""
+
+
+def secret(what: str, env: str | None, path: str | None) -> str | None:
+    """A secret from the environment variable --WHAT-env names or the first line of the file --WHAT-file
+    names (never from the command line, where the process list shows it); None without either."""
+    if env and path:
+        raise JmlgError(f"--{what}-env and --{what}-file: give one of them")
+    if env:
+        if env not in os.environ:
+            raise JmlgError(f"--{what}-env: the environment variable {env} is not set")
+        return os.environ[env]
+    if path:
+        try:
+            with open(path, encoding="utf-8") as stream:
+                return stream.readline().rstrip("\r\n")
+        except OSError as exc:
+            raise JmlgError(f"--{what}-file: cannot read {path}: {exc.strerror}") from None
+        except UnicodeDecodeError:
+            raise JmlgError(f"--{what}-file: {path} is not UTF-8 text") from None
     return None

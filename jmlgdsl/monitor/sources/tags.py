@@ -21,8 +21,8 @@ import math
 import sys
 from dataclasses import dataclass
 
-from ..errors import JmlgError
-from ..names import suggest
+from ...errors import JmlgError
+from ...names import suggest
 
 if sys.version_info >= (3, 11):
     import tomllib

@@ -1,5 +1,5 @@
 """The monitor's conclusions served over OPC UA (`monitor --opcua-server opc.tcp://HOST:PORT/PATH`):
-a sink of jmlgdsl.monitor.outbox, an asyncua server in a thread with its own event loop, for a
+a sink of jmlgdsl.monitor.sinks.outbox, an asyncua server in a thread with its own event loop, for a
 SCADA, an HMI or a historian to read, to subscribe to, and to acknowledge and shelve alarms on.
 
 Its namespace urn:jmlgdsl:diagnosis holds under Objects an object for the plant (ns=2;s=PLANT)
@@ -50,13 +50,13 @@ from asyncua.crypto.permission_rules import User, UserRole
 from asyncua.server.internal_server import InternalServer
 from asyncua.server.internal_session import InternalSession
 
-from ..errors import JmlgError
-from . import bus
-from .assemble import Event
-from .databases import StoreError
-from .opcua import security_options
-from .store import LONGEST, Store, row_state
-from .urls import address
+from ...errors import JmlgError
+from ..sources import bus
+from ..sources.contract import Event, Fatal
+from ..databases import StoreError
+from ..sources.opcua import security_options
+from ..store import LONGEST, Store, row_state
+from ..sources.urls import address
 
 logging.getLogger("asyncua").addHandler(logging.NullHandler())  # its warnings are the monitor's events
 
@@ -80,7 +80,7 @@ CALLER = contextvars.ContextVar("caller")  # the session whose method call is ru
 
 
 class OpcuaServer:
-    """A sink (jmlgdsl.monitor.outbox) that serves each unit's newest state and its alarms over OPC UA.
+    """A sink (jmlgdsl.monitor.sinks.outbox) that serves each unit's newest state and its alarms over OPC UA.
     `store` and `password`: the monitor's store, which it reads its runs from and writes the clients'
     actions to; `units`: the fleet's (None: one plant); `credentials`: the one (user, password) let
     in (None: anonymous clients); `security`: "POLICY,MODE" with the server's `certificate` and
@@ -143,17 +143,16 @@ class OpcuaServer:
         try:
             server = await self._open()
         except (OSError, StoreError, ua.UaError, asyncio.TimeoutError) as exc:
-            report(("fatal", f"--opcua-server {self.name}: cannot serve ({getattr(exc, 'strerror', None) or exc})",
-                    None))
+            report(Fatal(f"--opcua-server {self.name}: cannot serve ({getattr(exc, 'strerror', None) or exc})"))
         except Exception as exc:  # what the thread would otherwise take with it unseen
-            report(("fatal", f"--opcua-server {self.name}: cannot serve ({type(exc).__name__}: {exc})", None))
+            report(Fatal(f"--opcua-server {self.name}: cannot serve ({type(exc).__name__}: {exc})"))
         if server is None:
             if self.store is not None:
                 self.store.close()
             return
-        report(("event", Event("delivery", None, f"opcua-server {self.name}: serving {len(self.served)} "
-                                                 f"unit{'s' * (len(self.served) != 1)}, security "
-                                                 f"{','.join(self.security[:2]) if self.security else 'None'}"), None))
+        report(Event("delivery", None, f"opcua-server {self.name}: serving {len(self.served)} "
+                                       f"unit{'s' * (len(self.served) != 1)}, security "
+                                       f"{','.join(self.security[:2]) if self.security else 'None'}"))
         try:
             while not self.closing:
                 await self.wake.wait()
@@ -164,7 +163,7 @@ class OpcuaServer:
                     self.applied += 1
                     self.done.put(conclusion)
         except Exception as exc:  # what the thread would otherwise take with it unseen
-            report(("fatal", f"--opcua-server {self.name}: stopped serving ({type(exc).__name__}: {exc})", None))
+            report(Fatal(f"--opcua-server {self.name}: stopped serving ({type(exc).__name__}: {exc})"))
         finally:
             await server.stop()
             self.store.close()

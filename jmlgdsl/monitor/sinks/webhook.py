@@ -1,4 +1,4 @@
-"""Alarm transitions posted to a webhook (`monitor --notify URL`): a sink of jmlgdsl.monitor.outbox
+"""Alarm transitions posted to a webhook (`monitor --notify URL`): a sink of jmlgdsl.monitor.sinks.outbox
 that takes the transitions only (raised, cleared, acknowledged, shelved, unshelved).
 
 Each transition is POSTed as its JSON object (`text` in it a line for people, which a chat hook
@@ -19,17 +19,17 @@ import urllib.error
 import urllib.request
 from urllib.parse import urlsplit
 
-from . import bus
-from .assemble import Event
-from ..errors import JmlgError
-from ..version import VERSION
+from ..sources import bus
+from ..sources.contract import Event
+from ...errors import JmlgError
+from ...version import VERSION
 
 QUEUE = 1_000  # transitions waiting for the receiver, at most (the rest wait in the store)
 TIMEOUT = 10.0  # seconds a receiver has to answer a request
 
 
 class Webhook:
-    """A sink (jmlgdsl.monitor.outbox) that posts each alarm transition to a URL. Its name shows the
+    """A sink (jmlgdsl.monitor.sinks.outbox) that posts each alarm transition to a URL. Its name shows the
     URL's scheme and host only, with a digest of the whole (a chat hook's path is its secret)."""
 
     takes_states = False
@@ -86,15 +86,15 @@ class Webhook:
                     break
                 failures, delay = failures + 1, next(delays)
                 self.failing = True
-                report(("event", Event("delivery", None, f"notify {self.name}: alarm {conclusion.body['alarm']} "
-                                                         f"{conclusion.body['transition']}: {why}; trying again in "
-                                                         f"{delay:g} s"), conclusion.run))
+                report(Event("delivery", None, f"notify {self.name}: alarm {conclusion.body['alarm']} "
+                                               f"{conclusion.body['transition']}: {why}; trying again in {delay:g} s"),
+                       conclusion.run)
                 if self.closing.wait(delay):
                     return
             if failures:
                 self.failing = False
-                report(("event", Event("delivery", None, f"notify {self.name}: delivered after {failures} failed "
-                                                         f"attempt{'s' * (failures > 1)}"), conclusion.run))
+                report(Event("delivery", None, f"notify {self.name}: delivered after {failures} failed "
+                                               f"attempt{'s' * (failures > 1)}"), conclusion.run)
             self.done.put(conclusion)
 
     def _post(self, conclusion) -> str | None:

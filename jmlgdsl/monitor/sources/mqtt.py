@@ -19,17 +19,28 @@ import time
 import paho.mqtt.client as mqtt
 
 from . import bus
-from .fleet import PLACEHOLDER, for_unit, unit_tags
+from ..fleet import PLACEHOLDER, for_unit, unit_tags
+from .contract import Fatal, Readings, Unreadable
 from .payload import Malformed, decode
 from .urls import address
 
 REFUSED = (134, 135)  # bad user name or password, not authorized: trying again would not help
 
 
+def open_source(connection, model, tags, units=None):
+    """The broker a connection names, in a persistent session of client id --client-id (default
+    jmlgdsl-PLANT; a fleet's shard's with its index)."""
+    client_id = connection.client_id or f"jmlgdsl-{model.name}"
+    if connection.shard is not None:  # a persistent session of its own
+        client_id = f"{client_id}-{connection.shard}"
+    return MqttSource(connection.url, model, tags, client_id=client_id, credentials=connection.credentials,
+                      ca_file=connection.ca_file, units=units)
+
+
 class MqttSource:
-    """A broker's messages as readings: put(("readings", [(name, value, time)], arrival, token)),
-    put(("malformed", message, token)) and put(("event", Event)); `acknowledge(tokens)` after a commit.
-    With `units`, every item is handed over as (unit index, item) (None: the connection's, for every unit)."""
+    """A broker's messages as Readings, Unreadables and Events (jmlgdsl.monitor.sources.contract),
+    the messages acknowledged after the commit that holds them. With `units`, every item is handed
+    over as (unit index, item) (None: the connection's, for every unit)."""
 
     rows = False
     persistent = True  # a persistent session whose messages are acknowledged after their commit
@@ -66,9 +77,9 @@ class MqttSource:
             if reason.is_failure:
                 if reason.value in REFUSED:
                     client.disconnect()
-                    hand(("fatal", bus.refused(self.name, "broker", reason)))
+                    hand(Fatal(bus.refused(self.name, "broker", reason)))
                 else:
-                    hand(("event", bus.unreachable(where, f"it refused the connection: {reason}", waits.next())))
+                    hand(bus.unreachable(where, f"it refused the connection: {reason}", waits.next()))
                 return
             waits.connected()
             self.connected(client, flags, hand)
@@ -76,12 +87,11 @@ class MqttSource:
         def on_connect_fail(client, userdata):
             error = sys.exc_info()[1]  # paho calls this while it handles the connection's OSError
             fatal = bus.untrusted(self.name, self.port, error)
-            hand(("fatal", fatal) if fatal else
-                 ("event", bus.unreachable(where, error or "no answer", waits.next())))
+            hand(Fatal(fatal) if fatal else bus.unreachable(where, error or "no answer", waits.next()))
 
         def on_disconnect(client, userdata, flags, reason, properties):
             if self.client is not None:
-                hand(("event", bus.lost(where, closed(reason), waits.next())))
+                hand(bus.lost(where, closed(reason), waits.next()))
 
         def on_message(client, userdata, message):
             # Every message is handed on, as readings or as one `malformed` event, and so acknowledged
@@ -90,8 +100,8 @@ class MqttSource:
             try:
                 self.received(message, hand)
             except Exception as exc:  # what no reading should raise: reported as the message's fault, not fatal
-                hand(("malformed", f"topic {_topic(message)}: cannot read the message ({type(exc).__name__}: {exc})",
-                      (message.mid, message.qos)))
+                hand(Unreadable(f"topic {_topic(message)}: cannot read the message ({type(exc).__name__}: {exc})",
+                                (message.mid, message.qos)))
 
         client.on_connect, client.on_connect_fail = on_connect, on_connect_fail
         client.on_disconnect, client.on_message = on_disconnect, on_message
@@ -108,7 +118,7 @@ class MqttSource:
         item over."""
         client.subscribe([(topic, 1) for topic in self.topics])
         resumed = "resumed its session" if flags.session_present else "a new session"
-        hand(("event", bus.connected(f"{self.host}:{self.port}", f"as {self.client_id}, {resumed}")))
+        hand(bus.connected(f"{self.host}:{self.port}", f"as {self.client_id}, {resumed}"))
 
     def received(self, message, hand):
         """A message from the broker as readings (or malformed), acknowledged after their commit."""
@@ -117,9 +127,9 @@ class MqttSource:
         try:
             if topic not in self.topics:  # a subscription left in the session by an earlier run
                 raise Malformed("not a topic of this monitor's tags")
-            item = ("readings", decode(message.payload, name, self.names), time.time(), token)
+            item = Readings(decode(message.payload, name, self.names), time.time(), token)
         except Malformed as exc:
-            item = ("malformed", f"topic {topic}: {exc}", token)
+            item = Unreadable(f"topic {topic}: {exc}", token)
         hand(item, unit)
 
     def acknowledge(self, tokens):

@@ -1,5 +1,5 @@
 """The monitor's conclusions published on an MQTT broker (`monitor --publish mqtt://HOST:PORT/PREFIX`,
-or mqtts:// over TLS): a sink of jmlgdsl.monitor.outbox, on a connection of its own (client id the
+or mqtts:// over TLS): a sink of jmlgdsl.monitor.sinks.outbox, on a connection of its own (client id the
 source's with -publish, a clean session):
 
     PREFIX/state    each diagnosed row's state, retained (a subscriber that comes later is sent the latest)
@@ -18,19 +18,19 @@ import queue
 import sys
 import time
 
-from . import bus
-from .assemble import Event
-from .fleet import PLACEHOLDER, for_unit
-from .mqtt import REFUSED, Waits, closed, paho_client
-from .urls import address
-from ..errors import JmlgError
+from ..sources import bus
+from ..sources.contract import Event, Fatal
+from ..fleet import PLACEHOLDER, for_unit
+from ..sources.mqtt import REFUSED, Waits, closed, paho_client
+from ..sources.urls import address
+from ...errors import JmlgError
 
 WINDOW = 1_000  # messages sent and not yet acknowledged by the broker, at most (the rest wait in the store)
 TOPICS = {"state": "state", "transition": "alarm"}  # a conclusion's kind -> the last level of its topic
 
 
 class MqttPublisher:
-    """A sink (jmlgdsl.monitor.outbox) that publishes each conclusion on an MQTT broker."""
+    """A sink (jmlgdsl.monitor.sinks.outbox) that publishes each conclusion on an MQTT broker."""
 
     takes_states = True
 
@@ -58,7 +58,7 @@ class MqttPublisher:
         where = f"{self.host}:{self.port}"
 
         def event(happened: Event):
-            report(("event", Event("delivery", None, f"publish {self.name}: {happened.detail}"), None))
+            report(Event("delivery", None, f"publish {self.name}: {happened.detail}"))
 
         waits = Waits()
 
@@ -66,7 +66,7 @@ class MqttPublisher:
             if reason.is_failure:
                 if reason.value in REFUSED:
                     client.disconnect()
-                    report(("fatal", bus.refused(f"--publish {self.name}", "broker", reason, "--publish-"), None))
+                    report(Fatal(bus.refused(f"--publish {self.name}", "broker", reason, "--publish-")))
                 else:
                     event(bus.unreachable(where, f"it refused the connection: {reason}", waits.next()))
                 return
@@ -78,7 +78,7 @@ class MqttPublisher:
             error = sys.exc_info()[1]  # paho calls this while it handles the connection's OSError
             fatal = bus.untrusted(f"--publish {self.name}", self.port, error, "--publish-ca-file")
             if fatal:
-                report(("fatal", fatal, None))
+                report(Fatal(fatal))
             else:
                 event(bus.unreachable(where, error or "no answer", waits.next()))
 
