@@ -37,6 +37,7 @@ import numpy as np
 
 from ..data import iter_rows, open_source
 from ..errors import DataError, JmlgError
+from ..infer import ALGORITHMS
 from ..infer.units import Units, stackable
 from ..model import Model
 from ..progress import Progress
@@ -65,9 +66,9 @@ class Fleet:
         banks = [unit.model for unit in self.units]
         self.filter = None  # None: each unit's Diagnosis filters its own rows
         if stepped_together(first) and stackable([model, *banks]):
-            # imm: one vectorised filter beside the units'; the others: the units' own filters stepped together
-            self.filter = (Units(model, len(self.units), models=banks) if first.algorithm == "imm" else
-                           Units(model, len(self.units), filters=[unit.filter for unit in self.units]))
+            # one vectorised filter beside the units' where the algorithm has one; else their own stepped together
+            self.filter = (Units(model, len(self.units), models=banks) if ALGORITHMS[first.algorithm].vectorised
+                           else Units(model, len(self.units), filters=[unit.filter for unit in self.units]))
 
     def feed(self, rows):
         """Diagnose one data row of each unit (rows[i] for unit i; None: unit i has no row)."""
@@ -76,27 +77,20 @@ class Fleet:
             for i in on:
                 self.units[i].feed(rows[i])
             return
-        ys = []
-        for i in on:
-            unit, row = self.units[i], rows[i]
-            unit._held.append(row)
-            ys.append(row.y if unit.prefilter is None else unit.prefilter(row.y))
+        ys = [self.units[i].hold(rows[i]) for i in on]
         steps = self.filter.step(np.array(ys).reshape(len(on), self.model.ny),
                                  np.array([rows[i].u for i in on]).reshape(len(on), self.model.nu),
                                  None if len(on) == len(rows) else on)
-        faulty = self.units[0].alarms.faulty
-        if self.filter.algorithm != "imm":  # each unit's engine holds its predictive, read as Diagnosis.feed does
+        if not self.filter.vectorised:  # each unit's engine holds its predictive
             for i in on:
-                engine = self.units[i].filter.engine
-                if self.units[i].explain:
-                    self.units[i]._evidence.append(Evidence.of(engine.predictive, faulty))
-                engine.predictive = None
-        elif self.units[0].explain:
+                self.units[i].heard()
+        elif self.units[0].explain:  # every unit's evidence in one call
+            faulty = self.units[0].alarms.faulty
             for positions, predictive in self.filter.predictives:
                 for j, evidence in zip(positions, Evidence.of_units(predictive, faulty)):
-                    self.units[on[j]]._evidence.append(evidence)
+                    self.units[on[j]].heard(evidence)
         for j, i in enumerate(on):
-            self.units[i]._finished(steps.record(j))
+            self.units[i].finished(steps.record(j))
 
     def finish(self):
         """The end of the data of every unit."""

@@ -85,17 +85,29 @@ class Diagnosis:
 
     def feed(self, row: Row) -> list[Diagnosed]:
         """Diagnose one data row; the rows this finishes (none while a lag holds them back)."""
+        step = self.filter.step(self.hold(row), row.u)
+        self.heard()
+        return [] if step is None else [self.finished(step)]
+
+    # A Fleet steps many units' filters in one call: it feeds each unit's Diagnosis through these three
+    # steps, as `feed` does, with the filter stepped between `hold` and `heard`.
+    def hold(self, row: Row):
+        """Hold a data row until its filter's record of it comes back; the readings to filter (pre-filtered)."""
         self._held.append(row)
-        step = self.filter.step(row.y if self.prefilter is None else self.prefilter(row.y), row.u)
+        return row.y if self.prefilter is None else self.prefilter(row.y)
+
+    def heard(self, evidence: Evidence | None = None):
+        """The filter has stepped on the row held last: with explain, keep its evidence per sensor (given
+        by a fleet's vectorised filter, else read from the filter's engine); the engine's predictive
+        is then dropped, no part of the saved state."""
         engine = self.filter.engine
         if self.explain:
-            self._evidence.append(Evidence.of(engine.predictive, self.alarms.faulty))
-        engine.predictive = None  # the engine's last predictive is no part of the saved state
-        return [] if step is None else [self._finished(step)]
+            self._evidence.append(Evidence.of(engine.predictive, self.alarms.faulty) if evidence is None else evidence)
+        engine.predictive = None
 
     def finish(self) -> list[Diagnosed]:
         """The end of the data: the rows still held back, smoothed with what arrived."""
-        done = [self._finished(step) for step in self.filter.flush()]
+        done = [self.finished(step) for step in self.filter.flush()]
         self.scale.finish()
         return done
 
@@ -106,7 +118,9 @@ class Diagnosis:
         self.finish()
         return self
 
-    def _finished(self, step: Step) -> Diagnosed:
+    def finished(self, step: Step) -> Diagnosed:
+        """The filter's record of the oldest row held: its alarm, counted in the summary and scores,
+        handed to the sinks."""
         row = self._held.popleft()
         alarm = self.alarms.step(step.mode_posterior)
         self.summary.add(step, row.mode)
