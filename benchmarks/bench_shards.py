@@ -37,8 +37,9 @@ from pathlib import Path
 
 import jmlgdsl
 from jmlgdsl.data import iter_rows, open_source
+from jmlgdsl.diagnosis import Options
 from jmlgdsl.diagnosis.fleet import Fleet
-from jmlgdsl.monitor import Monitor, Store, monitor_options
+from jmlgdsl.monitor import Monitor, MonitorOptions, Store
 from jmlgdsl.monitor.sources import open_bus
 
 from ledger import ledger_argument, record
@@ -83,7 +84,7 @@ def filter_cost(folder: Path, units: list[str]) -> float:
         with open_source(str(folder / f"{unit}.csv")) as source:
             records.append(list(iter_rows(source, model, source.name)))
     start = time.perf_counter()
-    Fleet(model, len(records), explain=True, scored=False).run(records)
+    Fleet(model, len(records), Options(explain=True), scored=False).run(records)
     return (time.perf_counter() - start) / sum(map(len, records))
 
 
@@ -96,7 +97,7 @@ def held(folder: Path, count: int) -> int:
         source = open_bus(str(folder / "{unit}.csv"), model, {}, follow=False, units=units)
         tracemalloc.start()
         before = tracemalloc.get_traced_memory()[0]
-        monitor = Monitor(model, store, source, spec=None, options=monitor_options(), tags={}, units=units)
+        monitor = Monitor(model, store, source, spec=None, options=MonitorOptions(), tags={}, units=units)
         size = tracemalloc.get_traced_memory()[0] - before
         tracemalloc.stop()
         del monitor

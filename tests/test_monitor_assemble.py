@@ -217,7 +217,7 @@ def test_tag_file(tmp_path):
 def test_a_monitor_logs_the_first_late_message_of_a_batch_and_counts_the_rest(tmp_path):
     # a broker delivering again what a killed monitor had not acknowledged: every late message is an
     # event in the store, but the log has one line for the first and one line counting the others
-    from jmlgdsl.monitor import Monitor, Store, monitor_options
+    from jmlgdsl.monitor import Monitor, MonitorOptions, Store
 
     class Redelivered:
         rows, name = False, "test://redelivered"
@@ -237,7 +237,7 @@ def test_a_monitor_logs_the_first_late_message_of_a_batch_and_counts_the_rest(tm
 
     logged = []
     with Store(tmp_path / "s.db") as store:
-        monitor = Monitor(MODEL, store, Redelivered(), spec=None, options=monitor_options(), tags=read_tags(None, MODEL),
+        monitor = Monitor(MODEL, store, Redelivered(), spec=None, options=MonitorOptions(), tags=read_tags(None, MODEL),
                           log=logged.append)
         stopped = monitor.run()
         assert stopped.events["late"] == 40 and store.counts(stopped.runs[0])["late"] == 40
@@ -252,7 +252,7 @@ def test_a_stalled_diagnosis_is_an_event_once_until_a_row_comes(tmp_path, monkey
     import threading
     import time
 
-    from jmlgdsl.monitor import Monitor, Store, live, monitor_options
+    from jmlgdsl.monitor import Monitor, MonitorOptions, Store, live
 
     monkeypatch.setattr(live, "STALL", 0.05)  # sample times: 0.05 s of the dryer's 1 s
     monkeypatch.setattr(live, "STALL_LEAST", 0.0)
@@ -282,7 +282,7 @@ def test_a_stalled_diagnosis_is_an_event_once_until_a_row_comes(tmp_path, monkey
 
     logged = []
     with Store(tmp_path / "s.db") as store:
-        stopped = Monitor(MODEL, store, Stuck(), spec=None, options=monitor_options(), tags=read_tags(None, MODEL),
+        stopped = Monitor(MODEL, store, Stuck(), spec=None, options=MonitorOptions(), tags=read_tags(None, MODEL),
                           log=logged.append).run()
         details = [detail for (detail,) in store.db.execute("SELECT detail FROM event WHERE kind = 'stall'")]
     assert stopped.events["stall"] == 2 and len(details) == 2

@@ -6,7 +6,7 @@ from __future__ import annotations
 import sys
 
 from . import (STORE_HELP, add_alarm_options, add_filter_options, add_page_options, add_store_password_options,
-               check_particles, healthy_modes, start_page, store_password, whole)
+               check_particles, diagnosis_options, start_page, store_password, whole)
 
 
 def register(subparsers):
@@ -120,11 +120,10 @@ def register(subparsers):
 def main(args) -> int:
     import jmlgdsl
 
-    from ..monitor import Monitor, Store, monitor_options, read_tags
+    from ..monitor import Monitor, MonitorOptions, Store, read_tags
     from ..monitor.fleet import unit_names
     from ..monitor.outbox import open_sinks
     from ..monitor.sources import credentials, open_bus, secret
-    from ..diagnosis.prefilter import parse
     from ..errors import JmlgError
     from ..names import plural
 
@@ -132,11 +131,7 @@ def main(args) -> int:
     check_particles(args, model)
     tags = read_tags(args.tags, model)
     units = None if args.units is None else unit_names(args.units)
-    options = monitor_options(
-        algorithm=args.filter, particles=args.particles, seed=args.seed, resampling=args.resampling,
-        ess_threshold=args.ess_threshold, lag=args.lag, prefilter=parse(args.prefilter),
-        healthy=healthy_modes(args), threshold=args.threshold,
-        persistence=args.persistence, grace=args.grace, stale=args.stale, max_gap=args.max_gap)
+    options = MonitorOptions(diagnosis_options(args), args.grace, args.stale, args.max_gap)
     if (args.cluster or args.shards) and units is None:
         raise JmlgError(f"{'--cluster' if args.cluster else '--shards'} spreads the units of a fleet: give --units")
     if args.shards is not None and args.cluster is None:

@@ -23,10 +23,10 @@ from .alarms import AlarmRule, AlarmStream
 from ..data import Row
 from .evidence import Evidence
 from ..errors import JmlgError
-from ..infer import DEFAULT_ALGORITHM, Filter
 from ..infer.online import SAVED_KINDS as FILTER_KINDS
 from ..infer.result import Step, Summary
 from ..model import Model
+from .options import Options
 from .prefilter import MovingAverage
 from ..version import VERSION
 from .scale import ScaleCheck
@@ -57,29 +57,26 @@ class Diagnosed:
 class Diagnosis:
     """Diagnose a model's data rows one at a time: `feed(row)` as rows arrive, `finish()` at the end.
 
-    The options are the Filter's (algorithm, particles, seed, resampling, ess_threshold, lag), the
-    causal moving-average window `prefilter` (None: off) and the alarm `rule` (None: the first mode
-    is healthy, threshold 0.5, persistence 1). Sinks see every finished row, in order. `scored`
-    keeps every row's alarm and truth for the detection scores (a few bytes a row); a diagnosis
-    that runs for ever on data without truth (a live plant) leaves it off, so its state stays small.
-    `explain` gives every finished row its evidence per sensor (jmlgdsl.diagnosis.evidence) for the
-    most probable non-healthy mode of the rule against its healthy modes.
+    `options` (jmlgdsl.diagnosis.Options) say how: the filter and its lag, the pre-filter, the alarm
+    rule and whether to explain. Sinks see every finished row, in order. `scored` keeps every row's
+    alarm and truth for the detection scores (a few bytes a row); a diagnosis that runs for ever on
+    data without truth (a live plant) leaves it off, so its state stays small. Explaining gives every
+    finished row its evidence per sensor (jmlgdsl.diagnosis.evidence) for the most probable
+    non-healthy mode of the rule against its healthy modes.
     """
 
-    def __init__(self, model: Model, *, algorithm: str = DEFAULT_ALGORITHM, particles: int | None = None,
-                 seed=None, resampling: str = "systematic", ess_threshold: float = 1.0, lag: int | None = 0,
-                 prefilter: int | None = None, rule: AlarmRule | None = None, scored: bool = True, sinks=(),
-                 explain: bool = False):
+    def __init__(self, model: Model, options: Options = Options(), *, scored: bool = True, sinks=()):
         self.model = model
-        self.filter = Filter(model, algorithm, particles, seed, resampling, ess_threshold, lag)
-        self.prefilter = None if prefilter is None else MovingAverage(prefilter)
-        self.rule = AlarmRule((model.modes[0],)) if rule is None else rule
+        rule = options.rule(model)  # a rule it cannot take is refused before the filter's options
+        self.filter = options.filter(model)
+        self.prefilter = None if options.prefilter is None else MovingAverage(options.prefilter)
+        self.rule = rule
         self.alarms = self.rule.stream(model.modes)  # an unknown healthy mode is an error before any data
         self.summary = Summary(max_segments=MAX_SEGMENTS)
         self.truth = Truth(self.alarms.faulty, model.dt) if scored else None
         self.scale = ScaleCheck(model)
         self.sinks = list(sinks)
-        self.explain = explain
+        self.explain = options.explain
         self._held = deque()  # data rows whose records the filter still holds back (with a lag)
         self._evidence = deque()  # with explain, the evidence of the rows held back
 
@@ -192,7 +189,7 @@ def _identity(model: Model) -> dict:
     return {"format": CHECKPOINT_FORMAT, "version": VERSION, "plant": model.name, "model": fingerprint(model)}
 
 
-def diagnose(model: Model, rows, *, sinks=(), **options) -> Diagnosis:
-    """Diagnose every row of an iterable of data rows (see `jmlgdsl.data.iter_rows`), handing each
-    finished row to the sinks; the finished Diagnosis (its summary, truth scores and report)."""
-    return Diagnosis(model, sinks=sinks, **options).run(rows)
+def diagnose(model: Model, rows, options: Options = Options(), *, sinks=()) -> Diagnosis:
+    """Diagnose every row of an iterable of data rows (see `jmlgdsl.data.iter_rows`) as `options` say,
+    handing each finished row to the sinks; the finished Diagnosis (its summary, truth scores and report)."""
+    return Diagnosis(model, options, sinks=sinks).run(rows)

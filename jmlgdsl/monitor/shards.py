@@ -23,7 +23,7 @@ import threading
 from urllib.parse import urlsplit
 
 from ..cluster import completed
-from .live import Monitor, Stopped, open_runs, recorded_options
+from .live import Monitor, MonitorOptions, Stopped, open_runs, recorded_options
 from .sources import open_bus
 from .databases import StoreError, is_url
 from .store import Store
@@ -66,7 +66,7 @@ class Shard:
     (the URL, credentials, ...); the shard's MQTT client id is the fleet's with its index; `banks`
     its units' own (model, spec text), as Monitor takes them."""
 
-    def __init__(self, model, location: str, password: str | None, spec: str | None, options: dict, tags: dict,
+    def __init__(self, model, location: str, password: str | None, spec: str | None, options: MonitorOptions, tags: dict,
                  units: list, index: int, source: dict, banks=None):
         recipe = dict(source)
         if urlsplit(recipe["url"]).scheme in ("mqtt", "mqtts"):  # a persistent session of its own
@@ -89,7 +89,7 @@ class Shard:
         self.stopping.set()
 
 
-def run_shards(ray, model, location: str, password: str | None, *, spec: str | None, options: dict, tags: dict,
+def run_shards(ray, model, location: str, password: str | None, *, spec: str | None, options: MonitorOptions, tags: dict,
                units: list, count: int, source: dict, new_run: bool = False,
                stop: threading.Event | None = None, banks=None) -> Stopped:
     """Monitor `units` in `count` shards on the joined Ray cluster until their data end or `stop` is
