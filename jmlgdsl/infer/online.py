@@ -13,6 +13,7 @@ from collections import deque
 
 import numpy as np
 
+from ..data import with_defaults
 from ..errors import DataError
 from ..model import Model
 from ..seeds import generator
@@ -189,15 +190,17 @@ def _readings(y):
 
 def _inputs(model: Model, u, t):
     """Inputs u (..., nu) with NaN entries taking the spec's defaults; a DataError naming the first
-    row (u's first row is t) with an input that has neither a value nor a default."""
+    row with an input that has neither a value nor a default: row i is step t + i of one record (t a
+    number), or step t[i] of unit i (t an array: a row per unit, jmlgdsl.infer.units)."""
     if np.isfinite(u).all():
         return u
-    u = np.where(np.isnan(u), model.input_defaults, u)
+    u = with_defaults(u, model.input_defaults)
     bad = ~np.isfinite(np.atleast_2d(u))
     if bad.any():
         row = int(np.flatnonzero(bad.any(axis=1))[0])
         names = [n for n, b in zip(model.inputs, bad[row]) if b]
-        raise DataError(f"t={t + row}: no value and no default for input {', '.join(names)}")
+        where = f"t={t + row}" if np.ndim(t) == 0 else f"unit {row}, t={t[row]}"
+        raise DataError(f"{where}: no value and no default for input {', '.join(names)}")
     return u
 
 

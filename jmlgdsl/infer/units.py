@@ -45,7 +45,7 @@ from . import kalman
 from .algorithms import ALGORITHMS, DEFAULT_ALGORITHM, algorithm_named
 from .engine import Estimate, FilterError, Gate, screen
 from .imm import SURE, mix, moments, predict, refresh, whitened
-from .online import MAX_REJECTIONS, Filter, _arrays, _overflow, _readings
+from .online import MAX_REJECTIONS, Filter, _arrays, _inputs, _overflow, _readings
 from .resample import normalize_rows, row_extreme
 from .result import Predictive, Result, Step
 
@@ -452,20 +452,6 @@ def _rows(values, n, names, what):
         raise DataError(f"{what} must have shape ({n}, {len(names)}) for {n} units and {', '.join(names) or 'none'}; "
                         f"got {v.shape}")
     return v
-
-
-def _inputs(model: Model, u, t):
-    """Inputs u (n, nu) with NaN entries taking the spec's defaults; a DataError naming the unit and
-    input that has neither (online._inputs' message, for the unit's step t)."""
-    if np.isfinite(u).all():
-        return u
-    u = np.where(np.isnan(u), model.input_defaults, u)
-    bad = ~np.isfinite(u)
-    if bad.any():
-        i = int(np.flatnonzero(bad.any(axis=1))[0])
-        names = [name for name, b in zip(model.inputs, bad[i]) if b]
-        raise DataError(f"unit {i}, t={t[i]}: no value and no default for input {', '.join(names)}")
-    return u
 
 
 def filter_units(model: Model, ys, us=None, **options) -> list[Result]:
