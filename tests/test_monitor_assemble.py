@@ -288,3 +288,16 @@ def test_a_stalled_diagnosis_is_an_event_once_until_a_row_comes(tmp_path, monkey
     assert stopped.events["stall"] == 2 and len(details) == 2
     assert details[0].startswith("no row diagnosed for 0 s while ") and "messages arrived (late " in details[0]
     assert sum(line.startswith("stall: no row diagnosed") for line in logged) == 2
+
+
+def test_a_run_records_the_options_its_store_has_always_recorded():
+    """A restart compares every recorded key, so the options value records exactly the keys a store's
+    earlier runs hold (the diagnosis's but explain, the assembler's, the source and the tags)."""
+    from jmlgdsl.diagnosis import Options
+    from jmlgdsl.monitor.live import MonitorOptions, recorded_options
+
+    options = MonitorOptions(Options(lag=3, prefilter=2, explain=True), grace=2.0)
+    assert recorded_options(MODEL, options, "data.csv", {}) == {
+        "algorithm": "imm", "particles": None, "seed": None, "resampling": "systematic", "ess_threshold": 1.0,
+        "lag": 3, "prefilter": 2, "healthy": ["normal"], "threshold": 0.5, "persistence": 1, "grace": 2.0,
+        "stale": None, "max_gap": 3600.0, "source": "data.csv", "tags": {}}
