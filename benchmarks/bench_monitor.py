@@ -40,7 +40,7 @@ from pathlib import Path
 import numpy as np
 
 import jmlgdsl
-from jmlgdsl.monitor import Monitor, Store, monitor_options, read_tags
+from jmlgdsl.monitor import Monitor, MonitorOptions, Store, read_tags
 from jmlgdsl.monitor.mqtt import MqttSource
 from jmlgdsl.page import Page
 
@@ -252,7 +252,7 @@ def main(argv=None) -> int:
     def monitor(store, latency=False):
         nonlocal page
         source = MqttSource(f"mqtt://127.0.0.1:{port}/bank", model, tags, client_id="jmlgdsl-bench")
-        made = Timed(model, store, source, spec=spec.read_text(), options=monitor_options(), tags=tags,
+        made = Timed(model, store, source, spec=spec.read_text(), options=MonitorOptions(), tags=tags,
                      latency=latency)
         if args.pages and page is None:  # the pages, once the store holds the run they show
             page = Pages(store_path, args.pages, folder)

@@ -37,9 +37,10 @@ from pathlib import Path
 
 import jmlgdsl
 from jmlgdsl.data import iter_rows, open_source
+from jmlgdsl.diagnosis import Options
 from jmlgdsl.diagnosis.fleet import Fleet
-from jmlgdsl.monitor import Monitor, Store, monitor_options
-from jmlgdsl.monitor.sources import open_bus
+from jmlgdsl.monitor import Monitor, MonitorOptions, Store
+from jmlgdsl.monitor import sources
 
 from ledger import ledger_argument, record
 
@@ -83,7 +84,7 @@ def filter_cost(folder: Path, units: list[str]) -> float:
         with open_source(str(folder / f"{unit}.csv")) as source:
             records.append(list(iter_rows(source, model, source.name)))
     start = time.perf_counter()
-    Fleet(model, len(records), explain=True, scored=False).run(records)
+    Fleet(model, len(records), Options(explain=True), scored=False).run(records)
     return (time.perf_counter() - start) / sum(map(len, records))
 
 
@@ -93,10 +94,10 @@ def held(folder: Path, count: int) -> int:
     write_units(folder, units, 1)
     model = jmlgdsl.load(SPEC)
     with Store(folder / "store.db") as store:
-        source = open_bus(str(folder / "{unit}.csv"), model, {}, follow=False, units=units)
+        source = sources.open_source(sources.Connection(str(folder / "{unit}.csv"), follow=False), model, {}, units)
         tracemalloc.start()
         before = tracemalloc.get_traced_memory()[0]
-        monitor = Monitor(model, store, source, spec=None, options=monitor_options(), tags={}, units=units)
+        monitor = Monitor(model, store, source, spec=None, options=MonitorOptions(), tags={}, units=units)
         size = tracemalloc.get_traced_memory()[0] - before
         tracemalloc.stop()
         del monitor

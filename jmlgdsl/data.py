@@ -40,6 +40,12 @@ class DataWarning(UserWarning):
     """Data that read but look wrong (the command line prints these as `warning: ...`)."""
 
 
+def with_defaults(u, defaults) -> np.ndarray:
+    """Inputs u (..., nu) with each missing (NaN) value taking its input's default from `defaults`
+    (nu,): NaN stays only where an input has neither. Every reader of inputs fills them so."""
+    return np.where(np.isnan(u), defaults, u)
+
+
 @dataclass(frozen=True)
 class Columns:
     """The names a data file is read by: outputs, inputs with their defaults (NaN: none) and modes.
@@ -437,7 +443,8 @@ class Rows:
                                 f"{plural(len(names), 'column')}{hint}")
             y = np.array([_number(cells, c, n, where) for c, n in zip(y_cols, model.outputs)])
             u = np.array([_number(cells, c, n, where) for c, n in zip(u_cols, model.inputs)])
-            lacking = np.isnan(u) & np.isnan(defaults)
+            u = with_defaults(u, defaults)
+            lacking = np.isnan(u)
             if lacking.any():
                 name = model.inputs[int(np.argmax(lacking))]
                 raise DataError(f"{where}: column {name!r}: missing value and the input has no default")
@@ -447,7 +454,7 @@ class Rows:
             if check_time is not None:
                 check_time(time, cells[time_col], where)
             measured |= ~np.isnan(y)
-            yield Row(line, time, y, np.where(np.isnan(u), defaults, u), _mode(cells, mode_col, model.modes, where),
+            yield Row(line, time, y, u, _mode(cells, mode_col, model.modes, where),
                       _label(cells, anomaly_col, "anomaly", where), _label(cells, change_col, "changepoint", where))
         for name, col, default in zip(model.inputs, u_cols, defaults):
             if col is None:

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .data import with_defaults
 from .errors import JmlgError
 from .output import replacing
 
@@ -138,10 +139,10 @@ class Model:
     def resolve_inputs(self, u, T: int) -> np.ndarray:
         """Inputs as a (T, nu) array: `u` as given, or the spec's constant defaults when u is None."""
         if u is None:
-            if self.nu and np.isnan(self.input_defaults).any():
+            if np.isnan(self.input_defaults).any():
                 missing = [n for n, d in zip(self.inputs, self.input_defaults) if np.isnan(d)]
                 raise ModelError(f"inputs without a default must be given: {', '.join(missing)}")
-            return np.broadcast_to(self.input_defaults, (T, self.nu)).copy()
+            return with_defaults(np.full((T, self.nu), np.nan), self.input_defaults)
         u = np.asarray(u, dtype=float)
         if u.size != T * self.nu:
             raise ModelError(f"inputs must be {T} steps x {self.nu} ({', '.join(self.inputs) or 'no inputs'}), "

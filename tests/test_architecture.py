@@ -218,3 +218,36 @@ def test_the_monitor_takes_sources_through_the_contract_and_the_registry_only():
     protocols = {t for t in edges if t.startswith(SOURCES + ".") and t != CONTRACT}
     for name in ("jmlgdsl.monitor.live", "jmlgdsl.monitor.shards"):
         assert not edges[name] & protocols, name
+
+
+ALGORITHM_TABLE = "jmlgdsl.infer.algorithms"  # the one place a filter's name means what it can do
+
+
+def name_checks(path, names) -> list[str]:
+    """The comparisons (==, !=, in, not in) of a module against a filter's name: `x == "imm"`,
+    `x in ("pf", "exact")`; each as its source text."""
+    tree = ast.parse(path.read_text())
+    found = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Compare) and any(isinstance(op, (ast.Eq, ast.NotEq, ast.In, ast.NotIn))
+                                                 for op in node.ops):
+            constants = {c.value for side in [node.left, *node.comparators] for c in ast.walk(side)
+                         if isinstance(c, ast.Constant) and isinstance(c.value, str)}
+            if constants & names:
+                found.append(ast.unparse(node))
+    return found
+
+
+def test_no_module_but_the_algorithm_table_asks_for_a_filter_by_its_name():
+    """What a filter can do (particles, smoothing, units stepped together) is data on its row of the
+    table: a new filter is one row, with no `algorithm == "imm"` anywhere else to find and mend."""
+    from jmlgdsl.infer import ALGORITHMS
+
+    checks = {name: name_checks(path, set(ALGORITHMS)) for name, path in modules().items() if name != ALGORITHM_TABLE}
+    assert {name: found for name, found in checks.items() if found} == {}
+
+
+def test_the_pin_sees_a_name_check(tmp_path):
+    path = tmp_path / "fleet.py"
+    path.write_text('a = f.algorithm == "imm"\nb = algorithm in ("exact", "imm")\nc = algorithm == "other"\n')
+    assert name_checks(path, {"imm", "exact"}) == ["f.algorithm == 'imm'", "algorithm in ('exact', 'imm')"]

@@ -15,9 +15,8 @@ import pytest
 from conftest import ROOT, SOURCE, STARTUP_ENV
 
 import jmlgdsl
-from jmlgdsl.diagnosis.alarms import AlarmRule
 from jmlgdsl.data import iter_rows, open_source
-from jmlgdsl.diagnosis import CheckpointError, Diagnosis, Kept
+from jmlgdsl.diagnosis import CheckpointError, Diagnosis, Kept, Options
 from jmlgdsl.diagnosis import pipeline
 from jmlgdsl import sealed
 from jmlgdsl.infer import ALGORITHMS
@@ -36,8 +35,8 @@ def rows(count):
 
 
 def diagnosis(model, name, lag, sinks):
-    return Diagnosis(model, algorithm=name, seed=7, lag=lag, prefilter=2, sinks=sinks,
-                     rule=AlarmRule(("normal",), threshold=0.6, persistence=2), explain=True)
+    return Diagnosis(model, Options(algorithm=name, seed=7, lag=lag, prefilter=2, healthy=("normal",), threshold=0.6,
+                                    persistence=2, explain=True), sinks=sinks)
 
 
 def outcome(d, kept):
@@ -193,8 +192,8 @@ def test_a_checkpoint_leaves_the_model_out():
 def test_an_unscored_diagnosis_keeps_a_state_of_constant_size():
     model = jmlgdsl.load(SPEC)
     data = rows(1000)
-    scored, unscored = diagnosis(model, "imm", 0, []), Diagnosis(model, algorithm="imm", seed=7, prefilter=2,
-                                                                   rule=scored_rule(), scored=False)
+    scored, unscored = diagnosis(model, "imm", 0, []), Diagnosis(model, Options(
+        algorithm="imm", seed=7, prefilter=2, healthy=("normal",), threshold=0.6, persistence=2), scored=False)
     sizes = []
     for i, row in enumerate(data):
         scored.feed(row)
@@ -207,7 +206,3 @@ def test_an_unscored_diagnosis_keeps_a_state_of_constant_size():
     assert unscored.alarms.raised == scored.alarms.raised > 0
     assert unscored.report().splitlines()[:-1] == [line for line in scored.report().splitlines()[:-1]
                                                    if not line.startswith(("detection:", "rows:", "NAB"))]
-
-
-def scored_rule():
-    return AlarmRule(("normal",), threshold=0.6, persistence=2)

@@ -16,7 +16,7 @@ from conftest import ROOT, SOURCE, STARTUP_ENV, jmlgdsl_command
 import jmlgdsl
 from jmlgdsl.cli import main
 from jmlgdsl.cluster import ClusterError, connect, disconnect
-from jmlgdsl.diagnosis import AlarmRule
+from jmlgdsl.diagnosis import Options
 from jmlgdsl.diagnosis.fleet import diagnose_files
 from jmlgdsl.errors import DataError
 
@@ -56,17 +56,17 @@ class Terminal(io.StringIO):
 
 
 @needs_ray
-@pytest.mark.parametrize("options", [{}, {"algorithm": "la-rbpf", "particles": 5, "seed": 3},
-                                     {"lag": 5, "prefilter": 3, "rule": AlarmRule(("normal", "grill"))}])
+@pytest.mark.parametrize("options", [Options(), Options(algorithm="la-rbpf", particles=5, seed=3),
+                                     Options(lag=5, prefilter=3, healthy=("normal", "grill"))])
 def test_chunks_on_a_cluster_give_every_units_table_and_summary_as_one_fleet(ray_cluster, unit_files, options):
     model = jmlgdsl.load(SPEC)
     paths = [str(p) for p in unit_files]
-    here = diagnose_files(model, paths, **options)
+    here = diagnose_files(model, paths, options)
     shown = Terminal()
-    there = diagnose_files(model, paths, cluster="auto", progress=shown, **options)
+    there = diagnose_files(model, paths, options, cluster="auto", progress=shown)
     assert [u.path for u in there.units] == paths
     assert there.units == here.units  # the tables byte for byte, the summaries field by field
-    assert there.batched == here.batched == ("lag" not in options)  # smoothing steps unit after unit
+    assert there.batched == here.batched == (options.lag == 0)  # smoothing steps unit after unit
     assert "] 5/5 files" in shown.getvalue()  # the files counted as their chunks finish
 
 

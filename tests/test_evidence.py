@@ -14,7 +14,7 @@ import jmlgdsl
 from jmlgdsl import Model
 from jmlgdsl.cli import main
 from jmlgdsl.data import iter_rows, open_source
-from jmlgdsl.diagnosis import Diagnosed, Diagnosis, Evidence, Kept, Raised
+from jmlgdsl.diagnosis import Diagnosed, Diagnosis, Evidence, Kept, Options, Raised
 from jmlgdsl.diagnosis.report import evidence_report
 from jmlgdsl.diagnosis.evidence import chain_terms, mode_terms
 from jmlgdsl.infer import ALGORITHMS, Filter
@@ -155,7 +155,7 @@ def test_a_row_smoothed_with_a_lag_keeps_the_evidence_of_its_filtering():
     runs = {}
     for lag in (0, 5):
         kept = Kept()
-        Diagnosis(model, lag=lag, explain=True, sinks=[kept]).run(rows)
+        Diagnosis(model, Options(lag=lag, explain=True), sinks=[kept]).run(rows)
         runs[lag] = kept.rows
     assert [d.step.t for d in runs[5]] == list(range(1, 121))
     for now, later in zip(runs[0], runs[5]):

@@ -13,7 +13,7 @@ from monitor_servers import DATA, SPEC
 import jmlgdsl
 from jmlgdsl.cli import main
 from jmlgdsl.data import TimeFormat
-from jmlgdsl.monitor import Monitor, Store, monitor_options, read_tags
+from jmlgdsl.monitor import Monitor, MonitorOptions, Store, read_tags
 from jmlgdsl.monitor.sources.contract import End, Readings
 
 MODEL = jmlgdsl.load(ROOT / "specs" / "dryer.jmlg")
@@ -87,7 +87,7 @@ class Stamped:
 def test_iso_stamps_of_a_data_bus_come_back_as_iso_stamps(tmp_path):
     store = str(tmp_path / "dryer.db")
     with Store(store) as opened:
-        Monitor(MODEL, opened, Stamped(), spec=None, options=monitor_options(), tags=read_tags(None, MODEL)).run()
+        Monitor(MODEL, opened, Stamped(), spec=None, options=MonitorOptions(), tags=read_tags(None, MODEL)).run()
         assert opened.run().times == TimeFormat("datetime", "T", "Z", 0)
     rows = exported_samples(tmp_path, store)
     assert rows[0][0] == "datetime"

@@ -11,7 +11,7 @@ from test_units_batched import fleet_data
 import jmlgdsl
 from jmlgdsl import sealed
 from jmlgdsl.data import Row
-from jmlgdsl.diagnosis import Diagnosis
+from jmlgdsl.diagnosis import Diagnosis, Options
 from jmlgdsl.diagnosis.fleet import Fleet
 from jmlgdsl.infer.units import Units
 
@@ -26,7 +26,7 @@ def test_the_evidence_of_every_unit_is_its_own_bit_for_bit(spec):
              else random_model(np.random.default_rng(8), K=3, nx=3, ny=6, stay=0.98))
     ys, us = fleet_data(model, 6, 150)
     records = [rows_of(y, u) for y, u in zip(ys, us)]
-    fleet = Fleet(model, len(records), explain=True, scored=False)
+    fleet = Fleet(model, len(records), Options(explain=True), scored=False)
     assert fleet.filter is not None  # one filter for every unit
     kept = [[] for _ in records]
     for unit, found in zip(fleet.units, kept):
@@ -35,7 +35,7 @@ def test_the_evidence_of_every_unit_is_its_own_bit_for_bit(spec):
     screened = 0
     for rows, found in zip(records, kept):
         alone = []
-        Diagnosis(model, explain=True, scored=False,
+        Diagnosis(model, Options(explain=True), scored=False,
                   sinks=[type("Sink", (), {"collect": lambda self, done: alone.append(done)})()]).run(rows)
         assert len(found) == len(alone) == len(rows)
         for a, b in zip(found, alone):

@@ -218,7 +218,7 @@ def test_tag_file(tmp_path):
 def test_a_monitor_logs_the_first_late_message_of_a_batch_and_counts_the_rest(tmp_path):
     # a broker delivering again what a killed monitor had not acknowledged: every late message is an
     # event in the store, but the log has one line for the first and one line counting the others
-    from jmlgdsl.monitor import Monitor, Store, monitor_options
+    from jmlgdsl.monitor import Monitor, MonitorOptions, Store
 
     class Redelivered:
         rows, name = False, "test://redelivered"
@@ -238,7 +238,7 @@ def test_a_monitor_logs_the_first_late_message_of_a_batch_and_counts_the_rest(tm
 
     logged = []
     with Store(tmp_path / "s.db") as store:
-        monitor = Monitor(MODEL, store, Redelivered(), spec=None, options=monitor_options(), tags=read_tags(None, MODEL),
+        monitor = Monitor(MODEL, store, Redelivered(), spec=None, options=MonitorOptions(), tags=read_tags(None, MODEL),
                           log=logged.append)
         stopped = monitor.run()
         assert stopped.events["late"] == 40 and store.counts(stopped.runs[0])["late"] == 40
@@ -253,7 +253,7 @@ def test_a_stalled_diagnosis_is_an_event_once_until_a_row_comes(tmp_path, monkey
     import threading
     import time
 
-    from jmlgdsl.monitor import Monitor, Store, live, monitor_options
+    from jmlgdsl.monitor import Monitor, MonitorOptions, Store, live
 
     monkeypatch.setattr(live, "STALL", 0.05)  # sample times: 0.05 s of the dryer's 1 s
     monkeypatch.setattr(live, "STALL_LEAST", 0.0)
@@ -283,9 +283,22 @@ def test_a_stalled_diagnosis_is_an_event_once_until_a_row_comes(tmp_path, monkey
 
     logged = []
     with Store(tmp_path / "s.db") as store:
-        stopped = Monitor(MODEL, store, Stuck(), spec=None, options=monitor_options(), tags=read_tags(None, MODEL),
+        stopped = Monitor(MODEL, store, Stuck(), spec=None, options=MonitorOptions(), tags=read_tags(None, MODEL),
                           log=logged.append).run()
         details = [detail for (detail,) in store.db.execute("SELECT detail FROM event WHERE kind = 'stall'")]
     assert stopped.events["stall"] == 2 and len(details) == 2
     assert details[0].startswith("no row diagnosed for 0 s while ") and "messages arrived (late " in details[0]
     assert sum(line.startswith("stall: no row diagnosed") for line in logged) == 2
+
+
+def test_a_run_records_the_options_its_store_has_always_recorded():
+    """A restart compares every recorded key, so the options value records exactly the keys a store's
+    earlier runs hold (the diagnosis's but explain, the assembler's, the source and the tags)."""
+    from jmlgdsl.diagnosis import Options
+    from jmlgdsl.monitor.live import MonitorOptions, recorded_options
+
+    options = MonitorOptions(Options(lag=3, prefilter=2, explain=True), grace=2.0)
+    assert recorded_options(MODEL, options, "data.csv", {}) == {
+        "algorithm": "imm", "particles": None, "seed": None, "resampling": "systematic", "ess_threshold": 1.0,
+        "lag": 3, "prefilter": 2, "healthy": ["normal"], "threshold": 0.5, "persistence": 1, "grace": 2.0,
+        "stale": None, "max_gap": 3600.0, "source": "data.csv", "tags": {}}

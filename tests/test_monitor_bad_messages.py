@@ -14,7 +14,7 @@ from conftest import ROOT
 from monitor_servers import expected_table, exported, samples
 
 import jmlgdsl
-from jmlgdsl.monitor import Monitor, Store, monitor_options, read_tags
+from jmlgdsl.monitor import Monitor, MonitorOptions, Store, read_tags
 from jmlgdsl.monitor.sources.contract import End, Readings, Unreadable
 from jmlgdsl.monitor.sources.payload import Malformed, decode
 
@@ -71,7 +71,7 @@ def test_one_bad_message_is_one_event_and_costs_no_row(tmp_path, expected, injec
     store = str(tmp_path / "dryer.db")
     injected = [(topic, payload.replace("SOON", soon(276))) for topic, payload in injected]  # not at collection
     with Store(store) as opened:
-        stopped = Monitor(MODEL, opened, Published(injected), spec=None, options=monitor_options(),
+        stopped = Monitor(MODEL, opened, Published(injected), spec=None, options=MonitorOptions(),
                           tags=read_tags(None, MODEL)).run()
     assert stopped.rows == 1000
     assert exported(tmp_path, store) == expected

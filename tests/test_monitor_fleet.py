@@ -212,7 +212,8 @@ def test_a_rao_blackwellised_fleet_stopped_and_resumed_gives_each_unit_its_run_t
     fleet stopped part way through its files and started again gives each unit, byte for byte, the
     table `jmlgdsl run` writes for its file with the same filter and seed."""
     import jmlgdsl
-    from jmlgdsl.monitor import Monitor, Store, monitor_options, read_tags
+    from jmlgdsl.diagnosis import Options
+    from jmlgdsl.monitor import Monitor, MonitorOptions, Store, read_tags
     from jmlgdsl.monitor.sources import Connection, open_source
 
     data, store = tmp_path / "data", str(tmp_path / "fleet.db")
@@ -230,8 +231,8 @@ def test_a_rao_blackwellised_fleet_stopped_and_resumed_gives_each_unit_its_run_t
     threading.Thread(target=watch, daemon=True).start()
     with Store(store) as opened:
         monitor = Monitor(model, opened, open_source(Connection(source, follow=False), model, tags, UNITS),
-                          spec=SPEC, options=monitor_options(algorithm="la-rbpf", particles=5, seed=3), tags=tags,
-                          units=UNITS)
+                          spec=SPEC, options=MonitorOptions(Options(algorithm="la-rbpf", particles=5, seed=3)),
+                          tags=tags, units=UNITS)
         assert monitor.fleet is not None and monitor.fleet.filter.algorithm == "la-rbpf"
         first = monitor.run(stop)
     assert not first.ended and 0 < first.rows < sum(map(len, ROWS.values()))
@@ -323,7 +324,7 @@ def test_stopped_while_its_files_run_far_ahead_it_lets_their_readers_go_and_resu
     returns, every unit's reader thread ends (none left waiting to hand over rows no one takes), and
     the same monitor started again diagnoses every unit's rows t = 1..N once each."""
     import jmlgdsl
-    from jmlgdsl.monitor import Monitor, Store, monitor_options
+    from jmlgdsl.monitor import Monitor, MonitorOptions, Store
     from jmlgdsl.monitor.live import QUEUE
     from jmlgdsl.monitor.sources import Connection, open_source
 
@@ -337,7 +338,7 @@ def test_stopped_while_its_files_run_far_ahead_it_lets_their_readers_go_and_resu
     def monitor(stop=None):
         source = open_source(Connection(str(folder / "{unit}.csv"), follow=False), model, {}, UNITS)
         with Store(str(tmp_path / "fleet.db")) as store:
-            stopped = Monitor(model, store, source, spec=SPEC, options=monitor_options(), tags={},
+            stopped = Monitor(model, store, source, spec=SPEC, options=MonitorOptions(), tags={},
                               units=UNITS).run(stop)
         return stopped, source
 

@@ -176,12 +176,12 @@ def test_a_shard_never_makes_a_store_of_its_own(tmp_path):
     # on another machine of a cluster an SQLite path names no file: a shard would make a second store
     # there and diagnose into it; it refuses and says what a cluster of machines needs
     import jmlgdsl
-    from jmlgdsl.monitor import StoreError, monitor_options
+    from jmlgdsl.monitor import MonitorOptions, StoreError
     from jmlgdsl.monitor.shards import Shard
 
     missing = tmp_path / "elsewhere.db"
     with pytest.raises(StoreError, match=r"is not on the machine of shard 1 .*share a PostgreSQL store"):
-        Shard(jmlgdsl.load(SPEC), str(missing), None, None, monitor_options(), {}, ["p1"], 1,
+        Shard(jmlgdsl.load(SPEC), str(missing), None, None, MonitorOptions(), {}, ["p1"], 1,
               {"url": str(tmp_path / "{unit}.csv"), "follow": False})
     assert not missing.exists()
 

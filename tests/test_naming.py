@@ -92,11 +92,11 @@ def test_detect_then_name_names_each_fault(banks):
     rng = np.random.default_rng(11)
     for fault in ("bias", "stuck", "noisy"):
         y = recording(rng, 400, fault, onset=100)
-        naming = DetectThenName(model, None, ["bias", "stuck", "noisy"], ["normal"])
+        options = jmlgdsl.diagnosis.Options(healthy=("normal",), threshold=0.99, persistence=5)
+        naming = DetectThenName(model, None, ["bias", "stuck", "noisy"], options)
         rows = [jmlgdsl.data.Row(i + 1, None, y[i], np.empty(0), model.mode_index("normal" if i < 100 else fault))
                 for i in range(len(y))]
-        diagnosis = jmlgdsl.diagnosis.Diagnosis(naming.detector, rule=jmlgdsl.diagnosis.AlarmRule(("normal",), 0.99, 5),
-                                                sinks=[naming])
+        diagnosis = jmlgdsl.diagnosis.Diagnosis(naming.detector, options, sinks=[naming])
         diagnosis.run(naming.rows(rows))
         counts = naming.counts()
         f = naming.namer.modes.index(fault)

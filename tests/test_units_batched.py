@@ -4,6 +4,7 @@ inputs, gross errors and records of different lengths, and its table, alarms and
 running it alone."""
 
 import csv
+import dataclasses
 import re
 
 import numpy as np
@@ -12,8 +13,7 @@ import pytest
 import jmlgdsl
 from jmlgdsl.cli import main
 from jmlgdsl.errors import DataError
-from jmlgdsl.infer import Filter, FilterError, kalman
-from jmlgdsl.infer import units as units_module
+from jmlgdsl.infer import ALGORITHMS, Filter, FilterError, kalman
 from jmlgdsl.infer.rbpf import Exact
 from jmlgdsl.infer.units import Units, _groups, filter_units
 from jmlgdsl.simulate import simulate
@@ -166,8 +166,8 @@ def test_particle_filters_step_their_units_together(dryer, monkeypatch, algorith
     def counted(step):
         return lambda engines, *a: groups.append(len(engines)) or step(engines, *a)
 
-    monkeypatch.setattr(units_module, "STEPPED_TOGETHER",
-                        tuple((kind, counted(step)) for kind, step in units_module.STEPPED_TOGETHER))
+    spec = ALGORITHMS[algorithm]
+    monkeypatch.setitem(ALGORITHMS, algorithm, dataclasses.replace(spec, step_together=counted(spec.step_together)))
     filter_units(dryer, ys, us, algorithm=algorithm, particles=10, seed=2)
     assert sum(groups) > 0.5 * sum(len(y) for y in ys)  # most unit-steps in groups of two or more
 

@@ -93,6 +93,19 @@ def healthy_modes(args) -> list[str] | None:
     return [m.strip() for m in args.healthy.split(",")] if args.healthy else None
 
 
+def diagnosis_options(args):
+    """The diagnosis's Options from the flags of `run` or `monitor` (the monitor has no --smooth or
+    --explain: it always explains)."""
+    from ..diagnosis import Options
+    from ..diagnosis.prefilter import parse
+
+    healthy = healthy_modes(args)
+    return Options(args.filter, args.particles, args.seed, args.resampling, args.ess_threshold,
+                   None if getattr(args, "smooth", False) else args.lag or 0, parse(args.prefilter),
+                   None if healthy is None else tuple(healthy), args.threshold, args.persistence,
+                   getattr(args, "explain", False))
+
+
 STORE_HELP = "the store: an SQLite database's path, or postgresql://USER@HOST:PORT/DBNAME (no password in it)"
 
 

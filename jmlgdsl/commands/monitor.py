@@ -6,7 +6,7 @@ from __future__ import annotations
 import sys
 
 from . import (STORE_HELP, add_alarm_options, add_filter_options, add_page_options, add_store_password_options,
-               check_particles, healthy_modes, start_page, store_password, whole)
+               check_particles, diagnosis_options, start_page, store_password, whole)
 
 
 def register(subparsers):
@@ -61,18 +61,13 @@ def register(subparsers):
 def main(args) -> int:
     import jmlgdsl
 
-    from ..diagnosis.prefilter import parse
-    from ..monitor import fleet, launch, monitor_options, read_tags, sinks, sources
+    from ..monitor import MonitorOptions, fleet, launch, read_tags, sinks, sources
 
     model = jmlgdsl.load(args.spec)
     check_particles(args, model)
     tags = read_tags(args.tags, model)
     units = None if args.units is None else fleet.unit_names(args.units)
-    options = monitor_options(
-        algorithm=args.filter, particles=args.particles, seed=args.seed, resampling=args.resampling,
-        ess_threshold=args.ess_threshold, lag=args.lag, prefilter=parse(args.prefilter),
-        healthy=healthy_modes(args), threshold=args.threshold,
-        persistence=args.persistence, grace=args.grace, stale=args.stale, max_gap=args.max_gap)
+    options = MonitorOptions(diagnosis_options(args), args.grace, args.stale, args.max_gap)
     launch.check_fleet(units, cluster=args.cluster, shards=args.shards, unit_specs=args.unit_specs)
     banks = launch.unit_spec_banks(model, args.spec, args.unit_specs, units, log)
     recipe = sources.connection(vars(args))

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import sys
 
-from . import add_alarm_options, add_filter_options, check_particles, healthy_modes
+from . import add_alarm_options, add_filter_options, check_particles, diagnosis_options
 
 
 def register(subparsers):
@@ -88,18 +88,11 @@ def mode_list(text: str) -> tuple[str, ...]:
 
 def main(args) -> int:
     """Run the command on parsed arguments; returns the exit status."""
-    import contextlib
-
     import jmlgdsl
 
-    from ..data import iter_rows, open_source, open_target
-    from ..diagnosis import AlarmRule, Diagnosis, Kept, Raised, TableSink
-    from ..diagnosis.alarms import DetectThenName, catch_alls
-    from ..diagnosis.prefilter import parse
-    from ..diagnosis.report import evidence_report, naming_report
-    from ..errors import DataError, JmlgError
+    from ..diagnosis.files import diagnose_file
+    from ..errors import JmlgError
     from ..output import FIGURE, check_file
-    from ..progress import Progress
 
     if len(args.data) > 1:
         if args.detect or args.name:
@@ -110,97 +103,43 @@ def main(args) -> int:
     if args.unit_specs:
         raise JmlgError("--unit-specs gives each of several data files its unit's spec; with one file, give its "
                         "unit's spec as SPEC")
-    args.data = args.data[0]
-    streaming = args.data == "-"
-    if streaming and args.output is None:
-        args.output = "-"  # a stream's results come out row by row as its rows arrive
-    check_file(args.output, inputs=[args.spec, args.data])
-    check_file(args.plot, inputs=[args.spec, args.data], suffixes=FIGURE, option="--plot")
-    window = parse(args.prefilter)
+    data = args.data[0]
+    output = "-" if data == "-" and args.output is None else args.output  # a stream's rows come out as they arrive
+    check_file(output, inputs=[args.spec, data])
+    check_file(args.plot, inputs=[args.spec, data], suffixes=FIGURE, option="--plot")
+    options = diagnosis_options(args)
     model = jmlgdsl.load(args.spec)
     check_particles(args, model)
-    healthy = healthy_modes(args) or model.modes[:1]
-    naming = None
-    detect, name = args.detect, args.name
-    if not (detect or name or args.prefilter or args.explain) and set(healthy) <= set(model.modes):
-        # a bank with a catch-all of its healthy modes and fault modes: detect with those, name with the rest
-        found = catch_alls(model, healthy)
-        if found and len(model.modes) > len(healthy) + len(found):
-            detect = list(healthy) + found
-    if detect or name:
-        for given, option in ((args.prefilter, "--prefilter"), (args.explain or None, "--explain")):
-            if given is not None:
-                raise JmlgError(f"--detect and --name take no {option}: the namer filters the rows as they are")
-        naming = DetectThenName(model, detect, name, healthy,
-                                algorithm=args.filter, particles=args.particles, seed=args.seed,
-                                resampling=args.resampling, ess_threshold=args.ess_threshold)
-        model = naming.detector
-    kept = Kept() if args.plot else None
-    raised = Raised() if args.explain else None
-    # a running count on a terminal, unless the table itself is streaming to the screen
-    ticker = Progress(None, None if args.output == "-" else sys.stderr, "rows")
-    diagnosis = Diagnosis(model, algorithm=args.filter, particles=args.particles, seed=args.seed,
-                          resampling=args.resampling, ess_threshold=args.ess_threshold,
-                          lag=None if args.smooth else args.lag or 0, prefilter=window,
-                          rule=AlarmRule(tuple(healthy), args.threshold, args.persistence), sinks=[ticker],
-                          explain=args.explain)
-    with contextlib.ExitStack() as stack, open_source(args.data) as source:
-        stack.callback(ticker.close)
-        if args.output is not None:  # the table appears whole when the run ends, or not at all
-            out = stack.enter_context(open_target(args.output))
-            diagnosis.sinks.append(TableSink(out, model, diagnosis.filter.lag, flush=streaming, explain=args.explain))
-        diagnosis.sinks += [sink for sink in (kept, raised, naming) if sink is not None]
-        rows = iter_rows(source, model if naming is None else naming.whole, source.name)
-        diagnosis.run(rows if naming is None else naming.rows(rows))
-        if not diagnosis.summary.T:
-            raise DataError(f"{source.name}: no data rows")
-    out = sys.stderr if args.output == "-" else sys.stdout
-    if naming is not None and not (args.detect or args.name):
-        print(f"detect, then name: the alarm from {', '.join(naming.detector.modes)} (a healthy mode and its "
-              f"catch-all), the fault named by {', '.join(naming.namer.modes)}; --detect with every mode gives the "
-              "whole bank's alarm", file=out)
-    print(diagnosis.report(), file=out)
-    counts = None if naming is None else naming.counts()
-    if counts is not None:
-        print("\n".join(naming_report(naming.namer.modes, counts)), file=out)
-    if raised is not None:
-        print("\n".join(evidence_report(model, raised)), file=out)
+    ran = diagnose_file(model, data, options, output=output, kept=args.plot is not None, detect=args.detect,
+                        name=args.name, progress=None if output == "-" else sys.stderr)
+    out = sys.stderr if output == "-" else sys.stdout
+    print(ran.report(), file=out)
     if args.plot:
-        kept.draw(diagnosis, args.plot)
+        ran.draw(args.plot)
         print(f"figure: {args.plot}", file=out)
     return 0
 
 
 def fleet(args) -> int:
-    """`run` on several data files, one unit of the plant each: a table per unit in the folder -o
-    (none unless every unit is diagnosed) and a line per unit on standard output; with --cluster,
-    chunks of the files in Ray tasks (jmlgdsl.diagnosis.fleet.diagnose_files)."""
+    """`run` on several data files, one unit of the plant each (jmlgdsl.diagnosis.fleet.diagnose_files)."""
     from pathlib import Path
 
     import jmlgdsl
 
     from ..cluster import joined
-    from ..data import open_target
-    from ..diagnosis import AlarmRule
-    from ..diagnosis.fleet import diagnose_files, unit_banks
-    from ..diagnosis.prefilter import parse
+    from ..diagnosis.fleet import diagnose_files, table_names, unit_banks
     from ..errors import JmlgError
-    from ..output import check_folder
     from ..names import plural
+    from ..output import check_folder
 
     if args.plot is not None:
         raise JmlgError(f"--plot takes one data file, not {len(args.data)}")
-    if "-" in args.data:
-        raise JmlgError("standard input (-) cannot be one of several data files")
-    names = [Path(path).stem + ".csv" for path in args.data]
-    twice = sorted({name for name in names if names.count(name) > 1})
-    if twice:
-        raise JmlgError(f"two data files would write the same table {twice[0]}; give files with different names")
+    names = table_names(args.data)
     if args.output is not None:
         if args.output == "-":
             raise JmlgError("-o -: several data files write a table each; give a folder")
         check_folder(args.output, names, inputs=[args.spec, *args.data])
-    window = parse(args.prefilter)
+    options = diagnosis_options(args)
     model = jmlgdsl.load(args.spec)
     check_particles(args, model)
     models = None
@@ -209,29 +148,11 @@ def fleet(args) -> int:
         print(f"unit specs: {len(args.data) - len(missing)} of {plural(len(args.data), 'unit')} from {args.unit_specs}"
               + (f"; {', '.join(missing)} with {args.spec}" if missing else ""), file=sys.stderr)
     with joined(args.cluster):  # refused here, before any work, when no cluster answers
-        history = diagnose_files(
-            model, args.data, tables=args.output is not None, cluster=args.cluster, models=models,
-            progress=sys.stderr if sys.stderr.isatty() else None, algorithm=args.filter, particles=args.particles,
-            seed=args.seed, resampling=args.resampling, ess_threshold=args.ess_threshold,
-            lag=None if args.smooth else args.lag or 0, prefilter=window, explain=args.explain,
-            rule=AlarmRule(tuple(healthy_modes(args) or model.modes[:1]), args.threshold, args.persistence))
+        history = diagnose_files(model, args.data, options, tables=args.output is not None, cluster=args.cluster,
+                                 models=models, progress=sys.stderr if sys.stderr.isatty() else None)
     if args.output is not None:
-        Path(args.output).mkdir(parents=True, exist_ok=True)
-        for name, unit in zip(names, history.units):
-            with open_target(Path(args.output) / name) as out:
-                out.write(unit.table)
-    for unit in history.units:
-        line = (f"{unit.path}: {plural(unit.steps, 'step')}, last mode {unit.last_mode}, "
-                f"{plural(unit.alarms, 'alarm')} raised")
-        if unit.error is not None:
-            line += f", diagnosis error {unit.error:.2f} %"
-        print(line)
-        for evidence in unit.evidence or ():
-            print("  " + evidence)
-    steps = sum(unit.steps for unit in history.units)
-    how = "the units stepped together" if history.batched else "unit after unit"
-    print(f"{model.name}: {plural(len(history.units), 'unit')}, filter {args.filter} ({how}), "
-          f"{1e6 * history.seconds / max(steps, 1):.2f} us per unit-step")
+        history.write(args.output)
+    print(history.report(model, args.filter))
     if args.output is not None:
         print(f"tables: {args.output}")
     return 0

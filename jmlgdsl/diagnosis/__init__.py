@@ -7,10 +7,10 @@ monitor is the same pipeline fed from a data bus, checkpointing beside the rows 
 
     >>> import jmlgdsl
     >>> from jmlgdsl.data import iter_rows, open_source
-    >>> from jmlgdsl.diagnosis import Diagnosis, Kept
+    >>> from jmlgdsl.diagnosis import Diagnosis, Kept, Options
     >>> model = jmlgdsl.load("specs/dryer.jmlg")
     >>> kept = Kept()
-    >>> diagnosis = Diagnosis(model, algorithm="imm", sinks=[kept])
+    >>> diagnosis = Diagnosis(model, Options(algorithm="imm"), sinks=[kept])
     >>> with open_source("examples/dryer_seq1.csv") as source:
     ...     rows = iter_rows(source, model, source.name)
     ...     for row in rows:
@@ -25,9 +25,10 @@ monitor is the same pipeline fed from a data bus, checkpointing beside the rows 
 
 from .alarms import AlarmRule
 from .evidence import Evidence
+from .options import Options
 from .pipeline import CheckpointError, Diagnosed, Diagnosis, diagnose, fingerprint
 from .sinks import Kept, Raised, TableSink
 from .truth import Truth, detection_scores
 
 __all__ = ["AlarmRule", "Diagnosis", "Diagnosed", "diagnose", "CheckpointError", "Evidence", "fingerprint", "Kept",
-           "Raised", "TableSink", "Truth", "detection_scores"]
+           "Options", "Raised", "TableSink", "Truth", "detection_scores"]

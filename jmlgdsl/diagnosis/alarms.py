@@ -141,12 +141,12 @@ class DetectThenName:
     passes the rows on to the detector's Diagnosis, its truth as a 0/1 anomaly (true mode not
     healthy), and keeps each row's true mode for the naming scores; the object is then a sink of that
     Diagnosis: `collect` steps the namer's Filter on each finished row and names the row when its
-    alarm is up. `filter_options` go to the namer's Filter.
+    alarm is up. The namer's Filter is one of `options` (jmlgdsl.diagnosis.Options), without a lag;
+    their healthy modes are the rule's (None: the first mode).
     """
 
-    def __init__(self, model, detect, name, healthy, **filter_options):
-        from ..infer import Filter
-
+    def __init__(self, model, detect, name, options):
+        healthy = options.healthy or model.modes[:1]
         detect = list(dict.fromkeys(detect or model.modes))
         name = list(dict.fromkeys(name or [m for m in model.modes if m not in detect]))
         for option, given in (("--detect", detect), ("--name", name)):
@@ -163,7 +163,7 @@ class DetectThenName:
         self.faults = np.array([self.namer.modes.index(m) if m in self.namer.modes else -1
                                 for m in model.modes])  # the whole bank's mode index -> fault index (-1: none)
         self.healthy = np.array([m in healthy for m in model.modes])
-        self.filter = Filter(self.namer, **filter_options)
+        self.filter = dataclasses.replace(options, lag=0).filter(self.namer)
         self._truth = deque()  # the true mode of each row passed on and not yet collected
         self.true, self.named = [], []
 

@@ -35,12 +35,15 @@ from pathlib import Path
 
 import numpy as np
 
-from ..data import iter_rows, open_source
+from ..data import iter_rows, open_source, open_target
 from ..errors import DataError, JmlgError
+from ..infer import ALGORITHMS
 from ..infer.units import Units, stackable
 from ..model import Model
+from ..names import plural
 from ..progress import Progress
 from .evidence import Evidence
+from .options import Options
 from .pipeline import Diagnosis
 from .report import evidence_report
 from .sinks import Raised, TableSink
@@ -48,26 +51,28 @@ from .sinks import Raised, TableSink
 
 class Fleet:
     """Diagnose `count` units of one plant: `feed(rows)` with one data row per unit (None for a unit
-    whose data have ended), `finish()` at the end. The options are a Diagnosis's; `sinks` gives each
-    unit its own list of sinks; `models` each unit its own bank (its fitted spec; default `model` for
-    every unit). `units` takes the units' Diagnoses as they are instead (of the same options;
-    resumed ones with `Units.restore` of their filters' states).
+    whose data have ended), `finish()` at the end. `options` and `scored` are every unit's Diagnosis's;
+    `sinks` gives each unit its own list of sinks; `models` each unit its own bank (its fitted spec;
+    default `model` for every unit). `units` takes the units' Diagnoses as they are instead (of the
+    same options; resumed ones with `Units.restore` of their filters' states).
 
     Units whose banks are of one shape (`jmlgdsl.infer.units.stackable`: the same modes, outputs,
     inputs and states) step together, each under its own numbers; others each step alone."""
 
-    def __init__(self, model: Model, count: int | None = None, *, sinks=None, units=None, models=None, **options):
+    def __init__(self, model: Model, count: int | None = None, options: Options = Options(), *, sinks=None,
+                 units=None, models=None, scored: bool = True):
         self.model = model
         self.units = list(units) if units is not None else [
-            Diagnosis(model if models is None else models[i], sinks=() if sinks is None else sinks[i], **options)
+            Diagnosis(model if models is None else models[i], options, scored=scored,
+                      sinks=() if sinks is None else sinks[i])
             for i in range(count)]
         first = self.units[0].filter
         banks = [unit.model for unit in self.units]
         self.filter = None  # None: each unit's Diagnosis filters its own rows
         if stepped_together(first) and stackable([model, *banks]):
-            # imm: one vectorised filter beside the units'; the others: the units' own filters stepped together
-            self.filter = (Units(model, len(self.units), models=banks) if first.algorithm == "imm" else
-                           Units(model, len(self.units), filters=[unit.filter for unit in self.units]))
+            # one vectorised filter beside the units' where the algorithm has one; else their own stepped together
+            self.filter = (Units(model, len(self.units), models=banks) if ALGORITHMS[first.algorithm].vectorised
+                           else Units(model, len(self.units), filters=[unit.filter for unit in self.units]))
 
     def feed(self, rows):
         """Diagnose one data row of each unit (rows[i] for unit i; None: unit i has no row)."""
@@ -76,27 +81,20 @@ class Fleet:
             for i in on:
                 self.units[i].feed(rows[i])
             return
-        ys = []
-        for i in on:
-            unit, row = self.units[i], rows[i]
-            unit._held.append(row)
-            ys.append(row.y if unit.prefilter is None else unit.prefilter(row.y))
+        ys = [self.units[i].hold(rows[i]) for i in on]
         steps = self.filter.step(np.array(ys).reshape(len(on), self.model.ny),
                                  np.array([rows[i].u for i in on]).reshape(len(on), self.model.nu),
                                  None if len(on) == len(rows) else on)
-        faulty = self.units[0].alarms.faulty
-        if self.filter.algorithm != "imm":  # each unit's engine holds its predictive, read as Diagnosis.feed does
+        if not self.filter.vectorised:  # each unit's engine holds its predictive
             for i in on:
-                engine = self.units[i].filter.engine
-                if self.units[i].explain:
-                    self.units[i]._evidence.append(Evidence.of(engine.predictive, faulty))
-                engine.predictive = None
-        elif self.units[0].explain:
+                self.units[i].heard()
+        elif self.units[0].explain:  # every unit's evidence in one call
+            faulty = self.units[0].alarms.faulty
             for positions, predictive in self.filter.predictives:
                 for j, evidence in zip(positions, Evidence.of_units(predictive, faulty)):
-                    self.units[on[j]]._evidence.append(evidence)
+                    self.units[on[j]].heard(evidence)
         for j, i in enumerate(on):
-            self.units[i]._finished(steps.record(j))
+            self.units[i].finished(steps.record(j))
 
     def finish(self):
         """The end of the data of every unit."""
@@ -176,10 +174,45 @@ class History:
     batched: bool
     seconds: float
 
+    def write(self, folder):
+        """Each unit's table as FOLDER/NAME.csv for its NAME.csv (`table_names`), each whole or absent."""
+        Path(folder).mkdir(parents=True, exist_ok=True)
+        for name, unit in zip(table_names([unit.path for unit in self.units]), self.units):
+            with open_target(Path(folder) / name) as out:
+                out.write(unit.table)
 
-def diagnose_files(model: Model, paths, *, tables: bool = True, cluster: str | None = None, progress=None,
-                   models=None, **options) -> History:
-    """Diagnose every data file in `paths` as a unit of a fleet (the options are a Diagnosis's), with
+    def report(self, model: Model, algorithm: str) -> str:
+        """A line per unit (its steps, last mode, alarms, diagnosis error and evidence), then the
+        fleet's: its units, filter and time per unit-step."""
+        lines = []
+        for unit in self.units:
+            line = (f"{unit.path}: {plural(unit.steps, 'step')}, last mode {unit.last_mode}, "
+                    f"{plural(unit.alarms, 'alarm')} raised")
+            if unit.error is not None:
+                line += f", diagnosis error {unit.error:.2f} %"
+            lines += [line] + ["  " + evidence for evidence in unit.evidence or ()]
+        steps = sum(unit.steps for unit in self.units)
+        how = "the units stepped together" if self.batched else "unit after unit"
+        lines.append(f"{model.name}: {plural(len(self.units), 'unit')}, filter {algorithm} ({how}), "
+                     f"{1e6 * self.seconds / max(steps, 1):.2f} us per unit-step")
+        return "\n".join(lines)
+
+
+def table_names(paths) -> list[str]:
+    """The name of each data file's table, NAME.csv for a file NAME.*; a JmlgError for standard input
+    or two files that would write the same table."""
+    if "-" in paths:
+        raise JmlgError("standard input (-) cannot be one of several data files")
+    names = [Path(path).stem + ".csv" for path in paths]
+    twice = sorted({name for name in names if names.count(name) > 1})
+    if twice:
+        raise JmlgError(f"two data files would write the same table {twice[0]}; give files with different names")
+    return names
+
+
+def diagnose_files(model: Model, paths, options: Options = Options(), *, tables: bool = True,
+                   cluster: str | None = None, progress=None, models=None) -> History:
+    """Diagnose every data file in `paths` as a unit of a fleet as `options` say, with
     its table when `tables`; a file without data rows, or with a bad one, is a DataError naming it.
     `models` gives each file its unit's own bank (in the order of `paths`; default `model` for all).
 
@@ -191,6 +224,7 @@ def diagnose_files(model: Model, paths, *, tables: bool = True, cluster: str | N
     they run, a relative path taken from this process's working folder: a cluster of machines needs
     them in a folder every machine sees at the same path. A chunk that fails stops the others and
     raises its own error."""
+    options.rule(model)  # a rule it cannot take refused before any file is read
     paths = list(paths)
     models = [model] * len(paths) if models is None else list(models)
     if cluster is None:
@@ -212,7 +246,7 @@ def diagnose_files(model: Model, paths, *, tables: bool = True, cluster: str | N
                    sum(part.seconds for part in parts))
 
 
-def _diagnose_chunk(model: Model, paths: list, models: list, folder: str, tables: bool, options: dict) -> History:
+def _diagnose_chunk(model: Model, paths: list, models: list, folder: str, tables: bool, options: Options) -> History:
     """Some files diagnosed as one Fleet, each under its unit's bank in `models`: in this process, or in
     a Ray task on a cluster, whose working folder is not the driver's; a relative path is from `folder`
     ('': this process's own)."""
@@ -222,12 +256,12 @@ def _diagnose_chunk(model: Model, paths: list, models: list, folder: str, tables
             records.append(list(iter_rows(source, bank, path)))
         if not records[-1]:
             raise DataError(f"{path}: no data rows")
-    explain = options.get("explain", False)
+    explain = options.explain
     texts = [io.StringIO() if tables else None for _ in paths]
     raised = [Raised() if explain else None for _ in paths]
-    sinks = [([TableSink(text, bank, options.get("lag", 0), explain=explain)] if tables else [])
+    sinks = [([TableSink(text, bank, options.lag, explain=explain)] if tables else [])
              + ([alarms] if explain else []) for text, alarms, bank in zip(texts, raised, models)]
-    run = Fleet(model, len(paths), sinks=sinks, models=models, **options).run(records)
+    run = Fleet(model, len(paths), options, sinks=sinks, models=models).run(records)
     units = [Outcome(path, unit.summary.T, bank.modes[unit.summary.current], unit.alarms.raised,
                      unit.summary.diagnosis_error if unit.summary.labelled else None,
                      text.getvalue() if tables else None,

@@ -23,10 +23,10 @@ from .alarms import AlarmRule, AlarmStream
 from ..data import Row
 from .evidence import Evidence
 from ..errors import JmlgError
-from ..infer import DEFAULT_ALGORITHM, Filter
 from ..infer.online import SAVED_KINDS as FILTER_KINDS
 from ..infer.result import Step, Summary
 from ..model import Model
+from .options import Options
 from .prefilter import MovingAverage
 from ..version import VERSION
 from .scale import ScaleCheck
@@ -57,45 +57,54 @@ class Diagnosed:
 class Diagnosis:
     """Diagnose a model's data rows one at a time: `feed(row)` as rows arrive, `finish()` at the end.
 
-    The options are the Filter's (algorithm, particles, seed, resampling, ess_threshold, lag), the
-    causal moving-average window `prefilter` (None: off) and the alarm `rule` (None: the first mode
-    is healthy, threshold 0.5, persistence 1). Sinks see every finished row, in order. `scored`
-    keeps every row's alarm and truth for the detection scores (a few bytes a row); a diagnosis
-    that runs for ever on data without truth (a live plant) leaves it off, so its state stays small.
-    `explain` gives every finished row its evidence per sensor (jmlgdsl.diagnosis.evidence) for the
-    most probable non-healthy mode of the rule against its healthy modes.
+    `options` (jmlgdsl.diagnosis.Options) say how: the filter and its lag, the pre-filter, the alarm
+    rule and whether to explain. Sinks see every finished row, in order. `scored` keeps every row's
+    alarm and truth for the detection scores (a few bytes a row); a diagnosis that runs for ever on
+    data without truth (a live plant) leaves it off, so its state stays small. Explaining gives every
+    finished row its evidence per sensor (jmlgdsl.diagnosis.evidence) for the most probable
+    non-healthy mode of the rule against its healthy modes.
     """
 
-    def __init__(self, model: Model, *, algorithm: str = DEFAULT_ALGORITHM, particles: int | None = None,
-                 seed=None, resampling: str = "systematic", ess_threshold: float = 1.0, lag: int | None = 0,
-                 prefilter: int | None = None, rule: AlarmRule | None = None, scored: bool = True, sinks=(),
-                 explain: bool = False):
+    def __init__(self, model: Model, options: Options = Options(), *, scored: bool = True, sinks=()):
         self.model = model
-        self.filter = Filter(model, algorithm, particles, seed, resampling, ess_threshold, lag)
-        self.prefilter = None if prefilter is None else MovingAverage(prefilter)
-        self.rule = AlarmRule((model.modes[0],)) if rule is None else rule
+        rule = options.rule(model)  # a rule it cannot take is refused before the filter's options
+        self.filter = options.filter(model)
+        self.prefilter = None if options.prefilter is None else MovingAverage(options.prefilter)
+        self.rule = rule
         self.alarms = self.rule.stream(model.modes)  # an unknown healthy mode is an error before any data
         self.summary = Summary(max_segments=MAX_SEGMENTS)
         self.truth = Truth(self.alarms.faulty, model.dt) if scored else None
         self.scale = ScaleCheck(model)
         self.sinks = list(sinks)
-        self.explain = explain
+        self.explain = options.explain
         self._held = deque()  # data rows whose records the filter still holds back (with a lag)
         self._evidence = deque()  # with explain, the evidence of the rows held back
 
     def feed(self, row: Row) -> list[Diagnosed]:
         """Diagnose one data row; the rows this finishes (none while a lag holds them back)."""
+        step = self.filter.step(self.hold(row), row.u)
+        self.heard()
+        return [] if step is None else [self.finished(step)]
+
+    # A Fleet steps many units' filters in one call: it feeds each unit's Diagnosis through these three
+    # steps, as `feed` does, with the filter stepped between `hold` and `heard`.
+    def hold(self, row: Row):
+        """Hold a data row until its filter's record of it comes back; the readings to filter (pre-filtered)."""
         self._held.append(row)
-        step = self.filter.step(row.y if self.prefilter is None else self.prefilter(row.y), row.u)
+        return row.y if self.prefilter is None else self.prefilter(row.y)
+
+    def heard(self, evidence: Evidence | None = None):
+        """The filter has stepped on the row held last: with explain, keep its evidence per sensor (given
+        by a fleet's vectorised filter, else read from the filter's engine); the engine's predictive
+        is then dropped, no part of the saved state."""
         engine = self.filter.engine
         if self.explain:
-            self._evidence.append(Evidence.of(engine.predictive, self.alarms.faulty))
-        engine.predictive = None  # the engine's last predictive is no part of the saved state
-        return [] if step is None else [self._finished(step)]
+            self._evidence.append(Evidence.of(engine.predictive, self.alarms.faulty) if evidence is None else evidence)
+        engine.predictive = None
 
     def finish(self) -> list[Diagnosed]:
         """The end of the data: the rows still held back, smoothed with what arrived."""
-        done = [self._finished(step) for step in self.filter.flush()]
+        done = [self.finished(step) for step in self.filter.flush()]
         self.scale.finish()
         return done
 
@@ -106,7 +115,9 @@ class Diagnosis:
         self.finish()
         return self
 
-    def _finished(self, step: Step) -> Diagnosed:
+    def finished(self, step: Step) -> Diagnosed:
+        """The filter's record of the oldest row held: its alarm, counted in the summary and scores,
+        handed to the sinks."""
         row = self._held.popleft()
         alarm = self.alarms.step(step.mode_posterior)
         self.summary.add(step, row.mode)
@@ -178,7 +189,7 @@ def _identity(model: Model) -> dict:
     return {"format": CHECKPOINT_FORMAT, "version": VERSION, "plant": model.name, "model": fingerprint(model)}
 
 
-def diagnose(model: Model, rows, *, sinks=(), **options) -> Diagnosis:
-    """Diagnose every row of an iterable of data rows (see `jmlgdsl.data.iter_rows`), handing each
-    finished row to the sinks; the finished Diagnosis (its summary, truth scores and report)."""
-    return Diagnosis(model, sinks=sinks, **options).run(rows)
+def diagnose(model: Model, rows, options: Options = Options(), *, sinks=()) -> Diagnosis:
+    """Diagnose every row of an iterable of data rows (see `jmlgdsl.data.iter_rows`) as `options` say,
+    handing each finished row to the sinks; the finished Diagnosis (its summary, truth scores and report)."""
+    return Diagnosis(model, options, sinks=sinks).run(rows)

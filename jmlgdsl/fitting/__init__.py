@@ -30,8 +30,7 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
 from ..data import Data, read_csv
-from ..infer.algorithms import ALGORITHMS
-from ..infer.engine import FilterError
+from ..infer.algorithms import algorithm_named
 from ..lang.parse import parse_file
 from ..lang.syntax import Spec
 from .estimate import Fit, maximise
@@ -61,8 +60,7 @@ def fit(spec, data, *, algorithm: str = "imm", samples: int = 0, starts: int | N
         raise FitError(f"samples must be 0 or more and starts 1 or more, got {samples} and {starts}")
     if jobs is not None and jobs < 1:
         raise FitError(f"jobs must be 1 or more, got {jobs}")
-    if algorithm not in ALGORITHMS:
-        raise FilterError(f"unknown filter {algorithm!r}; choose from {', '.join(ALGORITHMS)}")
+    algorithm_named(algorithm)  # an unknown filter refused before any work
     spec = spec if isinstance(spec, Spec) else parse_file(spec)
     family = Family(spec)
     columns = family.model(family.medians())

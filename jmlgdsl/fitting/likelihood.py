@@ -15,6 +15,7 @@ import numpy as np
 from ..data import Data
 from ..errors import JmlgError
 from ..infer import kalman
+from ..infer.algorithms import algorithm_named
 from ..infer.engine import offsets
 from ..infer.online import Filter
 from ..infer.units import Units, stackable
@@ -39,13 +40,13 @@ def loglik(model: Model, data: Data, algorithm: str = "imm", seed=0) -> float:
 
 def logliks(models, data: Data, algorithm: str = "imm", seed=0) -> list[float]:
     """`loglik` of each of `models` on one recording (-inf for None: values that make no model, and for
-    a model whose filter fails). Under IMM on unlabelled data, models of one shape are filtered side
-    by side as the units of one vectorised filter (jmlgdsl.infer.units: each unit exactly as alone),
+    a model whose filter fails). Under a vectorised filter (IMM) on unlabelled data, models of one shape
+    are filtered side by side as the units of one vectorised filter (jmlgdsl.infer.units: each unit exactly as alone),
     one pass over the record for all of them."""
     out = [-math.inf] * len(models)
     valid = [i for i, m in enumerate(models) if m is not None]
     banks = [models[i] for i in valid]
-    if len(banks) > 1 and algorithm == "imm" and not labelled(data) and stackable(banks):
+    if len(banks) > 1 and algorithm_named(algorithm).vectorised and not labelled(data) and stackable(banks):
         try:
             fleet = Units(banks[0], len(banks), models=banks)
             n = len(banks)

@@ -1,29 +1,50 @@
-"""The filtering algorithms by name: one table that the API, `run` and `bench` all read."""
+"""The filtering algorithms by name: one table that the API, `run`, `bench`, a fleet and a fit all
+read. A row says what its filter can do (particles, fixed-lag and off-line smoothing, how many units
+step together), so nothing outside this table asks for a filter by its name."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
 
 from ..model import Model
-from .engine import Engine, Resampler
+from . import pf, rbpf
+from .engine import Engine, FilterError, Resampler
 from .imm import IMM
-from .pf import BootstrapPF
-from .rbpf import RBPF, Exact, FearnheadCliffordRBPF, LookAheadRBPF
+from .lagged import Genealogies, ImmWindow
+from .smooth import HistoryPass, KimPass
 
 
 @dataclass(frozen=True)
 class Algorithm:
-    """A registered filter: its engine class and its default particle count (None: it has no particles,
-    and its engine is built from the model alone)."""
+    """A registered filter and what it can do.
+
+    `engine` is its engine class and `default_particles` its particle count (None: it has no
+    particles, and its engine is built from the model alone). `window` is the fixed-lag smoother a
+    Filter with a lag keeps beside it (jmlgdsl.infer.lagged); `whole_record` how `smooth` smooths a
+    whole record after one filter pass (jmlgdsl.infer.smooth: KimPass, HistoryPass; None: the
+    filter's own window over the whole record). For many units (jmlgdsl.infer.units):
+    `vectorised` says one engine with a unit axis steps every unit (each unit's numbers those of its
+    Filter alone, bit for bit), and `step_together` steps the engines of units with the same readings
+    and as many particles in one call (None: each on its own)."""
 
     name: str
     engine: type
     default_particles: int | None
     summary: str
+    window: type
+    whole_record: type | None = None
+    vectorised: bool = False
+    step_together: Callable | None = None
 
     @property
     def uses_particles(self) -> bool:
         return self.default_particles is not None
+
+    @property
+    def deterministic(self) -> bool:
+        """Whether its results are the same whatever the seed: a filter without particles draws nothing."""
+        return not self.uses_particles
 
     def build(self, model, particles, rng, resampler: Resampler | None) -> Engine:
         """A fresh engine at t = 0."""
@@ -33,13 +54,28 @@ class Algorithm:
 
 
 ALGORITHMS = {a.name: a for a in (
-    Algorithm("pf", BootstrapPF, 200, "bootstrap particle filter over mode and state"),
-    Algorithm("rbpf", RBPF, 100, "Rao-Blackwellised PF, modes drawn from the transition prior"),
-    Algorithm("la-rbpf", LookAheadRBPF, 10, "look-ahead RBPF: every next mode weighed before resampling"),
-    Algorithm("fc-rbpf", FearnheadCliffordRBPF, 4, "look-ahead RBPF with Fearnhead-Clifford optimal selection"),
-    Algorithm("imm", IMM, None, "interacting multiple models: one moment-matched Gaussian per mode"),
-    Algorithm("exact", Exact, None, "every mode history: the exact posterior, for short sequences"),
+    Algorithm("pf", pf.BootstrapPF, 200, "bootstrap particle filter over mode and state", Genealogies,
+              step_together=pf.step_together),
+    Algorithm("rbpf", rbpf.RBPF, 100, "Rao-Blackwellised PF, modes drawn from the transition prior", Genealogies,
+              step_together=rbpf.step_together),
+    Algorithm("la-rbpf", rbpf.LookAheadRBPF, 10, "look-ahead RBPF: every next mode weighed before resampling",
+              Genealogies, step_together=rbpf.step_together),
+    Algorithm("fc-rbpf", rbpf.FearnheadCliffordRBPF, 4, "look-ahead RBPF with Fearnhead-Clifford optimal selection",
+              Genealogies, step_together=rbpf.step_together),
+    Algorithm("imm", IMM, None, "interacting multiple models: one moment-matched Gaussian per mode", ImmWindow,
+              whole_record=KimPass, vectorised=True),
+    Algorithm("exact", rbpf.Exact, None, "every mode history: the exact posterior, for short sequences", Genealogies,
+              whole_record=HistoryPass, step_together=rbpf.step_together),
 )}
+
+
+def algorithm_named(name: str) -> Algorithm:
+    """The row of the filter called `name`; a FilterError naming the filters otherwise."""
+    if name not in ALGORITHMS:
+        raise FilterError(f"unknown filter {name!r}; choose from {', '.join(ALGORITHMS)}")
+    return ALGORITHMS[name]
+
+
 # The lowest error per unit of time on every published plant (docs/filters.md).
 DEFAULT_ALGORITHM = "imm"
 

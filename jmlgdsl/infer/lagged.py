@@ -1,6 +1,9 @@
 """Smoothing while filtering: the estimates of the last rows, revised by the rows that came after.
 
-A `Filter` with a lag holds back its last records and asks one of these for their smoothed values:
+A `Filter` with a lag holds back its last records and asks its algorithm's window (the `window` of
+its row in jmlgdsl.infer.algorithms) for their smoothed values. A window is made with the filter's
+model, lag and engine at t = 0, takes the engine and the inputs after every step (`update`) and gives
+the smoothed posteriors and state moments of the last rows (`rows`):
 
 - `Genealogies` (particle filters and `exact`): a row's mode posterior is the weighted share of the
   current candidates whose ancestral line was in each mode then (Kitagawa's fixed-lag smoother).
@@ -18,21 +21,22 @@ from collections import deque
 import numpy as np
 
 from . import smooth
+from .engine import offsets
 
 
 class Genealogies:
     """Smoothed mode posteriors of a particle engine's last rows from its candidates' ancestral lines."""
 
-    def __init__(self, model, lag: int | None, modes: np.ndarray):
+    def __init__(self, model, lag: int | None, engine):
         self.K, self.nx, self.lag = model.K, model.nx, lag
         # Modes of each particle's line at t-1, t-2, ... (most recent first); off-line the steps' survivors.
-        self.lines = np.repeat(modes[:, None], lag, axis=1) if lag is not None else None
+        self.lines = np.repeat(engine.z[:, None], lag, axis=1) if lag is not None else None
         self.steps = []  # off-line: (parent, mode) of each step's survivors
         self.last = None
 
-    def update(self, g):
-        """Take one step's genealogy."""
-        self.last = g
+    def update(self, engine, u):
+        """Take the genealogy of the engine's step (the inputs play no part)."""
+        g = self.last = engine.genealogy
         if self.lag is None:
             self.steps.append((g.parent[g.kept], g.mode[g.kept]))
         else:
@@ -58,12 +62,14 @@ class Genealogies:
 class ImmWindow:
     """Kim's smoother over the last lag+1 steps of an IMM engine (all steps off-line)."""
 
-    def __init__(self, model, lag: int | None):
-        self.model = model
+    def __init__(self, model, lag: int | None, engine):
+        self.model = model  # (the engine's moments are read at each update: none are needed before)
         self.window = deque(maxlen=None if lag is None else lag + 1)  # (log_mu, means, covs, b) per step
 
-    def update(self, engine, b):
-        """Take the engine's per-mode moments after one step, and that step's state offsets b (K, nx)."""
+    def update(self, engine, u):
+        """Take the engine's per-mode moments after one step under inputs u (nu,), with that step's
+        state offsets b (K, nx)."""
+        b = offsets(self.model, u)[0]
         self.window.append((engine.log_mu.copy(), engine.means.copy(), engine.covs.copy(), b))
 
     def rows(self, n):

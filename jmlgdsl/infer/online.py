@@ -13,16 +13,15 @@ from collections import deque
 
 import numpy as np
 
+from ..data import with_defaults
 from ..errors import DataError
 from ..model import Model
 from ..seeds import generator
 from . import covariances
-from .algorithms import ALGORITHMS, DEFAULT_ALGORITHM
-from .engine import FilterError, Gate, Genealogy, Resampler, offsets
-from .lagged import Genealogies, ImmWindow
+from .algorithms import ALGORITHMS, DEFAULT_ALGORITHM, algorithm_named
+from .engine import FilterError, Gate, Genealogy, Resampler
 from .resample import SCHEMES
 from .result import Result, Step
-from .smooth import ModeGaussians, kim_smooth, smooth_exact
 
 # Readings this large (or infinite) cannot be measurements: their squares would overflow the
 # Kalman arithmetic, so they are treated as not measured.
@@ -48,13 +47,11 @@ class Filter:
 
     def __init__(self, model: Model, algorithm: str = DEFAULT_ALGORITHM, particles: int | None = None,
                  seed=None, resampling: str = "systematic", ess_threshold: float = 1.0, lag: int | None = 0):
-        if algorithm not in ALGORITHMS:
-            raise FilterError(f"unknown filter {algorithm!r}; choose from {', '.join(ALGORITHMS)}")
+        spec = algorithm_named(algorithm)
         if resampling not in SCHEMES:
             raise FilterError(f"unknown resampling scheme {resampling!r}; choose from {', '.join(SCHEMES)}")
         if lag is not None and (isinstance(lag, bool) or not isinstance(lag, (int, np.integer)) or lag < 0):
             raise FilterError(f"the lag must be a whole number of steps >= 0 (or None: off-line), got {lag!r}")
-        spec = ALGORITHMS[algorithm]
         if particles is None or not spec.uses_particles:
             particles = spec.default_particles
         elif isinstance(particles, bool) or not isinstance(particles, (int, np.integer)) or particles < 1:
@@ -68,8 +65,7 @@ class Filter:
         self.seconds = 0.0  # time spent inside step()
         self.lag = lag
         self._pending = deque()  # records held back until the rows after them have arrived
-        self._smoother = (None if lag == 0 else ImmWindow(model, lag) if algorithm == "imm"
-                          else Genealogies(model, lag, self.engine.z))
+        self._smoother = None if lag == 0 else spec.window(model, lag, self.engine)
         self._gate = Gate.of(model.outlier_gate)
         self._flagged = np.zeros(model.ny, dtype=np.int64)  # consecutive steps beyond the gate, per output
         self._watching = False  # some output was beyond the gate at the last step
@@ -100,13 +96,20 @@ class Filter:
     def _advance(self, y, mask, u) -> Step | None:
         """`step` on checked readings y (ny,), measured where mask (ny,) is True, and inputs u (nu,)."""
         start = time.perf_counter()
-        record = self._take(self.engine.step(y, mask, u, self._gate), y, u)
+        record = self.accept(self.engine.step(y, mask, u, self._gate), y, u)
         self.seconds += time.perf_counter() - start
         return record
 
-    def _take(self, est, y, u) -> Step | None:
-        """The record of the step whose engine, under this filter's gate, made `est` of readings y and
-        inputs u (as `_advance` gives it; jmlgdsl.infer.units steps many engines at once)."""
+    @property
+    def gate(self) -> Gate:
+        """The outlier gate this filter's next step applies: the model's, less the outputs whose
+        readings have been beyond it MAX_REJECTIONS steps in a row (taken whatever they say)."""
+        return self._gate
+
+    def accept(self, est, y, u) -> Step | None:
+        """The record of a step its engine made under `gate` from outside this filter (jmlgdsl.infer.
+        units steps many units' engines in one call): `est` of checked readings y and inputs u, counted
+        in this filter's clock, log-likelihood, gate counts and lag window as `step` counts its own."""
         t = self.t + 1
         if not (math.isfinite(est.loglik) and np.isfinite(est.state_cov).all()):
             raise _overflow(t, est)
@@ -120,10 +123,7 @@ class Filter:
 
     def _hold(self, record, u):
         """Keep the new record back; give out the oldest one, smoothed, once `lag` rows follow it."""
-        if isinstance(self._smoother, ImmWindow):
-            self._smoother.update(self.engine, offsets(self.model, u)[0])
-        else:
-            self._smoother.update(self.engine.genealogy)
+        self._smoother.update(self.engine, u)
         self._pending.append(record)
         if self.lag is None or len(self._pending) <= self.lag:
             return None
@@ -154,8 +154,9 @@ class Filter:
 
 # What a Filter's state is made of: the classes and functions its saved state (jmlgdsl.sealed) may
 # hold, and the only ones reading it back may make.
-SAVED_KINDS = (Filter, Step, Gate, Genealogy, Resampler, Genealogies, ImmWindow, covariances.CovarianceGraph,
-               covariances._Growing, covariances._Rows, *(a.engine for a in ALGORITHMS.values()), *SCHEMES.values())
+SAVED_KINDS = (Filter, Step, Gate, Genealogy, Resampler, covariances.CovarianceGraph, covariances._Growing,
+               covariances._Rows, *(a.engine for a in ALGORITHMS.values()),
+               *dict.fromkeys(a.window for a in ALGORITHMS.values()), *SCHEMES.values())
 
 
 def _overflow(t, est) -> FilterError:
@@ -189,15 +190,17 @@ def _readings(y):
 
 def _inputs(model: Model, u, t):
     """Inputs u (..., nu) with NaN entries taking the spec's defaults; a DataError naming the first
-    row (u's first row is t) with an input that has neither a value nor a default."""
+    row with an input that has neither a value nor a default: row i is step t + i of one record (t a
+    number), or step t[i] of unit i (t an array: a row per unit, jmlgdsl.infer.units)."""
     if np.isfinite(u).all():
         return u
-    u = np.where(np.isnan(u), model.input_defaults, u)
+    u = with_defaults(u, model.input_defaults)
     bad = ~np.isfinite(np.atleast_2d(u))
     if bad.any():
         row = int(np.flatnonzero(bad.any(axis=1))[0])
         names = [n for n, b in zip(model.inputs, bad[row]) if b]
-        raise DataError(f"t={t + row}: no value and no default for input {', '.join(names)}")
+        where = f"t={t + row}" if np.ndim(t) == 0 else f"unit {row}, t={t[row]}"
+        raise DataError(f"{where}: no value and no default for input {', '.join(names)}")
     return u
 
 
@@ -237,21 +240,16 @@ def smooth(model: Model, y, u=None, *, algorithm: str = DEFAULT_ALGORITHM, lag: 
         return filter(model, y, u, algorithm=algorithm, particles=particles, seed=seed, resampling=resampling,
                       ess_threshold=ess_threshold)
     y, u = _arrays(model, y, u)
-    if algorithm in ("exact", "imm"):
-        if algorithm == "imm":  # one filter pass, its per-mode output kept for Kim's pass
-            f, fwd = Filter(model, algorithm), ModeGaussians.empty(len(y), model)
-            steps = []
-            for t, record in enumerate(f._feed(y, u)):
-                steps.append(record)
-                fwd.record(t, f.engine)
-            result = Result.from_steps(model, algorithm, f.particles, steps, f.seconds)
-            start = time.perf_counter()
-            smoothed = kim_smooth(model, fwd, offsets(model, u)[0], lag)
-        else:
-            result = filter(model, y, u, algorithm=algorithm, seed=seed)
-            start = time.perf_counter()
-            used = np.where(result.rejected, np.nan, y)  # readings rejected as gross errors stay out
-            smoothed = smooth_exact(model, used, u, lag)
+    whole_record = algorithm_named(algorithm).whole_record
+    if whole_record is not None:  # one filter pass, what its backward pass needs kept as it goes
+        f = Filter(model, algorithm, particles, seed, resampling, ess_threshold)
+        backward, steps = whole_record(model, len(y)), []
+        for t, record in enumerate(f._feed(y, u)):
+            steps.append(record)
+            backward.record(t, f.engine)
+        result = Result.from_steps(model, algorithm, f.particles, steps, f.seconds)
+        start = time.perf_counter()
+        smoothed = backward.smoothed(model, y, u, result.rejected, lag)
         return dataclasses.replace(result, mode_posterior=smoothed.mode_posterior, state_mean=smoothed.state_mean,
                                    state_cov=smoothed.state_cov, lag=lag,
                                    seconds=result.seconds + time.perf_counter() - start)

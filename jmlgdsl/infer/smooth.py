@@ -229,6 +229,37 @@ def kim_smooth(model, fwd: ModeGaussians, b, lag=None) -> Smoothed:
     return Smoothed(post, mean, cov)
 
 
+class KimPass:
+    """How `smooth` smooths a whole record for imm: the filter's per-mode moments recorded at every
+    step (`record`), then Kim's backward pass over them (`smoothed`), off-line or with a lag."""
+
+    def __init__(self, model, T: int):
+        self.fwd = ModeGaussians.empty(T, model)
+
+    def record(self, t, engine):
+        """Keep the engine's per-mode output after step t (0-based)."""
+        self.fwd.record(t, engine)
+
+    def smoothed(self, model, y, u, rejected, lag) -> Smoothed:
+        """The smoothed rows of the record y (T, ny), u (T, nu) the filter stepped through."""
+        return kim_smooth(model, self.fwd, offsets(model, u)[0], lag)
+
+
+class HistoryPass:
+    """How `smooth` smooths a whole record for exact: nothing kept while the filter steps, then every
+    mode history smoothed over the readings the filter used (those it rejected as gross errors stay out)."""
+
+    def __init__(self, model, T: int):
+        pass
+
+    def record(self, t, engine):
+        """Nothing: the histories are carried again by `smooth_exact`."""
+
+    def smoothed(self, model, y, u, rejected, lag) -> Smoothed:
+        """The smoothed rows of the record y (T, ny), u (T, nu), rejected (T, ny) the filter stepped through."""
+        return smooth_exact(model, np.where(rejected, np.nan, y), u, lag)
+
+
 def _kim_pairs(model, fwd: ModeGaussians, b) -> _Pairs:
     """Every pair's one-step prediction from the filtered moments of mode i under mode j's dynamics,
     its smoother gain, and the predicted mode probabilities: all steps at once."""

@@ -42,17 +42,14 @@ import numpy as np
 from ..errors import DataError
 from ..model import Model
 from . import kalman
-from .algorithms import DEFAULT_ALGORITHM
+from .algorithms import ALGORITHMS, DEFAULT_ALGORITHM, algorithm_named
 from .engine import Estimate, FilterError, Gate, screen
 from .imm import SURE, mix, moments, predict, refresh, whitened
-from .online import MAX_REJECTIONS, Filter, _arrays, _overflow, _readings
-from . import pf, rbpf
+from .online import MAX_REJECTIONS, Filter, _arrays, _inputs, _overflow, _readings
 from .resample import normalize_rows, row_extreme
 from .result import Predictive, Result, Step
 
 ALL = slice(None)  # every unit, as an index that takes views, not copies
-# The engines whose units step together, and how (rbpf.step_together, pf.step_together).
-STEPPED_TOGETHER = ((rbpf.RaoBlackwellised, rbpf.step_together), (pf.BootstrapPF, pf.step_together))
 
 
 class Batch(NamedTuple):
@@ -335,10 +332,11 @@ class Units:
                                   "input defaults to step together")
         self.model, self.count, self.algorithm = model, count, algorithm
         banks = models or [model] * count
+        vectorised = filters is None and algorithm_named(algorithm).vectorised
         self._filters = filters or [Filter(banks[i], algorithm, particles, seed, resampling, ess_threshold)
-                                    for i in range(1 if algorithm == "imm" else count)]
+                                    for i in range(1 if vectorised else count)]
         self.particles = self._filters[0].particles
-        self._engine = BatchIMM(model, count, models) if filters is None and algorithm == "imm" else None
+        self._engine = BatchIMM(model, count, models) if vectorised else None
         self.t = np.array([f.t for f in self._filters] if filters else np.zeros(count), dtype=np.int64)
         self.loglik = np.array([f.loglik for f in self._filters] if filters else np.zeros(count), dtype=float)
         self.seconds = 0.0  # time spent inside step(), for every unit together
@@ -363,6 +361,12 @@ class Units:
         self.loglik[index] += steps.loglik
         self.seconds += time.perf_counter() - start
         return steps
+
+    @property
+    def vectorised(self) -> bool:
+        """Whether one engine steps every unit (its last step's predictives in `predictives`); else each
+        unit's own Filter steps, its engine holding its own last predictive."""
+        return self._engine is not None
 
     @property
     def predictives(self) -> list:
@@ -403,11 +407,12 @@ class Units:
 
     def _each(self, index, t, y, mask, u) -> UnitSteps:
         """The units through their own Filters: the engines of the units that measured the same outputs
-        and hold as many particles stepped together (STEPPED_TOGETHER), each other one on its own."""
+        and hold as many particles stepped together (their algorithm's `step_together`), each other one
+        on its own."""
         filters = [self._filters[unit] for unit in np.arange(self.count)[index]]
         estimates = [None] * len(filters)
         groups = {}
-        together = next((step for kind, step in STEPPED_TOGETHER if isinstance(filters[0].engine, kind)), None)
+        together = ALGORITHMS[self.algorithm].step_together
         if together is not None:
             for i, f in enumerate(filters):  # units of one bank that measured the same and hold as many particles
                 groups.setdefault((id(f.model), mask[i].tobytes(), len(f.engine.z)), []).append(i)
@@ -415,7 +420,7 @@ class Units:
             if len(members) > 1:
                 try:
                     done = together([filters[i].engine for i in members], y[members], mask[members[0]],
-                                    u[members], [filters[i]._gate for i in members])
+                                    u[members], [filters[i].gate for i in members])
                 except FilterError as exc:  # refused before any engine moved (exact's bank, as large for all)
                     done = [exc] * len(members)
                 for i, est in zip(members, done):
@@ -423,10 +428,10 @@ class Units:
         records = []
         for i, f in enumerate(filters):
             try:
-                est = f.engine.step(y[i], mask[i], u[i], f._gate) if estimates[i] is None else estimates[i]
+                est = f.engine.step(y[i], mask[i], u[i], f.gate) if estimates[i] is None else estimates[i]
                 if isinstance(est, FilterError):
                     raise est
-                records.append(f._take(est, y[i], u[i]))
+                records.append(f.accept(est, y[i], u[i]))
             except FilterError as exc:  # named in the order the units would fail one after the other
                 raise _unit_error(index, i, exc) from None
         return UnitSteps(t, *(np.array([getattr(s, f) for s in records]) for f in UnitSteps._fields[1:-1]),
@@ -447,20 +452,6 @@ def _rows(values, n, names, what):
         raise DataError(f"{what} must have shape ({n}, {len(names)}) for {n} units and {', '.join(names) or 'none'}; "
                         f"got {v.shape}")
     return v
-
-
-def _inputs(model: Model, u, t):
-    """Inputs u (n, nu) with NaN entries taking the spec's defaults; a DataError naming the unit and
-    input that has neither (online._inputs' message, for the unit's step t)."""
-    if np.isfinite(u).all():
-        return u
-    u = np.where(np.isnan(u), model.input_defaults, u)
-    bad = ~np.isfinite(u)
-    if bad.any():
-        i = int(np.flatnonzero(bad.any(axis=1))[0])
-        names = [name for name, b in zip(model.inputs, bad[i]) if b]
-        raise DataError(f"unit {i}, t={t[i]}: no value and no default for input {', '.join(names)}")
-    return u
 
 
 def filter_units(model: Model, ys, us=None, **options) -> list[Result]:

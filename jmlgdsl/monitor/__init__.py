@@ -7,12 +7,12 @@ diagnoses the rows and commits them in batches to a `Store` (SQLite) with the di
 state, and acknowledges them to the source only after that commit.
 
     >>> import jmlgdsl, io, tempfile, os
-    >>> from jmlgdsl.monitor import CsvSource, Monitor, Store, monitor_options
+    >>> from jmlgdsl.monitor import CsvSource, Monitor, MonitorOptions, Store
     >>> model = jmlgdsl.load("specs/dryer.jmlg")
     >>> folder = tempfile.mkdtemp()
     >>> with Store(os.path.join(folder, "dryer.db")) as store:
     ...     source = CsvSource("examples/dryer_seq1.csv", model, follow=False)
-    ...     stopped = Monitor(model, store, source, spec=None, options=monitor_options(), tags={}).run()
+    ...     stopped = Monitor(model, store, source, spec=None, options=MonitorOptions(), tags={}).run()
     ...     table = io.StringIO()
     ...     _ = store.write_table(store.run(), table)
     >>> stopped.rows, stopped.ended, table.getvalue().splitlines()[1000][:30]
@@ -22,9 +22,9 @@ state, and acknowledges them to the source only after that commit.
 from .rows import Assembler
 from .sources.contract import Event
 from .sources.files import CsvSource
-from .live import Monitor, MonitorError, Stopped, monitor_options
+from .live import Monitor, MonitorError, MonitorOptions, Stopped
 from .store import Store, StoreError
 from .sources.tags import Tag, TagError, read_tags
 
-__all__ = ["Assembler", "Event", "CsvSource", "Monitor", "MonitorError", "Stopped", "monitor_options", "Store",
+__all__ = ["Assembler", "Event", "CsvSource", "Monitor", "MonitorError", "MonitorOptions", "Stopped", "Store",
            "StoreError", "Tag", "TagError", "read_tags"]

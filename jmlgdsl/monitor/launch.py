@@ -11,7 +11,7 @@ from pathlib import Path
 
 from ..errors import JmlgError
 from ..names import plural
-from .live import Monitor, Stopped
+from .live import Monitor, MonitorOptions, Stopped
 from .sources import Connection
 from .store import Store
 
@@ -41,9 +41,9 @@ def unit_spec_banks(model, spec: str, folder: str | None, units, log) -> list | 
             for unit, bank in zip(units, models)]
 
 
-def watch(model, spec: str, store: str, password: str | None, source, connection: Connection, *, options: dict,
-          tags: dict, units=None, banks=None, sinks=(), new_run: bool = False, cluster: str | None = None,
-          shards: int | None = None, stop: threading.Event, log) -> tuple[Stopped, int]:
+def watch(model, spec: str, store: str, password: str | None, source, connection: Connection, *,
+          options: MonitorOptions, tags: dict, units=None, banks=None, sinks=(), new_run: bool = False,
+          cluster: str | None = None, shards: int | None = None, stop: threading.Event, log) -> tuple[Stopped, int]:
     """Monitor `source` (opened from `connection`) into the store until the data end or `stop` is set,
     or with `cluster` the fleet's units in shards on that Ray cluster: what it did, and in how many
     shards (1 without a cluster)."""

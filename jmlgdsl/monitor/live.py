@@ -17,11 +17,9 @@ import time as clock
 import numpy as np
 
 from ..sealed import SealedError, header_of, seal, unseal
-from ..diagnosis.alarms import AlarmRule
-from ..diagnosis import CheckpointError, Diagnosis, fingerprint
+from ..diagnosis import CheckpointError, Diagnosis, Options, fingerprint
 from ..diagnosis.fleet import Fleet, stepped_together
 from ..diagnosis.prediction import predictive_sd
-from ..infer import DEFAULT_ALGORITHM
 from ..infer.result import Step
 from ..infer.units import Stacked
 from ..errors import JmlgError
@@ -71,20 +69,22 @@ class Stopped:
     ended: bool
 
 
-def monitor_options(*, algorithm: str = DEFAULT_ALGORITHM, particles: int | None = None, seed: int | None = None,
-                    resampling: str = "systematic", ess_threshold: float = 1.0, lag: int = 0,
-                    prefilter: int | None = None, healthy=None, threshold: float = 0.5, persistence: int = 1,
-                    grace: float | None = None, stale: float | None = None, max_gap: float = 3600.0) -> dict:
-    """A monitor's options, with `run`'s defaults: the filter's, the alarm rule's (healthy None: the
-    spec's first mode) and the assembler's (grace and stale None: 2 and 10 sample times)."""
-    return dict(locals())
+@dataclasses.dataclass(frozen=True)
+class MonitorOptions:
+    """A monitor's options: its diagnosis's (jmlgdsl.diagnosis.Options, with `run`'s defaults; a
+    monitor always explains) and the assembler's, which puts readings on the sample clock (grace and
+    stale None: 2 and 10 sample times)."""
+
+    diagnosis: Options = Options()
+    grace: float | None = None
+    stale: float | None = None
+    max_gap: float = 3600.0
 
 
 class Monitor:
-    """Diagnose what a source delivers, into a store. `options` are the Diagnosis's (algorithm,
-    particles, seed, resampling, ess_threshold, lag, prefilter), the alarm rule's (healthy, threshold,
-    persistence) and the assembler's (grace, stale, max_gap); they are recorded with the run, and a
-    restart with others is refused, as is another model, unless `new_run`.
+    """Diagnose what a source delivers, into a store. `options` (MonitorOptions) are the diagnosis's
+    and the assembler's; they are recorded with the run, and a restart with others is refused, as is
+    another model, unless `new_run`.
 
     `units` names the units of a fleet (jmlgdsl.monitor.fleet): each has its run in the store, its
     own diagnosis, assembler and source position, and every commit holds every unit's rows and
@@ -97,16 +97,17 @@ class Monitor:
     refused, and the units still step together, each under its own numbers. `sinks` (jmlgdsl.monitor.
     outbox) are sent what each commit holds, and the operators' actions on its alarms."""
 
-    def __init__(self, model, store: Store, source: Source, *, spec: str | None, options: dict, tags: dict,
+    def __init__(self, model, store: Store, source: Source, *, spec: str | None, options: MonitorOptions, tags: dict,
                  units=None, new_run: bool = False, log=None, banks=None, sinks=()):
         self.model, self.store, self.source, self.log = model, store, source, log or (lambda text: None)
-        self.options = recorded_options(model, options, source.name, tags)
+        self.options = options
         self.tags = tags
         self.named = units is not None
         self.banks = banks or [(model, spec)] * (1 if units is None else len(units))
         # the units' own banks as one, for their predictive bands (None: every unit has the model)
         self.stacked = None if all(bank is model for bank, _ in self.banks) else Stacked([b for b, _ in self.banks])
-        runs = open_runs(store, model, spec, self.options, units, new_run, self.banks)
+        runs = open_runs(store, model, spec, recorded_options(model, options, source.name, tags), units, new_run,
+                         self.banks)
         self.units = [self._unit(run, i) for i, run in enumerate(runs)]
         self.outbox = Outbox(store, sinks, runs, model.name)
         self.fleet = None  # the units' diagnoses as one Fleet, when their filters step together
@@ -132,12 +133,10 @@ class Monitor:
         model = self.banks[index][0]
         if saved is None:
             options = self.options
-            rule = AlarmRule(tuple(options["healthy"]), options["threshold"], options["persistence"])
-            keys = ("algorithm", "particles", "seed", "resampling", "ess_threshold", "lag", "prefilter")
-            watch.diagnosis = Diagnosis(model, rule=rule, scored=False, explain=True, sinks=[watch],
-                                        **{k: options[k] for k in keys})
-            watch.assembler = None if self.source.rows else Assembler(self.model, self.tags, options["grace"],
-                                                                      options["stale"], options["max_gap"])
+            watch.diagnosis = Diagnosis(model, dataclasses.replace(options.diagnosis, explain=True), scored=False,
+                                        sinks=[watch])
+            watch.assembler = None if self.source.rows else Assembler(self.model, self.tags, options.grace,
+                                                                      options.stale, options.max_gap)
         else:
             try:
                 watch.diagnosis = Diagnosis.resume(saved.checkpoint, model, sinks=[watch])
@@ -420,10 +419,12 @@ def unresumable(store, run, saved, reason) -> str:
             f"export'). Start a new run with --new-run (a new prior: the first rows may alarm while it settles)")
 
 
-def recorded_options(model, options: dict, source: str, tags: dict) -> dict:
-    """What a run records of its monitor's options (monitor_options), its source's name and its tags;
-    a restart with others is refused."""
-    return dict(options, healthy=list(options["healthy"] or model.modes[:1]), source=source,
+def recorded_options(model, options: MonitorOptions, source: str, tags: dict) -> dict:
+    """What a run records of its monitor's options, its source's name and its tags (explain left out:
+    a monitor always explains); a restart with others is refused."""
+    diagnosis = {key: value for key, value in dataclasses.asdict(options.diagnosis).items() if key != "explain"}
+    return dict(diagnosis, healthy=list(options.diagnosis.healthy or model.modes[:1]), grace=options.grace,
+                stale=options.stale, max_gap=options.max_gap, source=source,
                 tags={name: dataclasses.asdict(tag) for name, tag in tags.items()})
 
 

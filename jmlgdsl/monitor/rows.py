@@ -36,7 +36,7 @@ from datetime import datetime
 
 import numpy as np
 
-from ..data import Row, TimeFormat
+from ..data import Row, TimeFormat, with_defaults
 from .sources.contract import Event
 
 AHEAD = 60.0  # seconds a reading may be stamped past the wall clock it arrives at
@@ -291,7 +291,7 @@ class Assembler:
                                                         f"{self.at(time)}", time))
         y = np.array([values.get(n, math.nan) for n in self.outputs])
         u = np.array([values[n] if n in values else _or_nan(self._held(n, slot)) for n in self.inputs])
-        u = np.where(np.isnan(u), self.defaults, u)
+        u = with_defaults(u, self.defaults)
         self.last.update((name, (time, value)) for name, value in values.items())
         return Row(slot, time, y, u, None), events
 

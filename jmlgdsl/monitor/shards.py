@@ -23,7 +23,7 @@ import socket
 import threading
 
 from ..cluster import completed
-from .live import Monitor, Stopped, open_runs, recorded_options
+from .live import Monitor, MonitorOptions, Stopped, open_runs, recorded_options
 from .sources import Connection, open_source
 from .databases import StoreError, is_url
 from .store import Store
@@ -66,8 +66,8 @@ class Shard:
     opened as this shard's (its `index`); `banks` its units' own (model, spec text), as Monitor
     takes them."""
 
-    def __init__(self, model, location: str, password: str | None, spec: str | None, options: dict, tags: dict,
-                 units: list, index: int, source: Connection, banks=None):
+    def __init__(self, model, location: str, password: str | None, spec: str | None, options: MonitorOptions,
+                 tags: dict, units: list, index: int, source: Connection, banks=None):
         if not is_url(location) and not os.path.exists(location):
             raise StoreError(f"the store {location} is not on the machine of shard {index} ({socket.gethostname()}): "
                              "the shards of a cluster of machines share a PostgreSQL store (postgresql://...)")
@@ -87,8 +87,8 @@ class Shard:
         self.stopping.set()
 
 
-def run_shards(ray, model, location: str, password: str | None, *, spec: str | None, options: dict, tags: dict,
-               units: list, count: int, source: Connection, new_run: bool = False,
+def run_shards(ray, model, location: str, password: str | None, *, spec: str | None, options: MonitorOptions,
+               tags: dict, units: list, count: int, source: Connection, new_run: bool = False,
                stop: threading.Event | None = None, banks=None) -> Stopped:
     """Monitor `units` in `count` shards on the joined Ray cluster until their data end or `stop` is
     set; what they did, counted in the store (a shard that Ray started again returns the count of its

@@ -29,7 +29,7 @@ jmlgdsl/monitor/databases.py):
             position (JSON: where the source resumes), saved (UTC ISO time); the checkpoint and the
             monitor's state are sealed (jmlgdsl.sealed: data only, with a checksum)
     delivery sink, run, t, action, saved: how far a sink of the monitor's conclusions (an MQTT
-            broker, a webhook: jmlgdsl.monitor.outbox) has confirmed what it was handed, the rows
+            broker, a webhook: jmlgdsl.monitor.sinks.outbox) has confirmed what it was handed, the rows
             up to result t and the actions up to action id `action`
 
 Why packed vectors: a row of a 20-sensor bank holds 123 vector numbers, which as JSON text took
@@ -199,7 +199,7 @@ def now() -> str:
 
 
 def row_state(store: "Store", plant: str, record: Run, row, opened: int | None) -> dict:
-    """A row's state as the sinks of the conclusions show it (jmlgdsl.monitor.outbox): `row` is the
+    """A row's state as the sinks of the conclusions show it (jmlgdsl.monitor.sinks.outbox): `row` is the
     result's (t, time, map_mode, posterior, alarm) of the run `record` in `store`, `opened` the id of
     the alarm open at it (None: none)."""
     t, time, mode, posterior, alarm = row
@@ -373,7 +373,7 @@ class Store:
                              f"run with --new-run") from None
 
     def delivered(self, sink: str) -> dict:
-        """{run: (t, action)}: how far a sink confirmed each run's conclusions (jmlgdsl.monitor.outbox)."""
+        """{run: (t, action)}: how far a sink confirmed each run's conclusions (jmlgdsl.monitor.sinks.outbox)."""
         return {run: (t, action) for run, t, action in
                 self.db.execute("SELECT run, t, action FROM delivery WHERE sink = ?", (sink,))}
 

@@ -9,13 +9,13 @@ past window of the store can be shown (scroll to zoom, drag to pan); new rows ar
 quarter of a second of their commit. A fleet's page opens on every unit, worst first.
 
     >>> import jmlgdsl, json, os, tempfile, urllib.request
-    >>> from jmlgdsl.monitor import CsvSource, Monitor, Store, monitor_options
+    >>> from jmlgdsl.monitor import CsvSource, Monitor, MonitorOptions, Store
     >>> from jmlgdsl.page import Page
     >>> model = jmlgdsl.load("specs/dryer.jmlg")
     >>> path = os.path.join(tempfile.mkdtemp(), "dryer.db")
     >>> with Store(path) as store:
     ...     source = CsvSource("examples/dryer_seq1.csv", model, follow=False)
-    ...     _ = Monitor(model, store, source, spec=None, options=monitor_options(), tags={}).run()
+    ...     _ = Monitor(model, store, source, spec=None, options=MonitorOptions(), tags={}).run()
     >>> page = Page(path, "127.0.0.1", 0).start()      # port 0: any free one
     >>> [(a["id"], a["mode"], a["state"]) for a in json.load(urllib.request.urlopen(page.url + "api/alarms"))]
     [(3, 'grill', 'active, unacknowledged'), (2, 'grill', 'cleared, unacknowledged'), (1, 'fan', 'cleared, unacknowledged')]

@@ -37,7 +37,6 @@ from ..simulate import simulate
 
 DEFAULT_PARTICLES = (1, 4, 10, 25, 50, 100, 200, 400, 800, 1600)
 DEFAULT_FILTERS = ("pf", "rbpf", "la-rbpf", "fc-rbpf", "imm")
-DETERMINISTIC = ("imm", "exact")
 MEASURES = ("error", "delay", "f1", "far", "mar", "nab", "ms_per_step", "loglik")  # averaged over runs in the tables
 # each run's naming % as well (the tables pool the runs' counts instead of averaging it)
 RECORD_FIELDS = ("data", "filter", "particles", "lag", "run", *MEASURES, "naming")
@@ -178,7 +177,8 @@ def make_jobs(model, sources, filters=DEFAULT_FILTERS, particles=DEFAULT_PARTICL
     for name in filters:
         if name not in ALGORITHMS:
             raise DataError(f"unknown filter {name!r}; choose from {', '.join(ALGORITHMS)}")
-    if not particles and set(filters) - set(DETERMINISTIC):
+    with_particles = any(ALGORITHMS[name].uses_particles for name in filters)
+    if not particles and with_particles:
         raise DataError("the particle filters need at least one particle count")
     if runs < 1:
         raise DataError(f"the number of runs must be at least 1, got {runs}")
@@ -187,9 +187,9 @@ def make_jobs(model, sources, filters=DEFAULT_FILTERS, particles=DEFAULT_PARTICL
     bad = [n for n in particles if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1]
     if bad:
         raise DataError(f"particle counts must be positive whole numbers, got {bad[0]!r}")
-    if set(filters) - set(DETERMINISTIC):
+    if with_particles:
         check_count("particle count", max(particles, default=1), particle_bytes(model))
-    cells = [(f, n) for f in filters for n in ((None,) if f in DETERMINISTIC else particles)]
+    cells = [(f, n) for f in filters for n in (particles if ALGORITHMS[f].uses_particles else (None,))]
     cells = list(dict.fromkeys(cells))  # a filter named twice runs once
     check_count("--runs", runs, JOB_BYTES * len(cells) * len(sources))
     jobs = []
