@@ -53,9 +53,8 @@ from asyncua.server.internal_session import InternalSession
 from ..errors import JmlgError
 from . import bus
 from .assemble import Event
-from .databases import StoreError
 from .opcua import security_options
-from .store import LONGEST, Store, row_state
+from .store import LONGEST, Store, StoreError, row_state
 from .urls import address
 
 logging.getLogger("asyncua").addHandler(logging.NullHandler())  # its warnings are the monitor's events

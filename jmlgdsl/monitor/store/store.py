@@ -1,12 +1,12 @@
 """The monitor's store: one database holding runs, their rows, results, alarms, events and the
 saved state they were diagnosed with: an SQLite file (WAL mode), or a PostgreSQL database
 (postgresql://USER@HOST:PORT/DBNAME) that many monitors write and others read, with the same schema
-(jmlgdsl/monitor/databases.py runs it on either).
+(jmlgdsl/monitor/store/databases.py runs it on either).
 
 Schema (vectors — y, u, posterior, state_mean, y_pred, residual, y_sd, evidence — are numbers in
 the order the `run` row lists the names, each float64 as computed, NaN for a reading not measured:
 in SQLite a BLOB of little-endian float64s, in PostgreSQL a double precision[]; see
-jmlgdsl/monitor/databases.py):
+jmlgdsl/monitor/store/databases.py):
 
     run     id, started (UTC ISO time), version, plant, spec (the spec file's text), spec_sha256,
             model_sha256 (the compiled model's fingerprint), options (JSON: filter, alarm rule, lag,
@@ -66,11 +66,11 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..data import TimeFormat
-from ..infer.result import Step
-from ..infer.table import TableWriter
-from ..names import plural, spans
-from ..version import VERSION
+from ...data import TimeFormat
+from ...infer.result import Step
+from ...infer.table import TableWriter
+from ...names import plural, spans
+from ...version import VERSION
 from .databases import StoreError, connect
 
 SCHEMA_VERSION = 5
