@@ -2,10 +2,12 @@
 
 The layers, lowest first (docs/architecture.md draws them): leaf helpers; the model type and the
 data and metric helpers that know only names and arrays; the language; the compiler; inference and
-simulation; the studies, learning and figures built on them; the command line.
+simulation; the studies, learning and figures built on them; the command line. Within them, the
+monitor's store is the one place that speaks SQL, and the page reads only through its queries.
 """
 
 import ast
+import re
 from pathlib import Path
 
 import pytest
@@ -175,7 +177,7 @@ def test_the_pin_sees_an_import_of_the_evaluator(tmp_path):
 
 SOURCES = "jmlgdsl.monitor.sources"
 CONTRACT = f"{SOURCES}.contract"
-BEYOND_SOURCES = ("jmlgdsl.monitor.store", "jmlgdsl.monitor.databases", "jmlgdsl.monitor.live",
+BEYOND_SOURCES = ("jmlgdsl.monitor.store", "jmlgdsl.monitor.live",
                   "jmlgdsl.monitor.sinks", "jmlgdsl.monitor.shards", "jmlgdsl.page")
 
 
@@ -251,3 +253,47 @@ def test_the_pin_sees_a_name_check(tmp_path):
     path = tmp_path / "fleet.py"
     path.write_text('a = f.algorithm == "imm"\nb = algorithm in ("exact", "imm")\nc = algorithm == "other"\n')
     assert name_checks(path, {"imm", "exact"}) == ["f.algorithm == 'imm'", "algorithm in ('exact', 'imm')"]
+
+
+STORE = "jmlgdsl.monitor.store"  # the one package that speaks SQL
+DRIVERS = {"sqlite3", "psycopg"}
+SQL = re.compile(r"\b(SELECT|INSERT INTO|UPDATE \w+ SET|DELETE FROM|CREATE (TABLE|INDEX)|ALTER TABLE|DROP TABLE)\b")
+
+
+def speaks_sql(path) -> list[str]:
+    """What in a file speaks to a database: an import of a driver, text of SQL, the store's own
+    connection (`store.db`)."""
+    found = []
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            found += [f"imports {a.name}" for a in node.names if a.name.split(".")[0] in DRIVERS]
+        elif isinstance(node, ast.ImportFrom) and not node.level and node.module.split(".")[0] in DRIVERS:
+            found.append(f"imports from {node.module}")
+        elif isinstance(node, ast.Constant) and isinstance(node.value, str) and SQL.search(node.value):
+            found.append(f"SQL on line {node.lineno}: {SQL.search(node.value)[0]}")
+        elif isinstance(node, ast.Attribute) and node.attr == "db":
+            found.append(f"the store's connection (.db) on line {node.lineno}")
+    return found
+
+
+def test_only_the_store_speaks_sql():
+    """A reader or writer of the store (the page, the sinks, the commands) goes through its methods,
+    so a store kept another way is a new backend of jmlgdsl/monitor/store alone."""
+    for name, path in modules().items():
+        if name != STORE and not name.startswith(STORE + "."):
+            assert not speaks_sql(path), f"{name}: {speaks_sql(path)}"
+
+
+def test_the_page_reads_the_monitor_only_through_the_store():
+    page = {name: targets for name, targets in graph().items() if layer(name) == "page"}
+    assert page
+    for name, targets in page.items():
+        assert {t for t in targets if t.startswith("jmlgdsl.monitor")} <= {STORE}, name
+
+
+def test_the_pin_sees_a_driver_sql_and_the_connection(tmp_path):
+    path = tmp_path / "views.py"
+    path.write_text("import sqlite3\nfrom psycopg import sql\nROWS = 'SELECT t FROM result'\n"
+                    "store.db.execute(ROWS)\nTEXT = 'select the rows to show'\n")
+    assert speaks_sql(path) == ["imports sqlite3", "imports from psycopg", "SQL on line 3: SELECT",
+                                "the store's connection (.db) on line 4"]

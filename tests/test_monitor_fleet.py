@@ -48,7 +48,7 @@ from monitor_servers import (LINES, MOSQUITTO, NO_MOSQUITTO, SPEC, WAIT, broker,
                              publish, query)  # (broker: a fixture)
 
 from jmlgdsl.cli import main
-from jmlgdsl.monitor.databases import SQLite
+from jmlgdsl.monitor.store.databases import SQLite
 from jmlgdsl.monitor.fleet import FleetError, unit_names
 
 UNITS = ["pump01", "pump02", "pump03"]

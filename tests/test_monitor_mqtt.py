@@ -21,7 +21,7 @@ from conftest import jmlgdsl_command
 from monitor_servers import (MOSQUITTO, NO_MOSQUITTO, SPEC, WAIT, broker, exported, expected_table,  # noqa: F401
                              free_port, publish, query, samples, stop, until)  # (broker: a fixture)
 
-from jmlgdsl.monitor.databases import SQLite
+from jmlgdsl.monitor.store.databases import SQLite
 
 
 paho = pytest.importorskip("paho.mqtt.client")

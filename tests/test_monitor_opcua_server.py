@@ -19,7 +19,7 @@ from monitor_servers import LINES, SPEC, WAIT, certificate, free_port, stop
 
 from jmlgdsl.cli import main
 from jmlgdsl.monitor import Store
-from jmlgdsl.monitor.databases import SQLite
+from jmlgdsl.monitor.store.databases import SQLite
 from jmlgdsl.page import views
 
 asyncua = pytest.importorskip("asyncua")

@@ -21,7 +21,7 @@ from monitor_servers import (LINES, MOSQUITTO, NO_MOSQUITTO, SPEC, WAIT, Receive
                              query, stop, until)  # (broker: a fixture)
 
 from jmlgdsl.monitor import Store
-from jmlgdsl.monitor.databases import SQLite
+from jmlgdsl.monitor.store.databases import SQLite
 
 paho = pytest.importorskip("paho.mqtt.client")
 mosquitto = pytest.mark.skipif(MOSQUITTO is None, reason=NO_MOSQUITTO)  # the webhook's tests need none

@@ -12,7 +12,7 @@ import jmlgdsl
 from jmlgdsl.diagnosis import figure as run_figure
 from jmlgdsl.studies import figures, sweep
 from jmlgdsl.cli import main
-from jmlgdsl.monitor.databases import SQLite
+from jmlgdsl.monitor.store.databases import SQLite
 
 RECORDS = [
     {"data": "d", "filter": f, "particles": n, "run": r, "error": 50.0 / n + r, "ms_per_step": 0.1 * n,

@@ -23,7 +23,7 @@ from monitor_servers import DATA, SPEC, WAIT, Receiver, free_port, killed_mid_fi
 
 from jmlgdsl.cli import main
 from jmlgdsl.monitor import Store
-from jmlgdsl.monitor.store import VECTORS
+from jmlgdsl.monitor.store.schema import VECTORS
 from jmlgdsl.page import Page
 
 psycopg = pytest.importorskip("psycopg", reason="no psycopg: pip install 'psycopg[binary]'")

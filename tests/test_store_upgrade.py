@@ -10,8 +10,8 @@ from monitor_servers import LINES, SPEC
 
 from jmlgdsl.cli import main
 from jmlgdsl.monitor import Store
-from jmlgdsl.monitor.databases import SQLite
-from jmlgdsl.monitor.store import SCHEMA, VECTORS
+from jmlgdsl.monitor.store.databases import SQLite
+from jmlgdsl.monitor.store.schema import SCHEMA, VECTORS
 from jmlgdsl.page import views
 
 UNMEASURED = range(100, 104)  # rows whose temperature is not measured (a NaN, JSON's null)

@@ -26,8 +26,7 @@ def main(args) -> int:
 
     from ..data import open_target
     from ..errors import DataError
-    from ..monitor import Store
-    from ..monitor.store import damaged
+    from ..monitor.store import Store, damaged, write_samples, write_table
     from ..output import check_file
 
     check_file(args.output, inputs=[args.store])
@@ -43,11 +42,11 @@ def main(args) -> int:
         if run.unit is not None and args.unit is None and args.run is None:
             raise DataError(f"{args.store}: a fleet's store; say which unit with --unit (one of "
                             f"{', '.join(store.units())})")
-        for path, write in ((args.output, store.write_table), (args.samples, store.write_samples)):
+        for path, write in ((args.output, write_table), (args.samples, write_samples)):
             if path is None:
                 continue
             with open_target(path) as out:  # whole, or not at all
-                written = write(run, out)
+                written = write(store, run, out)
                 if not written.rows:
                     raise DataError(f"{args.store}: run {run.id} holds no diagnosed rows yet" if not written.damaged
                                     else f"{args.store}: no row of run {run.id} can be read: {written.left_out()}")

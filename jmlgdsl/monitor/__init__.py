@@ -8,13 +8,14 @@ state, and acknowledges them to the source only after that commit.
 
     >>> import jmlgdsl, io, tempfile, os
     >>> from jmlgdsl.monitor import CsvSource, Monitor, MonitorOptions, Store
+    >>> from jmlgdsl.monitor.store import write_table
     >>> model = jmlgdsl.load("specs/dryer.jmlg")
     >>> folder = tempfile.mkdtemp()
     >>> with Store(os.path.join(folder, "dryer.db")) as store:
     ...     source = CsvSource("examples/dryer_seq1.csv", model, follow=False)
     ...     stopped = Monitor(model, store, source, spec=None, options=MonitorOptions(), tags={}).run()
     ...     table = io.StringIO()
-    ...     _ = store.write_table(store.run(), table)
+    ...     _ = write_table(store, store.run(), table)
     >>> stopped.rows, stopped.ended, table.getvalue().splitlines()[1000][:30]
     (1000, True, '1000,1000,fan,4.15205481e-05,0')
 """

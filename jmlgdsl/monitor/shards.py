@@ -25,8 +25,7 @@ import threading
 from ..cluster import completed
 from .live import Monitor, MonitorOptions, Stopped, open_runs, recorded_options
 from .sources import Connection, open_source
-from .databases import StoreError, is_url
-from .store import Store
+from .store import Store, StoreError, is_url
 
 STOPPING = 30.0  # seconds the shards have to commit and end once stopped
 # Ray's message for the driver when a worker's process dies (Ray 2.x), with the fields said again

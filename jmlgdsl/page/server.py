@@ -28,6 +28,7 @@ string or null, no NaN), and what is refused is a 400 with its reason, never a c
 from __future__ import annotations
 
 import contextlib
+import functools
 import hmac
 import ipaddress
 import json
@@ -46,11 +47,7 @@ from . import views
 POLL = 0.25  # seconds between the event stream's looks at the store
 HEARTBEAT = 10.0  # seconds between keep-alive comments on a quiet event stream
 STREAM_ROWS = 500  # rows one event carries at most (a page that joins a long run catches up in steps)
-# what changes when an alarm is raised, cleared, acknowledged, shelved or unshelved
-ALARMS_STATE = ("SELECT (SELECT count(*) || ',' || coalesce(max(id), 0) FROM action WHERE run = ?) || ';' || "
-                "(SELECT count(*) || ',' || count(cleared_t) FROM alarm WHERE run = ?)")
-STATIC = {"/": ("index.html", "text/html; charset=utf-8"), "/page.js": ("page.js", "text/javascript; charset=utf-8"),
-          "/page.css": ("page.css", "text/css; charset=utf-8")}
+JSON = "application/json"  # what the API answers with, and what an action comes as
 HEADERS = {"Content-Security-Policy": "default-src 'self'; img-src 'self' data:; frame-ancestors 'none'",
            "X-Content-Type-Options": "nosniff", "Referrer-Policy": "no-referrer", "Cache-Control": "no-store"}
 ACTION = re.compile(r"/api/alarms/([0-9]{1,19})/(acknowledge|shelve|unshelve)", re.ASCII)
@@ -102,7 +99,7 @@ class Page:
         self.stopping = threading.Event()
         self._local = threading.local()
         try:
-            self.server = ThreadingHTTPServer((host, port), _handler(self))
+            self.server = ThreadingHTTPServer((host, port), functools.partial(_Handler, page=self))
         except OSError as exc:
             raise PageError(f"--http {host}:{port}: cannot serve the page there ({exc.strerror})") from None
         self.server.daemon_threads = True
@@ -166,144 +163,182 @@ class Page:
         return run
 
 
-def _handler(page: Page):
-    class Handler(BaseHTTPRequestHandler):
-        server_version = "jmlgdsl"
+class _Handler(BaseHTTPRequestHandler):
+    """One request to a page: a GET answered by its route (ROUTES), a POST by an action on an alarm."""
 
-        def log_message(self, format, *args):  # the monitor's log is for the plant, not for page views
-            pass
+    server_version = "jmlgdsl"
 
-        def finish(self):
-            try:
-                super().finish()
-            finally:
-                page.release()
+    def __init__(self, *args, page: Page):
+        self.page = page
+        super().__init__(*args)
 
-        def do_GET(self):
-            if not self._own_host():
-                return
-            parts = urlsplit(self.path)
-            try:
-                query = _query(parts.query)
-                if parts.path in STATIC:
-                    name, kind = STATIC[parts.path]
-                    self._send(HTTPStatus.OK, resources.files(__package__).joinpath("static", name).read_bytes(), kind)
-                elif parts.path == "/api/run":
-                    self._json(views.run_info(page.store(), page.run(query.get("unit")), page.token is not None))
-                elif parts.path == "/api/rows":
-                    self._send(HTTPStatus.OK, views.rows(page.store(), page.run(query.get("unit")),
-                                                         **_window(query)).json.encode(), "application/json")
-                elif parts.path == "/api/alarms":
-                    self._json(views.alarms(page.store(), page.run(query.get("unit"))))
-                elif parts.path == "/api/evidence":
-                    self._json(views.evidence(page.store(), page.run(query.get("unit")),
-                                              _whole(query, "alarm", 0)))
-                elif parts.path == "/api/fleet":
-                    self._json(views.fleet(page.store(), page.unit))
-                elif parts.path == "/api/stream":
-                    after = _whole({"Last-Event-ID": self.headers.get("Last-Event-ID")}, "Last-Event-ID", None)
-                    self._stream(_whole(query, "after", 0) if after is None else after, query.get("unit"))
-                else:
-                    self._error(HTTPStatus.NOT_FOUND, f"no page {parts.path[:200]}")
-            except (ValueError, StoreError) as exc:
-                self._error(HTTPStatus.BAD_REQUEST, str(exc))
-            except Exception as exc:  # a store damaged under the page: an answer that says so, not a dropped line
-                self._failed(exc)
+    def log_message(self, format, *args):  # the monitor's log is for the plant, not for page views
+        pass
 
-        def do_POST(self):
-            if not self._own_host():
-                return
-            parts = urlsplit(self.path)
-            found = ACTION.fullmatch(parts.path)
-            if found is None:
-                return self._error(HTTPStatus.NOT_FOUND, f"no action {parts.path[:200]}")
-            if self.headers.get_content_type() != "application/json" or not self._same_origin():
-                return self._error(HTTPStatus.FORBIDDEN, "actions come as JSON from the page itself")
-            if page.token is not None and not hmac.compare_digest(
-                    self.headers.get("Authorization", "").encode(), f"Bearer {page.token}".encode()):
-                return self._error(HTTPStatus.UNAUTHORIZED, "this page needs its token to act on alarms")
-            try:
-                body = _action(self.rfile, self.headers.get("Content-Length"))
-                store, run = page.store(), page.run(_query(parts.query).get("unit"))
-                store.act(run.id, int(found[1]), found[2], body.get("who") or "", body.get("reason"))
-                self._json(views.alarms(store, run))
-            except (ValueError, StoreError) as exc:
-                self._error(HTTPStatus.BAD_REQUEST, str(exc))
-            except Exception as exc:
-                self._failed(exc)
+    def finish(self):
+        try:
+            super().finish()
+        finally:
+            self.page.release()
 
-        def _own_host(self) -> bool:
-            """Whether the request names this page's own address; a 421 when it does not."""
-            host = self.headers.get("Host", "")
-            if page.answers_to(host):
-                return True
-            self._error(HTTPStatus.MISDIRECTED_REQUEST, f"this page answers to {urlsplit(page.url).netloc} (or "
-                        f"localhost at its port), not to {host[:100]!r}: a name that points at this machine "
-                        "is not this page's own")
-            return False
+    def do_GET(self):
+        if not self._own_host():
+            return
+        parts = urlsplit(self.path)
+        try:
+            query = _query(parts.query)
+            route = ROUTES.get(parts.path)
+            if route is None:
+                self._error(HTTPStatus.NOT_FOUND, f"no page {parts.path[:200]}")
+            else:
+                route(self, query)
+        except (ValueError, StoreError) as exc:
+            self._error(HTTPStatus.BAD_REQUEST, str(exc))
+        except Exception as exc:  # a store damaged under the page: an answer that says so, not a dropped line
+            self._failed(exc)
 
-        def _same_origin(self) -> bool:
-            origin = self.headers.get("Origin")
-            return origin is None or urlsplit(origin).netloc == self.headers.get("Host")
+    def do_POST(self):
+        if not self._own_host():
+            return
+        page, parts = self.page, urlsplit(self.path)
+        found = ACTION.fullmatch(parts.path)
+        if found is None:
+            return self._error(HTTPStatus.NOT_FOUND, f"no action {parts.path[:200]}")
+        if self.headers.get_content_type() != JSON or not self._same_origin():
+            return self._error(HTTPStatus.FORBIDDEN, "actions come as JSON from the page itself")
+        if page.token is not None and not hmac.compare_digest(
+                self.headers.get("Authorization", "").encode(), f"Bearer {page.token}".encode()):
+            return self._error(HTTPStatus.UNAUTHORIZED, "this page needs its token to act on alarms")
+        try:
+            body = _action(self.rfile, self.headers.get("Content-Length"))
+            store, run = page.store(), page.run(_query(parts.query).get("unit"))
+            store.act(run.id, int(found[1]), found[2], body.get("who") or "", body.get("reason"))
+            self.answer_json(views.alarms(store, run))
+        except (ValueError, StoreError) as exc:
+            self._error(HTTPStatus.BAD_REQUEST, str(exc))
+        except Exception as exc:
+            self._failed(exc)
 
-        def _stream(self, after: int, unit: str | None):
-            """Rows after `after` as they are stored, and the alarms whenever they change, until the
-            page goes away or the server stops."""
-            store, run, seen, quiet = page.store(), page.run(unit), None, time.monotonic()
-            self.send_response(HTTPStatus.OK)
-            self.send_header("Content-Type", "text/event-stream")
-            for key, value in HEADERS.items():
-                self.send_header(key, value)
-            self.end_headers()
-            try:
-                while not page.stopping.is_set():
-                    found = views.rows(store, run, after=after, limit=STREAM_ROWS)
-                    if found.count:
-                        after = found.last
-                        self._event("rows", found.json, after)
-                    state = store.db.execute(ALARMS_STATE, (run.id, run.id)).fetchone()[0]
-                    if state != seen:
-                        seen = state
-                        self._event("alarms", json.dumps(views.alarms(store, run)))
-                        quiet = time.monotonic()
-                    if found.count:
-                        quiet = time.monotonic()
-                    elif time.monotonic() - quiet > HEARTBEAT:
-                        self.wfile.write(b": still here\n\n")
-                        self.wfile.flush()
-                        quiet = time.monotonic()
-                    if found.count < STREAM_ROWS:  # caught up: wait for the next commit
-                        page.stopping.wait(POLL)
-            except (BrokenPipeError, ConnectionResetError):
-                pass  # the page was closed
-            except Exception as exc:  # the stream ends with why; the browser asks again
-                with contextlib.suppress(OSError):
-                    self._event("failure", json.dumps({"error": _failure(exc)}))
+    def _own_host(self) -> bool:
+        """Whether the request names this page's own address; a 421 when it does not."""
+        host = self.headers.get("Host", "")
+        if self.page.answers_to(host):
+            return True
+        self._error(HTTPStatus.MISDIRECTED_REQUEST, f"this page answers to {urlsplit(self.page.url).netloc} (or "
+                    f"localhost at its port), not to {host[:100]!r}: a name that points at this machine "
+                    "is not this page's own")
+        return False
 
-        def _event(self, name: str, data: str, id: int | None = None):
-            self.wfile.write((f"event: {name}\n" + (f"id: {id}\n" if id is not None else "")
-                              + f"data: {data}\n\n").encode())
-            self.wfile.flush()
+    def _same_origin(self) -> bool:
+        origin = self.headers.get("Origin")
+        return origin is None or urlsplit(origin).netloc == self.headers.get("Host")
 
-        def _json(self, value):
-            self._send(HTTPStatus.OK, json.dumps(value).encode(), "application/json")
+    def stream(self, after: int, unit: str | None):
+        """Rows after `after` as they are stored, and the alarms whenever they change, until the
+        page goes away or the server stops."""
+        page = self.page
+        store, run, seen, quiet = page.store(), page.run(unit), None, time.monotonic()
+        self.send_response(HTTPStatus.OK)
+        self.send_header("Content-Type", "text/event-stream")
+        for key, value in HEADERS.items():
+            self.send_header(key, value)
+        self.end_headers()
+        try:
+            while not page.stopping.is_set():
+                found = views.rows(store, run, after=after, limit=STREAM_ROWS)
+                if found.count:
+                    after = found.last
+                    self._event("rows", found.json, after)
+                state = store.alarms_stamp(run.id)
+                if state != seen:
+                    seen = state
+                    self._event("alarms", json.dumps(views.alarms(store, run)))
+                    quiet = time.monotonic()
+                if found.count:
+                    quiet = time.monotonic()
+                elif time.monotonic() - quiet > HEARTBEAT:
+                    self.wfile.write(b": still here\n\n")
+                    self.wfile.flush()
+                    quiet = time.monotonic()
+                if found.count < STREAM_ROWS:  # caught up: wait for the next commit
+                    page.stopping.wait(POLL)
+        except (BrokenPipeError, ConnectionResetError):
+            pass  # the page was closed
+        except Exception as exc:  # the stream ends with why; the browser asks again
+            with contextlib.suppress(OSError):
+                self._event("failure", json.dumps({"error": _failure(exc)}))
 
-        def _failed(self, exc: Exception):
-            self._error(HTTPStatus.INTERNAL_SERVER_ERROR, _failure(exc))
+    def _event(self, name: str, data: str, id: int | None = None):
+        self.wfile.write((f"event: {name}\n" + (f"id: {id}\n" if id is not None else "")
+                          + f"data: {data}\n\n").encode())
+        self.wfile.flush()
 
-        def _error(self, status, message: str):
-            self._send(status, json.dumps({"error": message}).encode(), "application/json")
+    def answer_json(self, value):
+        """A JSON value as the answer."""
+        self.answer(HTTPStatus.OK, json.dumps(value).encode(), JSON)
 
-        def _send(self, status, body: bytes, kind: str):
-            self.send_response(status)
-            self.send_header("Content-Type", kind)
-            self.send_header("Content-Length", str(len(body)))
-            for key, value in HEADERS.items():
-                self.send_header(key, value)
-            self.end_headers()
-            self.wfile.write(body)
+    def _failed(self, exc: Exception):
+        self._error(HTTPStatus.INTERNAL_SERVER_ERROR, _failure(exc))
 
-    return Handler
+    def _error(self, status, message: str):
+        self.answer(status, json.dumps({"error": message}).encode(), JSON)
+
+    def answer(self, status, body: bytes, kind: str):
+        """The answer: its status, its body and the body's content type, with the page's headers."""
+        self.send_response(status)
+        self.send_header("Content-Type", kind)
+        self.send_header("Content-Length", str(len(body)))
+        for key, value in HEADERS.items():
+            self.send_header(key, value)
+        self.end_headers()
+        self.wfile.write(body)
+
+
+def _static(name: str, kind: str):
+    """The route of a file of the page's own (static/)."""
+    def route(request: _Handler, query: dict):
+        request.answer(HTTPStatus.OK, resources.files(__package__).joinpath("static", name).read_bytes(), kind)
+    return route
+
+
+def _run(request: _Handler, query: dict):
+    page = request.page
+    request.answer_json(views.run_info(page.store(), page.run(query.get("unit")), page.token is not None))
+
+
+def _rows(request: _Handler, query: dict):
+    page = request.page
+    found = views.rows(page.store(), page.run(query.get("unit")), **_window(query))
+    request.answer(HTTPStatus.OK, found.json.encode(), JSON)
+
+
+def _alarms(request: _Handler, query: dict):
+    page = request.page
+    request.answer_json(views.alarms(page.store(), page.run(query.get("unit"))))
+
+
+def _evidence(request: _Handler, query: dict):
+    page = request.page
+    request.answer_json(views.evidence(page.store(), page.run(query.get("unit")), _whole(query, "alarm", 0)))
+
+
+def _fleet(request: _Handler, query: dict):
+    request.answer_json(views.fleet(request.page.store(), request.page.unit))
+
+
+def _stream(request: _Handler, query: dict):
+    after = _whole({"Last-Event-ID": request.headers.get("Last-Event-ID")}, "Last-Event-ID", None)
+    request.stream(_whole(query, "after", 0) if after is None else after, query.get("unit"))
+
+
+# The page's GET requests, by path: route(request, query) answers one with its query's parameters. A
+# new view of the page is a function of views.py that reads through the store's queries, a route
+# that answers with it, and its line here.
+ROUTES = {"/": _static("index.html", "text/html; charset=utf-8"),
+          "/page.js": _static("page.js", "text/javascript; charset=utf-8"),
+          "/page.css": _static("page.css", "text/css; charset=utf-8"),
+          "/api/run": _run, "/api/rows": _rows, "/api/alarms": _alarms, "/api/evidence": _evidence,
+          "/api/fleet": _fleet, "/api/stream": _stream}
 
 
 def _failure(exc: Exception) -> str:

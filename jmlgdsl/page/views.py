@@ -1,18 +1,18 @@
 """What the operator's page shows, as JSON built from a monitor's store: the run, a window of rows,
 the alarms with their ISA-18.2 states, the evidence behind an alarm, and a fleet's units worst first.
 
-A window of rows costs one query: the store's vectors (float64s) are read back as they were computed
-and written as JSON numbers in their shortest round-trip digits, null for NaN (a reading not measured).
+Every number comes through the store's queries (jmlgdsl.monitor.store): a window of rows costs one
+query, its vectors (float64s) read back as they were computed and written as JSON numbers in their
+shortest round-trip digits, null for NaN (a reading not measured).
 """
 
 from __future__ import annotations
 
-import itertools
 import json
 import math
 from typing import NamedTuple
 
-from ..monitor.store import Run, Store
+from ..monitor.store import Finished, Run, Store
 
 LIVE_ROWS = 300  # rows a page shows when it follows the live end of the data
 MAX_ROWS = 5_000  # rows one request may return; a wider window is thinned to fit
@@ -43,64 +43,26 @@ def rows(store: Store, run: Run, *, after: int | None = None, first: int | None 
     those with `first` <= t <= `last`, thinned to at most `limit` by taking every k-th; with none of
     them, the last LIVE_ROWS rows. Rows of a damaged store that cannot be read are left out."""
     limit = max(1, min(int(limit), MAX_ROWS))
-    high, step, most = None, 1, None
     if after is not None:
-        low, most = int(after) + 1, limit
+        found = store.results(run, int(after) + 1, limit=limit)
     elif first is not None or last is not None:
-        low, high = int(first or 1), int(last) if last is not None else _last_t(store, run)
-        step = max(1, -(-(high - low + 1) // limit))
+        low, high = int(first or 1), int(last) if last is not None else store.last_t(run.id)
+        found = store.results(run, low, high, every=max(1, -(-(high - low + 1) // limit)))
     else:
-        low = _last_t(store, run) - LIVE_ROWS + 1
-    where, params = "r.run = ? AND r.t >= ?", [run.id, low]
-    if high is not None:
-        where += " AND r.t <= ? AND (r.t - ?) % ? = 0"
-        params += [high, low, step]
-    decode = _decoder(store, run)
-    try:
-        found = [decode(row) for row in store.db.execute(
-            f"{ROWS} WHERE {where} ORDER BY r.t" + (f" LIMIT {most}" if most else ""), params)]
-    except (store.db.errors, ValueError, TypeError):  # a cell edited by hand, or damaged: the rows that read
-        readable = store.readable(f"{ROWS} WHERE r.run = ? AND r.t > ? ORDER BY r.t", run, decode, [], low - 1)
-        window = itertools.takewhile(lambda row: high is None or row[0] <= high,
-                                     (row for row in readable if (row[0] - low) % step == 0))
-        found = list(itertools.islice(window, most))
-    return Rows(_columns(found), len(found), found[-1][0] if found else None)
+        found = store.results(run, store.last_t(run.id) - LIVE_ROWS + 1)
+    return Rows(_columns(found), len(found), found[-1].t if found else None)
 
 
-ROWS = ("SELECT r.t, s.time, r.map_mode, r.alarm, r.posterior, s.y, r.y_pred, r.y_sd, r.evidence_mode, r.evidence "
-        "FROM result r JOIN sample s ON s.run = r.run AND s.t = r.t")
+VECTORS = ("posterior", "y", "y_pred", "y_sd", "evidence")  # the columns that hold vectors
 
 
-NAMES = ("t", "time", "map_mode", "alarm", "posterior", "y", "y_pred", "y_sd", "evidence_mode", "evidence")
-VECTOR_COLUMNS = (4, 5, 6, 7, 9)  # the ROWS columns that hold vectors
-
-
-def _columns(found) -> str:
-    """Decoded rows of the ROWS query as the page's JSON columns (a vector's NaN as null)."""
-    columns = list(zip(*found)) or [()] * len(NAMES)
+def _columns(found: list[Finished]) -> str:
+    """Finished rows as the page's JSON columns (a vector's NaN as null)."""
+    columns = list(zip(*found)) or [()] * len(Finished._fields)
     return "{" + ",".join(
         f'"{name}":' + (json.dumps(list(column), separators=(",", ":")).replace("NaN", "null")
-                        if i in VECTOR_COLUMNS else json.dumps(list(column)))
-        for i, (name, column) in enumerate(zip(NAMES, columns))) + "}"
-
-
-def _decoder(store: Store, run: Run):
-    """decode(row) of a row of the ROWS query: its vectors as lists of numbers (None for NULL); a
-    ValueError for cells the store did not write."""
-    ny = len(run.outputs)
-    sizes = dict(zip(VECTOR_COLUMNS, (len(run.modes), ny, ny, ny, ny)))
-
-    def decode(row):
-        t, time, mode, alarm, *_ = row
-        if not (isinstance(mode, str) and alarm in (0, 1) and (time is None or type(time) in (int, float))):
-            raise ValueError("a row the store did not write")
-        return tuple(store.db.unvector(cell, sizes[i]).tolist() if i in sizes and cell is not None else cell
-                     for i, cell in enumerate(row))
-    return decode
-
-
-def _last_t(store: Store, run: Run) -> int:
-    return store.db.execute("SELECT coalesce(max(t), 0) FROM result WHERE run = ?", (run.id,)).fetchone()[0]
+                        if name in VECTORS else json.dumps(list(column)))
+        for name, column in zip(Finished._fields, columns)) + "}"
 
 
 def alarms(store: Store, run: Run) -> list[dict]:
@@ -119,17 +81,9 @@ def evidence(store: Store, run: Run, alarm: int) -> dict:
     found = {a.id: a for a in store.alarms(run.id)}.get(alarm)
     if found is None:
         return {"alarm": alarm, "rows": 0, "outputs": []}
-    end = found.cleared_t - 1 if found.cleared_t is not None else _last_t(store, run)
+    end = found.cleared_t - 1 if found.cleared_t is not None else store.last_t(run.id)
     total, rows = {}, 0
-    ny = len(run.outputs)
-
-    def decode(row):
-        t, mode, terms = row
-        return t, mode, None if terms is None else store.db.unvector(terms, ny).tolist()
-
-    readable = store.readable("SELECT t, evidence_mode, evidence FROM result WHERE run = ? AND t > ? ORDER BY t", run,
-                              decode, [], found.raised_t - 1)  # rows of a damaged store that do not read: left out
-    for _, mode, terms in itertools.takewhile(lambda row: row[0] <= end, readable):
+    for _, mode, terms in store.evidence(run, found.raised_t, end):  # a damaged store's rows that do not read: left out
         if mode != found.mode or terms is None:
             continue
         rows += 1
@@ -156,10 +110,8 @@ def fleet(store: Store, opened: str | None) -> dict:
     ranked = []
     for order, name in enumerate(store.units()):
         run = store.run(unit=name)
-        newest = store.db.execute("SELECT r.t, s.time, r.map_mode, r.posterior FROM result r JOIN sample s "
-                                  "ON s.run = r.run AND s.t = r.t WHERE r.run = ? ORDER BY r.t DESC LIMIT 1",
-                                  (run.id,)).fetchone()
-        t, time, mode, posterior = newest or (None, None, None, None)
+        newest = store.newest(run)
+        t, time, mode = (None, None, None) if newest is None else newest[:3]
         healthy = run.options.get("healthy", [])
         listed = alarms(store, run)
         open_ = [a for a in listed if a["state"] in ATTENTION]
@@ -168,7 +120,6 @@ def fleet(store: Store, opened: str | None) -> dict:
         rank = (ATTENTION.index(attention) if attention else len(ATTENTION), -states.count(attention), order)
         ranked.append((rank, {"unit": name, "plant": run.plant, "modes": run.modes, "healthy": healthy, "t": t,
                               "time": time, "mode": mode, "attention": attention, "alarms": open_,
-                              "probability": None if mode is None else
-                              float(store.db.unvector(posterior, len(run.modes))[run.modes.index(mode)]),
+                              "probability": None if mode is None else newest.posterior[run.modes.index(mode)],
                               "shelved": sum(a["state"] == "shelved" for a in listed)}))
     return {"opened": opened, "units": [unit for _, unit in sorted(ranked, key=lambda pair: pair[0])]}

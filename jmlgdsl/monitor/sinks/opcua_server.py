@@ -53,9 +53,8 @@ from asyncua.server.internal_session import InternalSession
 from ...errors import JmlgError
 from ..sources import bus
 from ..sources.contract import Event, Fatal
-from ..databases import StoreError
 from ..sources.opcua import security_options
-from ..store import LONGEST, Store, row_state
+from ..store import LONGEST, Store, StoreError, row_state
 from ..sources.urls import address
 
 logging.getLogger("asyncua").addHandler(logging.NullHandler())  # its warnings are the monitor's events
@@ -221,16 +220,15 @@ class OpcuaServer:
     async def _show_stored(self, unit):
         """Show a unit's newest row and its alarms that are not done as the store holds them now; the
         conclusions this covers are passed over when they are handed."""
-        db, run = self.store.db, unit.run
-        unit.actions = db.execute("SELECT coalesce(max(id), 0) FROM action WHERE run = ?", (run.id,)).fetchone()[0]
-        row = db.execute("SELECT r.t, s.time, r.map_mode, r.posterior, r.alarm FROM result r JOIN sample s ON "
-                         "s.run = r.run AND s.t = r.t WHERE r.run = ? ORDER BY r.t DESC LIMIT 1", (run.id,)).fetchone()
-        unit.t = 0 if row is None else row[0]
+        run = unit.run
+        unit.actions = self.store.newest_action(run.id)
+        row = self.store.newest(run)
+        unit.t = 0 if row is None else row.t
         alarms = [a for a in self.store.alarms(run.id, unit.actions) if a.raised_t <= unit.t]
         active = {a.id: a.cleared_t is None or a.cleared_t > unit.t for a in alarms}
         if row is not None:
             opened = next((a.id for a in alarms if active[a.id]), None)
-            await self._show_state(unit, row_state(self.store, run.plant, run, row, opened))
+            await self._show_state(unit, row_state(run.plant, run, row, opened))
         for a in alarms:
             if active[a.id] or not a.acknowledged or a.shelved:
                 condition = await self._condition(unit, a.id, a.mode, active[a.id], bool(a.acknowledged),

@@ -102,9 +102,7 @@ class Outbox:
 
     def _end(self, run) -> tuple:
         """(newest row t, newest action id) of a run in the store."""
-        return tuple(self.store.db.execute(
-            "SELECT (SELECT coalesce(max(t), 0) FROM result WHERE run = ?), "
-            "(SELECT coalesce(max(id), 0) FROM action WHERE run = ?)", (run, run)).fetchone())
+        return self.store.last_t(run), self.store.newest_action(run)
 
     def collect(self) -> tuple[list, list]:
         """What the sinks reported since the last call, as the monitor takes a source's items: [(index
@@ -118,9 +116,9 @@ class Outbox:
         rows of the runs in `moved` (or of runs it is behind in) and the operators' new actions."""
         if not self.started or self.closed:
             return
-        new = self.store.db.execute("SELECT id, run FROM action WHERE id > ?", (self.actions,)).fetchall()
-        self.actions = max([id for id, _ in new], default=self.actions)
-        acted = {run for _, run in new if run in self.runs}
+        new = self.store.actions(after=self.actions)
+        self.actions = max([action.id for action in new], default=self.actions)
+        acted = {action.run for action in new if action.run in self.runs}
         for feed in self.feeds:
             for run in sorted(set(moved) | acted | feed.behind):
                 room = feed.sink.room()
@@ -143,60 +141,57 @@ class Outbox:
         """The conclusions of a run after a sink's place, about `room` of them at most, in order: each
         row's state and the alarm raised or cleared at it, then the operators' actions; the sink's
         place moved past them. And whether more may wait (for the next call)."""
-        db, (t0, a0), record = self.store.db, feed.handed[run], self.runs[run]
+        (t0, a0), record = feed.handed[run], self.runs[run]
         if feed.sink.takes_states:
-            rows = db.execute("SELECT r.t, s.time, r.map_mode, r.posterior, r.alarm FROM result r JOIN sample s "
-                              "ON s.run = r.run AND s.t = r.t WHERE r.run = ? AND r.t > ? ORDER BY r.t LIMIT ?",
-                              (run, t0, room)).fetchall()
-            t1 = rows[-1][0] if rows else t0
+            rows = self.store.verdicts(record, t0, room)
+            t1 = rows[-1].t if rows else t0
         else:
             rows = []
-            t1 = db.execute("SELECT coalesce(max(t), 0) FROM result WHERE run = ?", (run,)).fetchone()[0]
+            t1 = self.store.last_t(run)
         # the alarms open at some row of (t0, t1]: at most one at a time, so one transition a row at most
-        alarms = db.execute("SELECT id, raised_t, raised_time, cleared_t, cleared_time FROM alarm WHERE run = ? AND "
-                            "raised_t <= ? AND (cleared_t IS NULL OR cleared_t > ?) ORDER BY id", (run, t1, t0)).fetchall()
+        alarms = self.store.alarms(run, during=(t0, t1))
         steps = {}  # row t -> (transition, alarm id, data time)
-        for id, raised_t, raised_time, cleared_t, cleared_time in alarms:
-            if raised_t > t0:
-                steps[raised_t] = ("raised", id, raised_time)
-            if cleared_t is not None and cleared_t <= t1:
-                steps[cleared_t] = ("cleared", id, cleared_time)
+        for a in alarms:
+            if a.raised_t > t0:
+                steps[a.raised_t] = ("raised", a.id, a.raised_time)
+            if a.cleared_t is not None and a.cleared_t <= t1:
+                steps[a.cleared_t] = ("cleared", a.id, a.cleared_time)
         more = len(rows) == room
         if not rows and len(steps) > room:  # transitions only: those of the rows before the first left out
             t1, more = sorted(steps)[room] - 1, True
-        out, by_t = [], {row[0]: row for row in rows}
+        out, by_t = [], {row.t: row for row in rows}
         for t in sorted(set(by_t) | {t for t in steps if t <= t1}):
             if t in by_t:
-                opened = next((a[0] for a in alarms if a[1] <= t and (a[3] is None or a[3] > t)), None)
+                opened = next((a.id for a in alarms if a.raised_t <= t and (a.cleared_t is None or a.cleared_t > t)),
+                              None)
                 out.append(self._state(feed, record, by_t[t], opened))
             if t in steps:
                 transition, alarm, time = steps[t]
                 out.append(self._transition(feed, record, alarm, transition, (t, a0), a0, t=t, time=time))
         a1, limit = a0, max(room - len(out), 1)
-        actions = db.execute("SELECT x.id, x.alarm, x.kind, a.raised_t FROM action x JOIN alarm a ON a.id = x.alarm "
-                             "WHERE x.run = ? AND x.id > ? ORDER BY x.id LIMIT ?", (run, a0, limit)).fetchall()
-        for action, alarm, kind, raised_t in actions:
-            if raised_t > t1:
+        actions = self.store.actions(run, after=a0, limit=limit)
+        for action in actions:
+            if action.raised_t > t1:
                 break  # its alarm's raising is not handed yet: the action waits for it (more is True)
-            a1 = action
-            out.append(self._transition(feed, record, alarm, TRANSITIONS[kind], (t1, action), action, action=action))
+            a1 = action.id
+            out.append(self._transition(feed, record, action.alarm, TRANSITIONS[action.kind], (t1, action.id),
+                                        action.id, action=action.id, at=action.at, who=action.who,
+                                        reason=action.reason))
         feed.hand(run, out, (t1, a1))
         return out, more or len(actions) == limit
 
     def _state(self, feed, record, row, opened) -> Conclusion:
-        """A row's state: its mode, every mode's probability and the alarm."""
-        body = {**row_state(self.store, self.plant, record, row, opened), "redelivered": feed.redelivered(record.id, t=row[0])}
-        return Conclusion(record.id, record.unit, "state", body, (row[0], feed.handed[record.id][1]))
+        """A row's state (`row`, the store's Verdict): its mode, every mode's probability and the alarm."""
+        body = {**row_state(self.plant, record, row, opened), "redelivered": feed.redelivered(record.id, t=row.t)}
+        return Conclusion(record.id, record.unit, "state", body, (row.t, feed.handed[record.id][1]))
 
     def _transition(self, feed, record, alarm: int, transition: str, position, actions: int, **facts) -> Conclusion:
         """An alarm's transition with its ISA-18.2 state after it (the rows handed so far and the actions
-        up to `actions`) and a line for people (`text`, which a chat hook shows)."""
+        up to `actions`) and a line for people (`text`, which a chat hook shows); `facts` are the row
+        (t, time) of a raising or a clearing, or the action (its id, at, who, reason)."""
         found = next(a for a in self.store.alarms(record.id, actions) if a.id == alarm)
         if found.cleared_t is not None and found.cleared_t > position[0]:
             found = dataclasses.replace(found, cleared_t=None, cleared_time=None)
-        if "action" in facts:
-            acted = self.store.db.execute("SELECT at, who, reason FROM action WHERE id = ?", (facts["action"],)).fetchone()
-            facts.update(at=acted[0], who=acted[1], reason=acted[2])
         who = f" by {facts['who']}" if facts.get("who") else ""
         why = f" ({facts['reason']})" if facts.get("reason") else ""
         unit = f" {record.unit}" if record.unit else ""

@@ -24,7 +24,7 @@ import sqlite3
 
 import numpy as np
 
-from ..errors import JmlgError
+from ...errors import JmlgError
 
 SCHEMES = ("postgresql://", "postgres://")
 # the schema's SQLite types in PostgreSQL's words, applied in this order

@@ -1,212 +1,46 @@
 """The monitor's store: one database holding runs, their rows, results, alarms, events and the
 saved state they were diagnosed with: an SQLite file (WAL mode), or a PostgreSQL database
 (postgresql://USER@HOST:PORT/DBNAME) that many monitors write and others read, with the same schema
-(jmlgdsl/monitor/databases.py runs it on either).
+(jmlgdsl/monitor/store/schema.py; jmlgdsl/monitor/store/databases.py runs it on either).
 
-Schema (vectors — y, u, posterior, state_mean, y_pred, residual, y_sd, evidence — are numbers in
-the order the `run` row lists the names, each float64 as computed, NaN for a reading not measured:
-in SQLite a BLOB of little-endian float64s, in PostgreSQL a double precision[]; see
-jmlgdsl/monitor/databases.py):
+`Store` is the one place of the package that speaks SQL. What it offers:
 
-    run     id, started (UTC ISO time), version, plant, spec (the spec file's text), spec_sha256,
-            model_sha256 (the compiled model's fingerprint), options (JSON: filter, alarm rule, lag,
-            source, ...; `times`, how the source writes times, added with the first rows), modes,
-            states, outputs, inputs (JSON name lists), descriptions (JSON: mode name -> the spec's
-            description), units (JSON: name -> physical unit), unit (the unit of a
-            fleet this run diagnoses, e.g. pump07; NULL for a monitor of one plant)
-    sample  run, t, time, y, u, mode, anomaly, changepoint: every row diagnosed, as assembled
-    result  run, t, map_mode, posterior, state_mean, y_pred, residual, ess, loglik, alarm: every
-            finished row (ess NULL for a filter without particles) (with --lag the posterior and state
-            are smoothed over `lag` later rows); y_sd, the one-step predictive standard deviation per
-            output; evidence_mode and evidence, the row's most probable unhealthy mode and each
-            output's share of its log-likelihood ratio against the healthy modes (NULL when not kept)
-    alarm   id, run, raised_t, raised_time, cleared_t, cleared_time (NULL while raised), mode (the
-            most probable unhealthy mode when it was raised)
-    action  id, run, alarm, at (UTC ISO time), who, kind (acknowledge, shelve, unshelve), reason:
-            what operators did with the alarms (ISA-18.2), oldest first
-    event   id, run, at (UTC ISO wall-clock time), time (the data time it concerns), kind, tag, detail
-    state   run, rows (diagnosed so far), checkpoint (the Diagnosis), monitor (the row assembler),
-            position (JSON: where the source resumes), saved (UTC ISO time); the checkpoint and the
-            monitor's state are sealed (jmlgdsl.sealed: data only, with a checksum)
-    delivery sink, run, t, action, saved: how far a sink of the monitor's conclusions (an MQTT
-            broker, a webhook: jmlgdsl.monitor.sinks.outbox) has confirmed what it was handed, the rows
-            up to result t and the actions up to action id `action`
-
-Why packed vectors: a row of a 20-sensor bank holds 123 vector numbers, which as JSON text took
-5,145 bytes of store (shortest round-trip digits, 17 of them for most floats); packed they take
-1,272 (10.3 a number with the row's key, scalars and SQLite's pages; benchmarks/bench_monitor.py).
-The writer packs them without formatting digits, `export` and the page read them back to the bit,
-and a row stays one row of each table: a narrow run/t/tag/value layout would cost a key per number,
-several times the bytes, and typed columns a column per sensor, a schema per model. float32 would
-halve the probabilities and standard deviations but change the 10 digits `export` prints.
-
-A store of an older schema (1: before y_sd, evidence, the alarm's mode, descriptions, units and
-actions; 2: before the run's unit; 3: before the delivery marks; 4: vectors as JSON text) is
-brought to schema 5 when it is opened, in one transaction: the columns it lacks are NULL for its old
-rows, and its JSON vectors are converted in place to numbers (exactly: JSON kept each float's
-shortest round-trip digits), so every reader reads one layout.
+- opening: a store made, or an older one upgraded, when opened (`Store(location)`), `damage`;
+- runs: `run`, `readable_runs`, `units`, `begin_run`, and the state a run resumes from, `saved`;
+- the one write, `save`: a batch of samples, results, alarms and events of any number of runs
+  together with their state and the sinks' delivery marks, in one transaction; and `act`, an
+  operator's action on an alarm;
+- the queries readers need, as the values of jmlgdsl/monitor/store/records.py: a run's rows in a
+  range (`results`, `steps`, `samples`, `labels`, `evidence`), its newest row (`newest`, `last_t`),
+  the conclusions after a place (`verdicts`), its alarms and actions (`alarms`, `alarms_stamp`,
+  `actions`, `newest_action`), its events (`counts`, `newest_event`) and the sinks' marks
+  (`delivered`). A query of a damaged store leaves out the rows that cannot be read.
 
 A fleet's monitor keeps a run per unit: every unit's rows, alarms and state are its run's, and the
 `unit` column names the unit (SELECT ... FROM result JOIN run ON run.id = result.run WHERE
-run.unit = 'pump07'). `Store.save` writes a batch of samples, results, alarms and events of any
-number of runs together with their state in one transaction: the store never holds a row whose
-state was not saved, nor state ahead of its rows.
+run.unit = 'pump07'). The store never holds a row whose state was not saved, nor state ahead of
+its rows.
 """
 
 from __future__ import annotations
 
-import csv
 import dataclasses
 import hashlib
+import itertools
 import json
 import math
-from dataclasses import dataclass
 from datetime import datetime, timezone
-from typing import NamedTuple
 
-import numpy as np
-
-from ..data import TimeFormat
-from ..infer.result import Step
-from ..infer.table import TableWriter
-from ..names import plural, spans
-from ..version import VERSION
+from ...infer.result import Step
+from ...version import VERSION
+from . import schema
 from .databases import StoreError, connect
-
-SCHEMA_VERSION = 5
-TIMES = "times"  # the key of a run's options that records how its source writes times (TimeFormat)
-SCHEMA = """
-CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
-CREATE TABLE IF NOT EXISTS run (
-    id INTEGER PRIMARY KEY, started TEXT NOT NULL, version TEXT NOT NULL, plant TEXT NOT NULL,
-    spec TEXT, spec_sha256 TEXT NOT NULL, model_sha256 TEXT NOT NULL, options TEXT NOT NULL,
-    modes TEXT NOT NULL, states TEXT NOT NULL, outputs TEXT NOT NULL, inputs TEXT NOT NULL, descriptions TEXT,
-    units TEXT, unit TEXT);
-CREATE INDEX IF NOT EXISTS run_unit ON run (unit, id);
-CREATE TABLE IF NOT EXISTS sample (
-    run INTEGER NOT NULL, t INTEGER NOT NULL, time REAL, y VECTOR NOT NULL, u VECTOR NOT NULL,
-    mode TEXT, anomaly INTEGER, changepoint INTEGER, PRIMARY KEY (run, t)) WITHOUT ROWID;
-CREATE TABLE IF NOT EXISTS result (
-    run INTEGER NOT NULL, t INTEGER NOT NULL, map_mode TEXT NOT NULL, posterior VECTOR NOT NULL,
-    state_mean VECTOR NOT NULL, y_pred VECTOR NOT NULL, residual VECTOR NOT NULL, ess REAL,
-    loglik REAL, alarm INTEGER NOT NULL, y_sd VECTOR, evidence_mode TEXT, evidence VECTOR,
-    PRIMARY KEY (run, t)) WITHOUT ROWID;
-CREATE TABLE IF NOT EXISTS alarm (
-    id INTEGER PRIMARY KEY, run INTEGER NOT NULL, raised_t INTEGER NOT NULL, raised_time REAL,
-    cleared_t INTEGER, cleared_time REAL, mode TEXT);
-CREATE TABLE IF NOT EXISTS action (
-    id INTEGER PRIMARY KEY, run INTEGER NOT NULL, alarm INTEGER NOT NULL, at TEXT NOT NULL, who TEXT NOT NULL,
-    kind TEXT NOT NULL, reason TEXT);
-CREATE TABLE IF NOT EXISTS event (
-    id INTEGER PRIMARY KEY, run INTEGER NOT NULL, at TEXT NOT NULL, time REAL, kind TEXT NOT NULL,
-    tag TEXT, detail TEXT NOT NULL);
-CREATE INDEX IF NOT EXISTS event_kind ON event (run, kind);
-CREATE TABLE IF NOT EXISTS state (
-    run INTEGER PRIMARY KEY, rows INTEGER NOT NULL, checkpoint BLOB NOT NULL, monitor BLOB,
-    position TEXT, saved TEXT NOT NULL);
-CREATE TABLE IF NOT EXISTS delivery (
-    sink TEXT NOT NULL, run INTEGER NOT NULL, t INTEGER NOT NULL, action INTEGER NOT NULL, saved TEXT NOT NULL,
-    PRIMARY KEY (sink, run));
-"""
-
-
-@dataclass(frozen=True)
-class Run:
-    """A run as the store records it."""
-
-    id: int
-    plant: str
-    model_sha256: str
-    options: dict
-    modes: list
-    states: list
-    outputs: list
-    inputs: list
-    descriptions: dict  # mode name -> the spec's description
-    units: dict  # name -> physical unit
-    unit: str | None = None  # the unit of a fleet (None: a monitor of one plant)
-
-    @property
-    def times(self) -> TimeFormat:
-        """How the run's source writes its rows' times (seconds where the run records none)."""
-        return TimeFormat.from_json(self.options.get(TIMES))
-
-
-ACTIONS = ("acknowledge", "shelve", "unshelve")
-LONGEST = {"who": 100, "reason": 1000}  # characters of an action's name of who acts, and of its reason
-
-
-@dataclass(frozen=True)
-class Alarm:
-    """An alarm episode with what operators did with it, in the ISA-18.2 states: active and
-    unacknowledged, active and acknowledged, cleared but unacknowledged, cleared (and acknowledged:
-    done), or shelved (hidden from the list of alarms to deal with, with a reason, until unshelved)."""
-
-    id: int
-    raised_t: int
-    raised_time: float | None
-    cleared_t: int | None
-    cleared_time: float | None
-    mode: str | None  # the most probable unhealthy mode when it was raised
-    acknowledged: tuple | None  # (who, at) of the acknowledgement
-    shelved: tuple | None  # (who, at, reason) while shelved
-
-    @property
-    def state(self) -> str:
-        if self.shelved:
-            return "shelved"
-        return (("active" if self.cleared_t is None else "cleared") + ", "
-                + ("acknowledged" if self.acknowledged else "unacknowledged"))
-
-
-@dataclass
-class Commit:
-    """What one run's part of a commit writes: samples [(t, Row)], results [(Diagnosed, predictive sd
-    (ny,))], events [Event], and the state after them (rows diagnosed, the Diagnosis checkpoint, the
-    monitor's own state, the source position)."""
-
-    run: int
-    samples: list
-    results: list
-    events: list
-    rows: int
-    checkpoint: bytes
-    monitor: bytes | None
-    position: dict | None
-    times: TimeFormat | None = None  # how the source writes the rows' times, to record with the run's options
-
-
-@dataclass(frozen=True)
-class Saved:
-    """The state a run was last committed with."""
-
-    rows: int
-    checkpoint: bytes
-    monitor: bytes | None
-    position: dict | None
-    at: str  # when it was committed (UTC ISO time)
-
-
-UPGRADES = {"1": (("run", "descriptions"), ("run", "units"), ("result", "y_sd"), ("result", "evidence_mode"),
-                  ("result", "evidence"), ("alarm", "mode")),
-            "2": (("run", "unit"),), "3": (), "4": ()}  # the columns each older schema lacks (3: only a table)
-VECTORS = {"sample": ("y", "u"), "result": ("posterior", "state_mean", "y_pred", "residual", "y_sd", "evidence")}
+from .records import ACTIONS, LABELS, LONGEST, TIMES, Action, Alarm, Commit, Finished, Run, Sample, Saved, Verdict
 
 
 def now() -> str:
     """The wall-clock time, UTC, ISO 8601 to the microsecond."""
     return datetime.now(timezone.utc).isoformat()
-
-
-def row_state(store: "Store", plant: str, record: Run, row, opened: int | None) -> dict:
-    """A row's state as the sinks of the conclusions show it (jmlgdsl.monitor.sinks.outbox): `row` is the
-    result's (t, time, map_mode, posterior, alarm) of the run `record` in `store`, `opened` the id of
-    the alarm open at it (None: none)."""
-    t, time, mode, posterior, alarm = row
-    probabilities = store.db.unvector(posterior, len(record.modes)).tolist()
-    return {"plant": plant, "unit": record.unit, "run": record.id, "t": t, "time": time, "mode": mode,
-            "probability": probabilities[record.modes.index(mode)], "modes": dict(zip(record.modes, probabilities)),
-            "alarm": bool(alarm), "alarm_id": opened}
 
 
 def damaged(path: str, damage: list[str]) -> str:
@@ -216,18 +50,11 @@ def damaged(path: str, damage: list[str]) -> str:
             "it can into a new file, or restore the file from a backup")
 
 
-class Exported(NamedTuple):
-    """What an export wrote: its rows, and the t of the rows left out because they could not be read."""
-
-    rows: int
-    damaged: list
-
-    def left_out(self) -> str:
-        """What the export left out, in words ('' for nothing)."""
-        if not self.damaged:
-            return ""
-        return (f"{plural(len(self.damaged), 'row')} could not be read and "
-                f"{'is' if len(self.damaged) == 1 else 'are'} left out (t {spans(self.damaged)})")
+# a finished row with its sample, as the page shows it (Finished), and as its conclusion (Verdict)
+FINISHED = ("SELECT r.t, s.time, r.map_mode, r.alarm, r.posterior, s.y, r.y_pred, r.y_sd, r.evidence_mode, r.evidence "
+            "FROM result r JOIN sample s ON s.run = r.run AND s.t = r.t")
+VERDICT = ("SELECT r.t, s.time, r.map_mode, r.posterior, r.alarm "
+           "FROM result r JOIN sample s ON s.run = r.run AND s.t = r.t")
 
 
 class Store:
@@ -241,8 +68,9 @@ class Store:
         self._runs = {}
         self.db = connect(self.path, password=password, synchronous=synchronous, create=create)
         try:
-            if self._meta_schema() != str(SCHEMA_VERSION):
-                self._make(create)
+            if schema.recorded(self.db) != str(schema.SCHEMA_VERSION):
+                with self._transaction():
+                    schema.make(self.db, self.path, create)
         except (StoreError, self.db.errors) as exc:
             damage = self.db.damage()
             self.db.close()
@@ -252,36 +80,6 @@ class Store:
                 raise
             raise StoreError(f"{self.path}: not a usable jmlgdsl store ({exc})") from None
 
-    def _meta_schema(self) -> str | None:
-        """The schema version a store records (None for a database without a store)."""
-        if self.db.execute(self.db.has_table, ("meta",)).fetchone() is None:
-            return None
-        found = self.db.execute("SELECT value FROM meta WHERE key = 'schema'").fetchone()
-        return None if found is None else found[0]
-
-    def _make(self, create: bool):
-        """Make the store's tables, or bring an older store to this schema (the new columns, NULL for
-        the rows already there, its JSON vectors as numbers, and the new tables), in one transaction
-        that holds the lock, so monitors that open a new store at once make it once."""
-        with self._transaction():
-            self.db.lock_schema()
-            found = self._meta_schema()
-            if found is None and not create:
-                raise StoreError(f"{self.path}: not a jmlgdsl store (it holds no store's tables)")
-            if found in UPGRADES:
-                for version in range(int(found), SCHEMA_VERSION):
-                    for table, column in UPGRADES[str(version)]:
-                        self.db.execute(f"ALTER TABLE {table} ADD COLUMN {column} TEXT")
-                for table, columns in VECTORS.items():  # every older schema kept them as JSON text
-                    self.db.vectors_from_json(table, columns, _create(table))
-                self.db.execute("UPDATE meta SET value = ? WHERE key = 'schema'", (str(SCHEMA_VERSION),))
-            elif found not in (None, str(SCHEMA_VERSION)):
-                raise StoreError(f"{self.path}: a store of schema {found}; this jmlgdsl reads schema {SCHEMA_VERSION}")
-            for statement in self.db.schema(SCHEMA).split(";")[:-1]:
-                self.db.execute(statement)
-            if found is None:
-                self.db.execute("INSERT INTO meta VALUES ('schema', ?)", (str(SCHEMA_VERSION),))
-
     def close(self):
         self.db.close()
 
@@ -290,6 +88,10 @@ class Store:
 
     def __exit__(self, *exc):
         self.close()
+
+    def damage(self) -> list[str]:
+        """What a check of the store's file finds wrong with it (SQLite's quick check); [] for nothing."""
+        return self.db.damage()
 
     # ------------------------------------------------------------------ runs
     def run(self, id: int | None = None, unit: str | None = None) -> Run | None:
@@ -460,24 +262,6 @@ class Store:
             self.db.execute("INSERT INTO action (run, alarm, at, who, kind, reason) VALUES (?,?,?,?,?,?)",
                             (run, alarm, now(), who.strip(), kind, (reason or "").strip() or None))
 
-    def alarms(self, run: int, actions: int | None = None) -> list[Alarm]:
-        """A run's alarms, oldest first, with their acknowledgement and shelving (as they stood after
-        the action of id `actions`, when given)."""
-        acknowledged, shelved = {}, {}
-        for alarm, at, who, kind, reason in self.db.execute(
-                "SELECT alarm, at, who, kind, reason FROM action WHERE run = ?"
-                + ("" if actions is None else " AND id <= ?") + " ORDER BY id",
-                (run,) if actions is None else (run, actions)):
-            if kind == "acknowledge":
-                acknowledged[alarm] = (who, at)
-            elif kind == "shelve":
-                shelved[alarm] = (who, at, reason)
-            else:
-                shelved.pop(alarm, None)
-        return [Alarm(*row, acknowledged.get(row[0]), shelved.get(row[0])) for row in self.db.execute(
-            "SELECT id, raised_t, raised_time, cleared_t, cleared_time, mode FROM alarm WHERE run = ? ORDER BY id",
-            (run,))]
-
     def _modes(self, run):
         return self._recorded(run).modes
 
@@ -491,7 +275,116 @@ class Store:
     def _transaction(self):
         return _Transaction(self.db)
 
-    # ------------------------------------------------------------------ reading back
+    # ------------------------------------------------------------------ the queries readers need
+    def last_t(self, run: int) -> int:
+        """The t of a run's newest finished row (0 for none)."""
+        return self.db.execute("SELECT coalesce(max(t), 0) FROM result WHERE run = ?", (run,)).fetchone()[0]
+
+    def results(self, run: Run, first: int, last: int | None = None, every: int = 1,
+                limit: int | None = None) -> list[Finished]:
+        """A run's finished rows from t = `first` (to t = `last`, when given), every `every`-th from
+        `first`, at most `limit` (None: all), in order of t; those that cannot be read (a damaged
+        store, a cell edited by hand) are left out. One query, but for a store whose rows do not all read."""
+        where, params = "r.run = ? AND r.t >= ?", [run.id, first]
+        if last is not None:
+            where += " AND r.t <= ?"
+            params.append(last)
+        if every > 1:
+            where += " AND (r.t - ?) % ? = 0"
+            params += [first, every]
+        decode = self._finished(run)
+        try:
+            return [decode(row) for row in self.db.execute(
+                f"{FINISHED} WHERE {where} ORDER BY r.t" + (f" LIMIT {int(limit)}" if limit else ""), params)]
+        except (self.db.errors, ValueError, TypeError):  # a cell edited by hand, or damaged: the rows that read
+            readable = self._readable(f"{FINISHED} WHERE r.run = ? AND r.t > ? ORDER BY r.t", run, decode, [],
+                                      first - 1)
+            window = itertools.takewhile(lambda row: last is None or row.t <= last,
+                                         (row for row in readable if (row.t - first) % every == 0))
+            return list(itertools.islice(window, limit))
+
+    def _finished(self, run: Run):
+        """decode(row) of a row of FINISHED: a ValueError for cells the store did not write."""
+        ny = len(run.outputs)
+        sizes = dict(zip((4, 5, 6, 7, 9), (len(run.modes), ny, ny, ny, ny)))  # its vectors' columns
+
+        def decode(row):
+            t, time, mode, alarm, *_ = row
+            if not (isinstance(mode, str) and alarm in (0, 1) and (time is None or type(time) in (int, float))):
+                raise ValueError("a row the store did not write")
+            return Finished(*(self.db.unvector(cell, sizes[i]).tolist() if i in sizes and cell is not None else cell
+                              for i, cell in enumerate(row)))
+        return decode
+
+    def evidence(self, run: Run, first: int, last: int):
+        """(t, evidence_mode, each output's evidence or None) of a run's finished rows `first` <= t <=
+        `last`, in order of t; those that cannot be read are left out."""
+        ny = len(run.outputs)
+
+        def decode(row):
+            t, mode, terms = row
+            return t, mode, None if terms is None else self.db.unvector(terms, ny).tolist()
+
+        readable = self._readable("SELECT t, evidence_mode, evidence FROM result WHERE run = ? AND t > ? ORDER BY t",
+                                  run, decode, [], first - 1)
+        return itertools.takewhile(lambda row: row[0] <= last, readable)
+
+    def newest(self, run: Run) -> Verdict | None:
+        """What a run's newest finished row concludes (None before its first)."""
+        row = self.db.execute(f"{VERDICT} WHERE r.run = ? ORDER BY r.t DESC LIMIT 1", (run.id,)).fetchone()
+        return None if row is None else self._verdict(run, row)
+
+    def verdicts(self, run: Run, after: int, limit: int) -> list[Verdict]:
+        """What a run's finished rows after t = `after` conclude, at most `limit` of them, in order of t."""
+        return [self._verdict(run, row) for row in self.db.execute(
+            f"{VERDICT} WHERE r.run = ? AND r.t > ? ORDER BY r.t LIMIT ?", (run.id, after, limit)).fetchall()]
+
+    def _verdict(self, run: Run, row) -> Verdict:
+        t, time, mode, posterior, alarm = row
+        return Verdict(t, time, mode, self.db.unvector(posterior, len(run.modes)).tolist(), alarm)
+
+    def alarms(self, run: int, actions: int | None = None, during: tuple | None = None) -> list[Alarm]:
+        """A run's alarms, oldest first, with their acknowledgement and shelving (as they stood after
+        the action of id `actions`, when given); with `during` (t0, t1), only those open at some row
+        t0 < t <= t1."""
+        acknowledged, shelved = {}, {}
+        for alarm, at, who, kind, reason in self.db.execute(
+                "SELECT alarm, at, who, kind, reason FROM action WHERE run = ?"
+                + ("" if actions is None else " AND id <= ?") + " ORDER BY id",
+                (run,) if actions is None else (run, actions)):
+            if kind == "acknowledge":
+                acknowledged[alarm] = (who, at)
+            elif kind == "shelve":
+                shelved[alarm] = (who, at, reason)
+            else:
+                shelved.pop(alarm, None)
+        where, params = "run = ?", [run]
+        if during is not None:
+            where += " AND raised_t <= ? AND (cleared_t IS NULL OR cleared_t > ?)"
+            params += [during[1], during[0]]
+        return [Alarm(*row, acknowledged.get(row[0]), shelved.get(row[0])) for row in self.db.execute(
+            f"SELECT id, raised_t, raised_time, cleared_t, cleared_time, mode FROM alarm WHERE {where} ORDER BY id",
+            params)]
+
+    def alarms_stamp(self, run: int) -> str:
+        """A text that changes whenever a run's alarms do: raised, cleared, acknowledged, shelved or unshelved."""
+        return self.db.execute(
+            "SELECT (SELECT count(*) || ',' || coalesce(max(id), 0) FROM action WHERE run = ?) || ';' || "
+            "(SELECT count(*) || ',' || count(cleared_t) FROM alarm WHERE run = ?)", (run, run)).fetchone()[0]
+
+    def actions(self, run: int | None = None, after: int = 0, limit: int | None = None) -> list[Action]:
+        """The operators' actions after the one of id `after`, oldest first: of every run, or of `run`
+        when given; at most `limit` (None: all)."""
+        where, params = ("x.id > ?", [after]) if run is None else ("x.run = ? AND x.id > ?", [run, after])
+        return [Action(*row) for row in self.db.execute(
+            "SELECT x.id, x.run, x.alarm, a.raised_t, x.at, x.who, x.kind, x.reason FROM action x JOIN alarm a "
+            f"ON a.id = x.alarm WHERE {where} ORDER BY x.id" + ("" if limit is None else " LIMIT ?"),
+            params + ([] if limit is None else [limit])).fetchall()]
+
+    def newest_action(self, run: int) -> int:
+        """The id of a run's newest action (0 for none): what comes after it is newer."""
+        return self.db.execute("SELECT coalesce(max(id), 0) FROM action WHERE run = ?", (run,)).fetchone()[0]
+
     def counts(self, run: int, after: int = 0) -> dict:
         """{kind: number} of a run's events (of those after the event of id `after`, when given)."""
         return dict(self.db.execute("SELECT kind, count(*) FROM event WHERE run = ? AND id > ? GROUP BY kind",
@@ -501,10 +394,9 @@ class Store:
         """The id of the newest event in the store (0 for none): what comes after it is newer."""
         return self.db.execute("SELECT coalesce(max(id), 0) FROM event").fetchone()[0]
 
-    def write_table(self, run: Run, stream) -> Exported:
-        """The result table of a run's finished rows, as `jmlgdsl run -o` writes it for the same rows;
-        rows that cannot be read (a damaged store) are left out and named."""
-        lag, writer, exported = run.options.get("lag", 0), None, Exported(0, [])
+    def steps(self, run: Run, damaged: list):
+        """(Step, time, alarm) of each of a run's finished rows, in order of t, as the filter made it
+        (the store keeps no state covariance); the t of a row that cannot be read goes to `damaged`."""
         query = ("SELECT r.t, s.time, r.posterior, r.state_mean, r.y_pred, r.residual, r.loglik, r.ess, r.alarm "
                  "FROM result r JOIN sample s ON s.run = r.run AND s.t = r.t WHERE r.run = ? AND r.t > ? ORDER BY r.t")
         K, nx, ny, unvector = len(run.modes), len(run.states), len(run.outputs), self.db.unvector
@@ -516,50 +408,34 @@ class Store:
             return Step(t, unvector(posterior, K), unvector(mean, nx), None, unvector(pred, ny),
                         unvector(residual, ny), _number(loglik), _number(ess)), _time(time), alarm
 
-        for found, time, alarm in self.readable(query, run, step, exported.damaged):
-            if writer is None:
-                writer = TableWriter(stream, _Names(run), time is not None, lag=lag)
-            writer.write(found, time, alarm)
-            exported = exported._replace(rows=exported.rows + 1)
-        return exported
+        return self._readable(query, run, step, damaged)
 
-    def write_samples(self, run: Run, stream) -> Exported:
-        """The rows a run diagnosed as a data file (their times as the source wrote them, outputs,
-        inputs and the labels they carry), every number in its shortest exact form, so `jmlgdsl run` on
-        it diagnoses the same rows; rows that cannot be read (a damaged store) are left out and named."""
-        exported, writer, times = Exported(0, []), None, run.times
+    def samples(self, run: Run, damaged: list):
+        """Each row a run diagnosed, in order of t, as assembled (a Sample); the t of a row that cannot
+        be read goes to `damaged`."""
         query = "SELECT t, time, y, u, mode, anomaly, changepoint FROM sample WHERE run = ? AND t > ? ORDER BY t"
         ny, nu, unvector = len(run.outputs), len(run.inputs), self.db.unvector
-        labels = [name for name in ("mode", "anomaly", "changepoint") if self._labelled(run, name)]
 
-        def cells(row):
-            _, time, y, u, *marks = row
-            known = dict(zip(("mode", "anomaly", "changepoint"), marks))
-            if not (known["mode"] is None or known["mode"] in run.modes) or not all(
-                    known[name] in (None, 0, 1) for name in ("anomaly", "changepoint")):
+        def sample(row):
+            t, time, y, u, mode, anomaly, changepoint = row
+            if not (mode is None or mode in run.modes) or not all(m in (None, 0, 1) for m in (anomaly, changepoint)):
                 raise ValueError("labels that are not a mode's name or 0/1")
-            time = _time(time)
-            values = [_cell(v) for v in np.concatenate([unvector(y, ny), unvector(u, nu)])]
-            return (None if time is None or time != time else times.write(time),
-                    values + ["" if known[name] is None else known[name] for name in labels])
+            return Sample(t, _time(time), unvector(y, ny), unvector(u, nu), mode, anomaly, changepoint)
 
-        for time, row in self.readable(query, run, cells, exported.damaged):
-            if writer is None:
-                writer, timed = csv.writer(stream, lineterminator="\n"), time is not None
-                writer.writerow(([times.column] if timed else []) + run.outputs + run.inputs + labels)
-            writer.writerow(([time] if timed else []) + row)
-            exported = exported._replace(rows=exported.rows + 1)
-        return exported
+        return self._readable(query, run, sample, damaged)
+
+    def labels(self, run: Run) -> list[str]:
+        """The labels of LABELS that some row of a run carries (not one whose column cannot be read)."""
+        return [name for name in LABELS if self._labelled(run, name)]
 
     def _labelled(self, run: Run, name: str) -> bool:
-        """Whether a run's rows carry a label (mode, anomaly, changepoint); not, when that cannot be read."""
         try:
             return self.db.execute(f"SELECT 1 FROM sample WHERE run = ? AND {name} IS NOT NULL LIMIT 1",
                                    (run.id,)).fetchone() is not None
         except self.db.errors:
             return False
 
-    def readable(self, query: str, run: Run, decode, damaged: list, after: int = 0):
+    def _readable(self, query: str, run: Run, decode, damaged: list, after: int = 0):
         """decode(row) of each row of a run that `query` gives (its parameters the run and a t to read
         after, its rows in order of t, t first), but of a row that cannot be read (a damaged page, text
         that is not UTF-8, a cell the store did not write): that one's t goes to `damaged` instead.
@@ -594,19 +470,10 @@ class Store:
                 pass
         return max(ends, default=0)
 
-    def damage(self) -> list[str]:
-        """What a check of the store's file finds wrong with it (SQLite's quick check); [] for nothing."""
-        return self.db.damage()
-
 
 def _evidence(evidence, modes, vector) -> tuple:
     """(evidence_mode, evidence) columns of a row's Evidence (NULL, NULL without one), its terms as `vector` keeps them."""
     return (None, None) if evidence is None else (modes[evidence.mode], vector(evidence.terms))
-
-
-def _create(table: str) -> str:
-    """The schema's statement that makes a table."""
-    return next(s for s in SCHEMA.split(";") if s.strip().startswith(f"CREATE TABLE IF NOT EXISTS {table} ("))
 
 
 def _real(value) -> float | None:
@@ -632,18 +499,6 @@ def _number(value) -> float:
 def _time(value) -> float | None:
     """A row's time (NULL: none); a ValueError for anything else."""
     return None if value is None else _number(value)
-
-
-def _cell(value) -> str:
-    """A data file's cell: empty for a reading not measured."""
-    return "" if math.isnan(value) else repr(float(value))
-
-
-class _Names:
-    """What the table writer needs of a model, from the names a run recorded."""
-
-    def __init__(self, run: Run):
-        self.modes, self.states, self.outputs = run.modes, run.states, run.outputs
 
 
 class _Transaction:
