@@ -132,7 +132,8 @@ def test_no_command_imports_another_command():
             assert not {t for t in targets if t.startswith("jmlgdsl.commands.")}, name
 
 
-CHECKED_PLANT = "jmlgdsl.lang.plant"  # the checked plant's types: values, positions, the report
+CHECKED_PLANT = "jmlgdsl.lang.plant"  # the checked plant's types: names, numbers, arrays, ODEs
+REPORT = "jmlgdsl.lang.report"  # source positions and the report of located diagnostics
 CHECKER_ENTRIES = {"check_file", "check_text", "check_ode_file"}  # lang.check: a spec file or text to a checked plant
 
 
@@ -155,14 +156,15 @@ def language_imports(name, path):
 
 
 def test_the_compiler_reads_the_checked_plant_and_evaluates_nothing():
-    """compile/ takes from the language only the checked plant's types (lang.plant) and the checker's
-    entry points that turn a spec file or text into a checked plant: never the evaluator, the parser,
-    the syntax tree, units or limits. What the user wrote is evaluated once, by the checker."""
+    """compile/ takes from the language only the checked plant's types (lang.plant), the positions and
+    report its diagnostics go to (lang.report) and the checker's entry points that turn a spec file or
+    text into a checked plant: never the evaluator, the parser, the syntax tree, units or limits. What
+    the user wrote is evaluated once, by the checker."""
     compiler = {name: path for name, path in modules().items() if layer(name) == "compile"}
     assert compiler
     for name, path in compiler.items():
         for target, names in language_imports(name, path):
-            allowed = target == CHECKED_PLANT or (target == "jmlgdsl.lang.check" and names <= CHECKER_ENTRIES)
+            allowed = target in (CHECKED_PLANT, REPORT) or (target == "jmlgdsl.lang.check" and names <= CHECKER_ENTRIES)
             assert allowed, f"{name} imports {sorted(names) or 'the module'} from {target}"
 
 
@@ -171,3 +173,15 @@ def test_the_pin_sees_an_import_of_the_evaluator(tmp_path):
     path.write_text("from ..lang.evaluate import evaluate_number\nfrom ..lang.plant import Plant\n")
     assert language_imports("jmlgdsl.compile.lower", path) == [("jmlgdsl.lang.evaluate", {"evaluate_number"}),
                                                                (CHECKED_PLANT, {"Plant"})]
+
+
+def test_the_report_is_below_the_syntax_tree_and_the_checked_plant():
+    """Positions and diagnostics (lang.report) are the language's floor: the syntax tree, the checked
+    plant and every checking step import them, and they import nothing of the language but its limits,
+    so loading a spec never runs up and down between the plant's types and the checking steps."""
+    edges = graph()
+    assert edges[REPORT] & set(modules()) <= {"jmlgdsl.lang.limits", "jmlgdsl.errors"}
+    assert REPORT in edges[CHECKED_PLANT] and REPORT in edges["jmlgdsl.lang.syntax"]
+    assert not {name for name, targets in edges.items() if CHECKED_PLANT in targets} & {
+        "jmlgdsl.lang.syntax", "jmlgdsl.lang.evaluate", "jmlgdsl.lang.units", "jmlgdsl.lang.probabilities",
+        "jmlgdsl.lang.unknowns", "jmlgdsl.lang.declarations"}

@@ -6,7 +6,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..lang.check import check_file, check_text
-from ..lang.plant import Layout, Plant, Report
+from ..lang.plant import Layout, Plant
+from ..lang.report import Report
 from ..model import Model
 from .assemble import shift_inputs, stack, steady_mean, steady_state
 from .blocks import Lowering, ModeArrays

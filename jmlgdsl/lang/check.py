@@ -8,7 +8,8 @@ from ..errors import Diagnostic, SpecError
 from . import syntax as S
 from .declarations import declare
 from .parse import parse_file, parse_text
-from .plant import Equations, Plant, Report
+from .plant import Equations, Plant
+from .report import Report
 from .values import evaluate
 
 

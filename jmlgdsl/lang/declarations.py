@@ -14,8 +14,8 @@ from ..names import suggest
 from . import syntax as S
 from .evaluate import evaluate_number
 from .limits import MAX_MODES, MAX_VARIABLES, check_sd
-from .plant import Report
 from .probabilities import initial_distribution, transition_matrix
+from .report import Report
 from .units import time_in_seconds
 from .unknowns import Unknown, resolve
 

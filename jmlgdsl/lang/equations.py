@@ -11,7 +11,8 @@ import sympy as sp
 from ..names import suggest
 from . import syntax as S
 from .evaluate import NOT_FINITE, EvalError, LetExpander, UnknownName, evaluate_number, finite_real, symbolic
-from .plant import Equations, Report
+from .plant import Equations
+from .report import Report
 from .units import time_in_seconds
 
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from .plant import Pos
+from .report import Pos
 
 
 @dataclass(frozen=True)

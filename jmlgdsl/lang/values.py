@@ -15,7 +15,8 @@ from .declarations import Declared, ModeInfo, noise_values
 from .equations import check_divisors, equations, given_point
 from .evaluate import evaluate_number
 from .limits import MAX_STACKED, MAX_VARIABLES, check_sd
-from .plant import Equations, Layout, Linearize, Mode, Plant, Report
+from .plant import Equations, Layout, Linearize, Mode, Plant
+from .report import Report
 from .statements import Statements
 
 
