@@ -154,7 +154,7 @@ def show(expr) -> str:
 
 
 @dataclass(frozen=True)
-class Linearize:
+class Linearization:
     """Where an ODE plant's modes are linearised: "each" mode's steady state, the steady state of
     mode number `mode` (written at `pos`), or a given "point" (x, u)."""
 
@@ -183,4 +183,4 @@ class Plant:
     units: dict[str, str]
     unknowns: list = field(default_factory=list)  # lang.unknowns.Unknown: numbers left to the data
     equations: Equations | None = None  # an ODE plant's
-    linearize: Linearize | None = None  # an ODE plant's
+    linearize: Linearization | None = None  # an ODE plant's
