@@ -185,3 +185,19 @@ def test_the_report_is_below_the_syntax_tree_and_the_checked_plant():
     assert not {name for name, targets in edges.items() if CHECKED_PLANT in targets} & {
         "jmlgdsl.lang.syntax", "jmlgdsl.lang.evaluate", "jmlgdsl.lang.units", "jmlgdsl.lang.probabilities",
         "jmlgdsl.lang.unknowns", "jmlgdsl.lang.declarations"}
+
+
+def public_classes():
+    """{class name: [modules defining it]} for every public class defined at a module's top level."""
+    found = {}
+    for name, path in modules().items():
+        for node in ast.parse(path.read_text()).body:
+            if isinstance(node, ast.ClassDef) and not node.name.startswith("_"):
+                found.setdefault(node.name, []).append(name)
+    return found
+
+
+def test_no_two_classes_share_a_name():
+    """A class name means one thing in the whole package: a reader (or an import) never has to ask
+    which of two `Linearize`s is meant."""
+    assert {name: where for name, where in public_classes().items() if len(where) > 1} == {}

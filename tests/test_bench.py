@@ -29,7 +29,7 @@ def model():
 @pytest.fixture(scope="module")
 def sequence(model):
     sim = simulate(model, modes=SHORT, seed=5)
-    return sweep.Sequence("short", sim.y, sim.u, sim.modes)
+    return sweep.LabelledSequence("short", sim.y, sim.u, sim.modes)
 
 
 def read_records(path) -> list[dict]:
@@ -111,7 +111,7 @@ def test_the_sweep_runs_on_a_local_ray_cluster_with_the_same_results(model, sequ
     the Ray it started."""
     ray = pytest.importorskip("ray", reason="Ray is not installed (pip install '.[cluster]')")
     args = (model, [sequence], ("la-rbpf", "imm"), (2,), 2, 3)
-    bad = sweep.Sequence("bad", sequence.y[:, :0], sequence.u, sequence.modes)  # no output column
+    bad = sweep.LabelledSequence("bad", sequence.y[:, :0], sequence.u, sequence.modes)  # no output column
     try:
         remote = sweep.sweep(*args, cluster="auto")
         with pytest.raises(DataError, match=r"^y must have shape"):
@@ -144,7 +144,7 @@ def test_bad_sweeps_are_user_errors(model, sequence):
 
 
 def test_a_failing_run_stops_the_pool_with_its_error(model, sequence):
-    bad = sweep.Sequence("bad", sequence.y[:, :0], sequence.u, sequence.modes)  # no output column
+    bad = sweep.LabelledSequence("bad", sequence.y[:, :0], sequence.u, sequence.modes)  # no output column
     with pytest.raises(DataError, match="y must have shape"):
         sweep.sweep(model, [bad], ("imm",), (1,), runs=3, workers=2)
 
