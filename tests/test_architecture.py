@@ -134,7 +134,7 @@ def test_no_command_imports_another_command():
 
 CHECKED_PLANT = "jmlgdsl.lang.plant"  # the checked plant's types: names, numbers, arrays, ODEs
 REPORT = "jmlgdsl.lang.report"  # source positions and the report of located diagnostics
-CHECKER_ENTRIES = {"check_file", "check_text", "check_ode_file"}  # lang.check: a spec file or text to a checked plant
+CHECKER_ENTRIES = {"check_spec_file", "check_text", "check_ode_file"}  # lang.check: a spec file or text to a plant
 
 
 def language_imports(name, path):
@@ -187,12 +187,13 @@ def test_the_report_is_below_the_syntax_tree_and_the_checked_plant():
         "jmlgdsl.lang.unknowns", "jmlgdsl.lang.declarations"}
 
 
-def public_classes():
-    """{class name: [modules defining it]} for every public class defined at a module's top level."""
+def public_definitions(kind):
+    """{name: [modules defining it]} for every public class (kind ast.ClassDef) or function
+    (ast.FunctionDef) defined at a module's top level."""
     found = {}
     for name, path in modules().items():
         for node in ast.parse(path.read_text()).body:
-            if isinstance(node, ast.ClassDef) and not node.name.startswith("_"):
+            if isinstance(node, kind) and not node.name.startswith("_"):
                 found.setdefault(node.name, []).append(name)
     return found
 
@@ -200,4 +201,12 @@ def public_classes():
 def test_no_two_classes_share_a_name():
     """A class name means one thing in the whole package: a reader (or an import) never has to ask
     which of two `Linearize`s is meant."""
-    assert {name: where for name, where in public_classes().items() if len(where) > 1} == {}
+    assert {name: where for name, where in public_definitions(ast.ClassDef).items() if len(where) > 1} == {}
+
+
+def test_the_checker_entry_points_have_names_of_their_own():
+    """`check_spec_file` checks a spec; no other module's function (such as the check that an output
+    file can be written) goes by the same name."""
+    functions = public_definitions(ast.FunctionDef)
+    assert CHECKER_ENTRIES <= {name for name, where in functions.items() if "jmlgdsl.lang.check" in where}
+    assert {name: functions[name] for name in CHECKER_ENTRIES if len(functions[name]) > 1} == {}

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..lang.check import check_file, check_text
+from ..lang.check import check_spec_file, check_text
 from ..lang.plant import Layout, Plant
 from ..lang.report import Report
 from ..model import Model
@@ -15,7 +15,7 @@ from .blocks import Lowering, ModeArrays
 
 def compile_file(path) -> Model:
     """Parse, check and compile a .jmlg file (SpecError on any problem, SpecWarning for warnings)."""
-    return compile_plant(*check_file(path))
+    return compile_plant(*check_spec_file(path))
 
 
 def compile_text(text: str, path: str = "<spec>") -> Model:

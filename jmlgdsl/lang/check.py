@@ -13,8 +13,8 @@ from .report import Report
 from .values import evaluate
 
 
-def check_file(path, values: dict | None = None) -> tuple[Plant, Report]:
-    """Parse and check a .jmlg file (check())."""
+def check_spec_file(path, values: dict | None = None) -> tuple[Plant, Report]:
+    """Parse and check a .jmlg spec file (check())."""
     return check(parse_file(path), values)
 
 
