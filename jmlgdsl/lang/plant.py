@@ -180,7 +180,7 @@ class Plant:
     initial: np.ndarray  # per state, its declared value (an ODE plant's steady-state guess), NaN where none
     sd0: np.ndarray  # per state, its initial standard deviation
     gates: np.ndarray  # per output, its gross-error gate in standard deviations
-    units: dict[str, str]
+    engineering_units: dict[str, str]  # variable name -> its unit of measure
     unknowns: list = field(default_factory=list)  # lang.unknowns.Unknown: numbers left to the data
     equations: Equations | None = None  # an ODE plant's
     linearize: Linearization | None = None  # an ODE plant's

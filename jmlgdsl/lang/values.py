@@ -33,8 +33,9 @@ def evaluate(d: Declared, report: Report, ode: Equations | None = None) -> Plant
     with report.holding():
         sd0 = initial_sd(d, layout, report)
         gates = outlier_gates(d, layout.outputs, report)
-    units = {decl.name.text: decl.unit for decl in [*d.inputs, *d.outputs, *d.states] if decl.unit}
-    return Plant(d.name, d.dt, layout, modes, d.P, d.p0, initial, sd0, gates, units, d.unknowns, ode, linearize)
+    engineering_units = {decl.name.text: decl.unit for decl in [*d.inputs, *d.outputs, *d.states] if decl.unit}
+    return Plant(d.name, d.dt, layout, modes, d.P, d.p0, initial, sd0, gates, engineering_units, d.unknowns, ode,
+                 linearize)
 
 
 # ------------------------------------------------------------------ a plant without ODEs

@@ -123,7 +123,7 @@ class Run:
     outputs: list
     inputs: list
     descriptions: dict  # mode name -> the spec's description
-    units: dict  # name -> physical unit
+    engineering_units: dict  # name -> its unit of measure
     unit: str | None = None  # the unit of a fleet (None: a monitor of one plant)
 
     @property
@@ -353,7 +353,7 @@ class Store:
                                  "VALUES (?,?,?,?,?,?,?,?,?,?,?,?,?,?)",
                                  (now(), VERSION, model.name, spec, sha, fingerprint,
                                   json.dumps(options, sort_keys=True), *names, json.dumps(model.descriptions),
-                                  json.dumps(model.units), unit))
+                                  json.dumps(model.engineering_units), unit))
         return self.run(new)
 
     def saved(self, run: int) -> Saved | None:
