@@ -158,7 +158,7 @@ def language_imports(name, path):
 def test_the_compiler_reads_the_checked_plant_and_evaluates_nothing():
     """compile/ takes from the language only the checked plant's types (lang.plant), the positions and
     report its diagnostics go to (lang.report) and the checker's entry points that turn a spec file or
-    text into a checked plant: never the evaluator, the parser, the syntax tree, units or limits. What
+    text into a checked plant: never the evaluator, the parser, the syntax tree, durations or limits. What
     the user wrote is evaluated once, by the checker."""
     compiler = {name: path for name, path in modules().items() if layer(name) == "compile"}
     assert compiler
@@ -183,7 +183,7 @@ def test_the_report_is_below_the_syntax_tree_and_the_checked_plant():
     assert edges[REPORT] & set(modules()) <= {"jmlgdsl.lang.limits", "jmlgdsl.errors"}
     assert REPORT in edges[CHECKED_PLANT] and REPORT in edges["jmlgdsl.lang.syntax"]
     assert not {name for name, targets in edges.items() if CHECKED_PLANT in targets} & {
-        "jmlgdsl.lang.syntax", "jmlgdsl.lang.evaluate", "jmlgdsl.lang.units", "jmlgdsl.lang.probabilities",
+        "jmlgdsl.lang.syntax", "jmlgdsl.lang.evaluate", "jmlgdsl.lang.durations", "jmlgdsl.lang.probabilities",
         "jmlgdsl.lang.unknowns", "jmlgdsl.lang.declarations"}
 
 

@@ -16,7 +16,7 @@ from .evaluate import evaluate_number
 from .limits import MAX_MODES, MAX_VARIABLES, check_sd
 from .probabilities import initial_distribution, transition_matrix
 from .report import Report
-from .units import time_in_seconds
+from .durations import time_in_seconds
 from .unknowns import Unknown, resolve
 
 NOISE_KINDS = ("process", "measurement", "scale")

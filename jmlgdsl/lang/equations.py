@@ -13,7 +13,7 @@ from . import syntax as S
 from .evaluate import NOT_FINITE, EvalError, LetExpander, UnknownName, evaluate_number, finite_real, symbolic
 from .plant import Equations
 from .report import Report
-from .units import time_in_seconds
+from .durations import time_in_seconds
 
 
 def equations(spec: S.Spec, lets: dict, time_unit: str, report: Report) -> Equations:

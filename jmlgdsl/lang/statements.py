@@ -17,7 +17,7 @@ from .plant import (MATRIX_NAMES, Arx, Equation, Fopdt, Initial, Layout, Matrix,
                     register_name, show)
 from .report import Report
 from .syntax import Dist, Expr, Name, Statement
-from .units import time_in_seconds
+from .durations import time_in_seconds
 
 BLOCK_FORMS = ("Normal", "fopdt", "arx")
 FOPDT_KEYS = ("gain", "tau", "delay")

@@ -1,4 +1,4 @@
-"""Time units: the language writes times in s, min or h; the model keeps seconds."""
+"""Durations: the language writes times in s, min or h; the model keeps seconds."""
 
 from __future__ import annotations
 
