@@ -180,5 +180,18 @@ def _identity(model: Model) -> dict:
 
 def diagnose(model: Model, rows, *, sinks=(), **options) -> Diagnosis:
     """Diagnose every row of an iterable of data rows (see `jmlgdsl.data.iter_rows`), handing each
-    finished row to the sinks; the finished Diagnosis (its summary, truth scores and report)."""
+    finished row to the sinks; the finished Diagnosis (its summary, truth scores and report). The
+    options are Diagnosis's (algorithm, particles, seed, lag, healthy, persistence, ...). This is
+    `jmlgdsl.diagnose`:
+
+        >>> import jmlgdsl
+        >>> from jmlgdsl.data import iter_rows, open_source
+        >>> from jmlgdsl.diagnosis import Kept
+        >>> model = jmlgdsl.load("specs/dryer.jmlg")
+        >>> kept = Kept()
+        >>> with open_source("examples/dryer_seq1.csv") as source:
+        ...     done = jmlgdsl.diagnose(model, iter_rows(source, model, source.name), sinks=[kept])
+        >>> done.summary.T, model.modes[done.summary.current], done.alarms.raised, len(kept.rows)
+        (1000, 'fan', 3, 1000)
+    """
     return Diagnosis(model, sinks=sinks, **options).run(rows)
