@@ -7,13 +7,13 @@ import io
 
 import numpy as np
 import pytest
+from conftest import dryer_files
 from infer_models import dryer
 
 import jmlgdsl
 from jmlgdsl.studies import sweep
 from jmlgdsl.cli import main
 from jmlgdsl.cluster import ClusterError, disconnect
-from jmlgdsl.data import write_columns
 from jmlgdsl.errors import DataError
 from jmlgdsl.progress import Progress
 from jmlgdsl.simulate import simulate
@@ -258,10 +258,7 @@ def test_a_count_without_total_redraws_once_a_second_on_a_terminal_only():
 @pytest.fixture(scope="module")
 def files(tmp_path_factory, model):
     """The model saved as JSON and a short simulated data file with its true modes."""
-    folder = tmp_path_factory.mktemp("bench")
-    model.save(folder / "dryer.json")
-    write_columns(folder / "seq.csv", simulate(model, modes=SHORT, seed=3).columns())
-    return folder / "dryer.json", folder / "seq.csv"
+    return dryer_files(tmp_path_factory.mktemp("bench"), SHORT, 3)
 
 
 def test_bench_command_prints_the_table_and_writes_tables_and_figures(files, tmp_path, capsys):
