@@ -12,9 +12,15 @@ Gaussian model, and diagnose which mode the plant is in with particle filters.
     >>> sim = jmlgdsl.simulate(model, 100, seed=1, modes="1-50:normal,51-100:fan")
     >>> [model.modes[k] for k in jmlgdsl.smooth(model, sim.y, sim.u, lag=5).map_modes[[0, 99]]]
     ['normal', 'fan']
+    >>> from jmlgdsl.data import iter_rows, open_source
+    >>> with open_source("examples/dryer_seq1.csv") as source:  # rows as they come: a file, a pipe, a bus
+    ...     done = jmlgdsl.diagnose(model, iter_rows(source, model, source.name))  # filter, alarms, summary
+    >>> model.modes[done.summary.current], done.alarms.raised, round(done.summary.diagnosis_error, 2)
+    ('fan', 3, 1.0)
 
-The diagnosis of a row source as one object, with sinks and checkpoints, is `jmlgdsl.diagnosis`;
-learning a bank from experiments `jmlgdsl.learn`; fitting a spec's unknowns `jmlgdsl.fit`.
+`diagnose` is `jmlgdsl run` as a call; the diagnosis as one object fed row by row, with sinks and
+checkpoints, is `jmlgdsl.diagnosis`; learning a bank from experiments `jmlgdsl.learn`; fitting a
+spec's unknowns `jmlgdsl.fit`.
 """
 
 from __future__ import annotations
@@ -32,6 +38,7 @@ _LAZY = {
     "smooth": "jmlgdsl.infer",
     "Filter": "jmlgdsl.infer",
     "Result": "jmlgdsl.infer",
+    "diagnose": "jmlgdsl.diagnosis",
     "simulate_nonlinear": "jmlgdsl.nonlinear",
     "fit": "jmlgdsl.fitting",
     "read_csv": "jmlgdsl.data",

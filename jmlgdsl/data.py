@@ -380,16 +380,16 @@ class _TimeCheck:
         return 1e-3 * self.dt + 1e-9 * (time - self.first) + 4 * math.ulp(time) + self.resolution
 
 
-def iter_rows(stream, model, source="<data>", outputs=True) -> "Rows":
+def iter_rows(stream, model, source="<data>", outputs=True) -> "RowReader":
     """Rows of a CSV stream as they arrive (lines are read one at a time, so a pipe works on-line).
 
     `model` is a Model or the Columns to read by. With outputs=False the output columns may be
     absent (input-only files, for simulation).
     """
-    return Rows(stream, model, source, outputs)
+    return RowReader(stream, model, source, outputs)
 
 
-class Rows:
+class RowReader:
     """The rows iter_rows reads, one at a time, and `times`: how the stream writes its times (a
     TimeFormat once a row with a time has been read; None before, and for a stream without times)."""
 

@@ -57,7 +57,7 @@ class Model:
     dt: float = 1.0
     name: str = "plant"
     descriptions: dict = field(default_factory=dict)  # mode name -> text
-    units: dict = field(default_factory=dict)  # variable name -> unit text
+    engineering_units: dict = field(default_factory=dict)  # variable name -> its unit of measure, as the spec writes it
     # Per output: the gross-error gate in predicted standard deviations (inf: off); None = DEFAULT_GATE.
     outlier_gate: np.ndarray | None = None
 
@@ -74,7 +74,7 @@ class Model:
         object.__setattr__(self, "outlier_gate", gate)
         object.__setattr__(self, "dt", float(self.dt))
         object.__setattr__(self, "descriptions", dict(self.descriptions))
-        object.__setattr__(self, "units", dict(self.units))
+        object.__setattr__(self, "engineering_units", dict(self.engineering_units))
         self._validate()
 
     # ----------------------------------------------------------------- sizes and derived arrays
@@ -229,7 +229,7 @@ class Model:
     def to_dict(self) -> dict:
         """Plain JSON-able dictionary holding every field (arrays as nested lists)."""
         out = {"format": "jmlgdsl-model", "version": 1, "name": self.name, "dt": self.dt,
-               "descriptions": self.descriptions, "units": self.units}
+               "descriptions": self.descriptions, "units": self.engineering_units}
         out.update({k: list(getattr(self, k)) for k in NAMES})
         for k in ARRAYS:
             arr = getattr(self, k)
@@ -247,7 +247,7 @@ class Model:
         gate = d.get("outlier_gate")
         gate = None if gate is None else [np.inf if v is None else v for v in gate]
         return cls(dt=d["dt"], name=d["name"], descriptions=d.get("descriptions", {}),
-                   units=d.get("units", {}), outlier_gate=gate, **kw)
+                   engineering_units=d.get("units", {}), outlier_gate=gate, **kw)
 
     def save(self, path) -> Path:
         """Write to .json (readable, exact: floats round-trip), .npz, or .mat (export for Matlab);
@@ -314,6 +314,7 @@ class Model:
             if meta.get("format") != "jmlgdsl-model":
                 raise ModelError("not a jmlgdsl model file")
             fields = {k: tuple(v) if k in NAMES else v for k, v in meta.items() if k not in ("format", "version")}
+            fields["engineering_units"] = fields.pop("units", {})  # the files' name for them (to_dict)
             gate = z["outlier_gate"] if "outlier_gate" in z.files else None
             return cls(**{k: z[k] for k in ARRAYS}, **fields, outlier_gate=gate)
 

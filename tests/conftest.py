@@ -1,4 +1,6 @@
-"""What every test shares: the installed jmlgdsl, not the checkout's, and the spec-error checks.
+"""What every test shares: the installed jmlgdsl, not the checkout's, the spec-error checks, a model
+file with data simulated from it, and the fixtures of live servers (mosquitto brokers, a diagnosed
+store and its page; their helpers are in monitor_servers.py).
 
 The suite tests the package as a user has it. `python -m pytest` puts the working directory (the
 checkout) first on sys.path, where the source tree would shadow the installed distribution, so the
@@ -33,8 +35,12 @@ if not SOURCE and Path(jmlgdsl.__file__).resolve().is_relative_to(ROOT):
         "distribution: install it with 'python -m pip install .[test]' (not -e), or set "
         "JMLGDSL_TEST_SOURCE=1 to test the source tree on purpose")
 
+from infer_models import dryer  # noqa: E402
+
 from jmlgdsl.compile.lower import compile_text  # noqa: E402
+from jmlgdsl.data import write_columns  # noqa: E402
 from jmlgdsl.errors import SpecError  # noqa: E402
+from jmlgdsl.simulate import simulate  # noqa: E402
 
 
 def jmlgdsl_command() -> list[str]:
@@ -66,3 +72,59 @@ def assert_located(text, path, line, column, fragment):
     assert shown[0].startswith(f"{path}:{line}:{column}: ")
     assert shown[1].strip() == text.splitlines()[line - 1].strip()
     assert shown[2].index("^") - 4 == column - 1
+
+
+def dryer_files(folder, modes, seed, data="seq.csv"):
+    """The tests' dryer (infer_models.dryer) saved as folder/dryer.json, and data simulated from it on
+    the mode schedule `modes` with `seed` in folder/`data`, as `jmlgdsl simulate` writes them:
+    (spec, data)."""
+    model, spec = dryer(), folder / "dryer.json"
+    model.save(spec)
+    write_columns(folder / data, simulate(model, modes=modes, seed=seed).columns())
+    return spec, folder / data
+
+
+# ------------------------------------------------------------------ live servers (monitor_servers.py)
+
+@pytest.fixture
+def broker(tmp_path):
+    """A test's mosquittos (monitor_servers.Brokers), every one stopped after it."""
+    from monitor_servers import Brokers
+
+    brokers = Brokers(tmp_path)
+    yield brokers
+    for port in list(brokers.running):
+        brokers.stop(port)
+
+
+@pytest.fixture(scope="module")
+def dryer_store(tmp_path_factory):
+    """A store of the bundled dryer recording, diagnosed to its end."""
+    from monitor_servers import DATA, SPEC
+
+    from jmlgdsl.cli import main
+
+    path = str(tmp_path_factory.mktemp("page") / "dryer.db")
+    assert main(["monitor", SPEC, "--source", str(DATA), "--store", path, "--no-follow"]) == 0
+    return path
+
+
+@pytest.fixture
+def store(dryer_store, tmp_path):
+    """A copy of it, for a test that acts on its alarms."""
+    import sqlite3
+
+    copy = tmp_path / "dryer.db"
+    with sqlite3.connect(dryer_store) as source, sqlite3.connect(copy) as target:
+        source.backup(target)
+    return str(copy)
+
+
+@pytest.fixture
+def page(store):
+    """The page of that copy, served on a free port of 127.0.0.1 while the test runs."""
+    from jmlgdsl.page import Page
+
+    served = Page(store, "127.0.0.1", 0).start()
+    yield served
+    served.stop()

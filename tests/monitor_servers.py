@@ -1,6 +1,8 @@
 """What the monitor's tests against live servers share: the bundled dryer recording, free ports on
 127.0.0.1, mosquitto brokers and a publisher, a webhook receiver, OPC UA certificates, bounded
-waits on a running monitor, queries of its store, and the tables to compare."""
+waits on a running monitor, queries of its store, and the tables to compare. The fixtures that
+start them (broker, dryer_store, store, page) are conftest.py's, so a test names them without an
+import."""
 
 import asyncio
 import csv
@@ -20,7 +22,6 @@ import pytest
 from conftest import ROOT
 
 from jmlgdsl.cli import main
-from jmlgdsl.page import Page
 
 SPEC = str(ROOT / "specs" / "dryer.jmlg")
 DATA = ROOT / "examples" / "dryer_seq1.csv"
@@ -162,15 +163,6 @@ class Brokers:
         process.wait(WAIT)
 
 
-@pytest.fixture
-def broker(tmp_path):
-    """A test's mosquittos (Brokers), every one stopped after it."""
-    brokers = Brokers(tmp_path)
-    yield brokers
-    for port in list(brokers.running):
-        brokers.stop(port)
-
-
 def samples():
     """The recording as one JSON object per sample, every number as the file writes it."""
     with open(DATA) as stream:
@@ -236,27 +228,3 @@ class Receiver:
     def close(self):
         self.server.shutdown()
         self.server.server_close()
-
-
-@pytest.fixture(scope="module")
-def dryer_store(tmp_path_factory):
-    """A store of the bundled dryer recording, diagnosed to its end."""
-    path = str(tmp_path_factory.mktemp("page") / "dryer.db")
-    assert main(["monitor", SPEC, "--source", str(DATA), "--store", path, "--no-follow"]) == 0
-    return path
-
-
-@pytest.fixture
-def store(dryer_store, tmp_path):
-    """A copy of it, for a test that acts on its alarms."""
-    copy = tmp_path / "dryer.db"
-    with sqlite3.connect(dryer_store) as source, sqlite3.connect(copy) as target:
-        source.backup(target)
-    return str(copy)
-
-
-@pytest.fixture
-def page(store):
-    served = Page(store, "127.0.0.1", 0).start()
-    yield served
-    served.stop()

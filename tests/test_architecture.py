@@ -134,8 +134,9 @@ def test_no_command_imports_another_command():
             assert not {t for t in targets if t.startswith("jmlgdsl.commands.")}, name
 
 
-CHECKED_PLANT = "jmlgdsl.lang.plant"  # the checked plant's types: values, positions, the report
-CHECKER_ENTRIES = {"check_file", "check_text", "check_ode_file"}  # lang.check: a spec file or text to a checked plant
+CHECKED_PLANT = "jmlgdsl.lang.plant"  # the checked plant's types: names, numbers, arrays, ODEs
+REPORT = "jmlgdsl.lang.report"  # source positions and the report of located diagnostics
+CHECKER_ENTRIES = {"check_spec_file", "check_text", "check_ode_file"}  # lang.check: a spec file or text to a plant
 
 
 def language_imports(name, path):
@@ -157,14 +158,15 @@ def language_imports(name, path):
 
 
 def test_the_compiler_reads_the_checked_plant_and_evaluates_nothing():
-    """compile/ takes from the language only the checked plant's types (lang.plant) and the checker's
-    entry points that turn a spec file or text into a checked plant: never the evaluator, the parser,
-    the syntax tree, units or limits. What the user wrote is evaluated once, by the checker."""
+    """compile/ takes from the language only the checked plant's types (lang.plant), the positions and
+    report its diagnostics go to (lang.report) and the checker's entry points that turn a spec file or
+    text into a checked plant: never the evaluator, the parser, the syntax tree, durations or limits. What
+    the user wrote is evaluated once, by the checker."""
     compiler = {name: path for name, path in modules().items() if layer(name) == "compile"}
     assert compiler
     for name, path in compiler.items():
         for target, names in language_imports(name, path):
-            allowed = target == CHECKED_PLANT or (target == "jmlgdsl.lang.check" and names <= CHECKER_ENTRIES)
+            allowed = target in (CHECKED_PLANT, REPORT) or (target == "jmlgdsl.lang.check" and names <= CHECKER_ENTRIES)
             assert allowed, f"{name} imports {sorted(names) or 'the module'} from {target}"
 
 
@@ -297,3 +299,40 @@ def test_the_pin_sees_a_driver_sql_and_the_connection(tmp_path):
                     "store.db.execute(ROWS)\nTEXT = 'select the rows to show'\n")
     assert speaks_sql(path) == ["imports sqlite3", "imports from psycopg", "SQL on line 3: SELECT",
                                 "the store's connection (.db) on line 4"]
+
+
+def test_the_report_is_below_the_syntax_tree_and_the_checked_plant():
+    """Positions and diagnostics (lang.report) are the language's floor: the syntax tree, the checked
+    plant and every checking step import them, and they import nothing of the language but its limits,
+    so loading a spec never runs up and down between the plant's types and the checking steps."""
+    edges = graph()
+    assert edges[REPORT] & set(modules()) <= {"jmlgdsl.lang.limits", "jmlgdsl.errors"}
+    assert REPORT in edges[CHECKED_PLANT] and REPORT in edges["jmlgdsl.lang.syntax"]
+    assert not {name for name, targets in edges.items() if CHECKED_PLANT in targets} & {
+        "jmlgdsl.lang.syntax", "jmlgdsl.lang.evaluate", "jmlgdsl.lang.durations", "jmlgdsl.lang.probabilities",
+        "jmlgdsl.lang.unknowns", "jmlgdsl.lang.declarations"}
+
+
+def public_definitions(kind):
+    """{name: [modules defining it]} for every public class (kind ast.ClassDef) or function
+    (ast.FunctionDef) defined at a module's top level."""
+    found = {}
+    for name, path in modules().items():
+        for node in ast.parse(path.read_text()).body:
+            if isinstance(node, kind) and not node.name.startswith("_"):
+                found.setdefault(node.name, []).append(name)
+    return found
+
+
+def test_no_two_classes_share_a_name():
+    """A class name means one thing in the whole package: a reader (or an import) never has to ask
+    which of two `Linearize`s is meant."""
+    assert {name: where for name, where in public_definitions(ast.ClassDef).items() if len(where) > 1} == {}
+
+
+def test_the_checker_entry_points_have_names_of_their_own():
+    """`check_spec_file` checks a spec; no other module's function (such as the check that an output
+    file can be written) goes by the same name."""
+    functions = public_definitions(ast.FunctionDef)
+    assert CHECKER_ENTRIES <= {name for name, where in functions.items() if "jmlgdsl.lang.check" in where}
+    assert {name: functions[name] for name in CHECKER_ENTRIES if len(functions[name]) > 1} == {}

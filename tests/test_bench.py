@@ -7,13 +7,13 @@ import io
 
 import numpy as np
 import pytest
+from conftest import dryer_files
 from infer_models import dryer
 
 import jmlgdsl
 from jmlgdsl.studies import sweep
 from jmlgdsl.cli import main
 from jmlgdsl.cluster import ClusterError, disconnect
-from jmlgdsl.data import write_columns
 from jmlgdsl.errors import DataError
 from jmlgdsl.progress import Progress
 from jmlgdsl.simulate import simulate
@@ -29,7 +29,7 @@ def model():
 @pytest.fixture(scope="module")
 def sequence(model):
     sim = simulate(model, modes=SHORT, seed=5)
-    return sweep.Sequence("short", sim.y, sim.u, sim.modes)
+    return sweep.LabelledSequence("short", sim.y, sim.u, sim.modes)
 
 
 def read_records(path) -> list[dict]:
@@ -111,7 +111,7 @@ def test_the_sweep_runs_on_a_local_ray_cluster_with_the_same_results(model, sequ
     the Ray it started."""
     ray = pytest.importorskip("ray", reason="Ray is not installed (pip install '.[cluster]')")
     args = (model, [sequence], ("la-rbpf", "imm"), (2,), 2, 3)
-    bad = sweep.Sequence("bad", sequence.y[:, :0], sequence.u, sequence.modes)  # no output column
+    bad = sweep.LabelledSequence("bad", sequence.y[:, :0], sequence.u, sequence.modes)  # no output column
     try:
         remote = sweep.sweep(*args, cluster="auto")
         with pytest.raises(DataError, match=r"^y must have shape"):
@@ -144,7 +144,7 @@ def test_bad_sweeps_are_user_errors(model, sequence):
 
 
 def test_a_failing_run_stops_the_pool_with_its_error(model, sequence):
-    bad = sweep.Sequence("bad", sequence.y[:, :0], sequence.u, sequence.modes)  # no output column
+    bad = sweep.LabelledSequence("bad", sequence.y[:, :0], sequence.u, sequence.modes)  # no output column
     with pytest.raises(DataError, match="y must have shape"):
         sweep.sweep(model, [bad], ("imm",), (1,), runs=3, workers=2)
 
@@ -258,10 +258,7 @@ def test_a_count_without_total_redraws_once_a_second_on_a_terminal_only():
 @pytest.fixture(scope="module")
 def files(tmp_path_factory, model):
     """The model saved as JSON and a short simulated data file with its true modes."""
-    folder = tmp_path_factory.mktemp("bench")
-    model.save(folder / "dryer.json")
-    write_columns(folder / "seq.csv", simulate(model, modes=SHORT, seed=3).columns())
-    return folder / "dryer.json", folder / "seq.csv"
+    return dryer_files(tmp_path_factory.mktemp("bench"), SHORT, 3)
 
 
 def test_bench_command_prints_the_table_and_writes_tables_and_figures(files, tmp_path, capsys):

@@ -20,7 +20,7 @@ SHORT = "1-20:normal,21-40:fan,41-60:grill"
 def sequence():
     model = dryer()
     sim = simulate(model, modes=SHORT, seed=5)
-    return model, sweep.Sequence("short", sim.y, sim.u, sim.modes)
+    return model, sweep.LabelledSequence("short", sim.y, sim.u, sim.modes)
 
 
 @pytest.mark.parametrize("algorithm, particles, lag", [("imm", None, 3), ("imm", None, None), ("la-rbpf", 5, 2)])

@@ -70,7 +70,7 @@ def test_bench_command_reports_and_writes_the_naming(model, tmp_path, capsys):
     assert main(["bench", str(spec), str(data), "--filters", "imm", "--runs", "1", "--workers", "1",
                  "--healthy", "normal,fan", "--no-figures", "-o", str(out)]) == 0
     printed = capsys.readouterr().out
-    counts = named_by_hand(model, sweep.make_jobs(model, [sweep.Sequence("seq", sim.y, sim.u, sim.modes)],
+    counts = named_by_hand(model, sweep.make_jobs(model, [sweep.LabelledSequence("seq", sim.y, sim.u, sim.modes)],
                                                   ("imm",), (), runs=1)[0], ("normal", "fan"))
     assert counts.rows.tolist() == [15, 15]  # fan is healthy here: its rows are not scored
     assert "## dryer, seq: 1 run per setting; healthy: normal, fan" in printed

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import jmlgdsl_command
+from conftest import dryer_files, jmlgdsl_command
 from infer_models import dryer
 
 from jmlgdsl import output
@@ -25,10 +25,7 @@ SPEC = ROOT / "specs" / "dryer.jmlg"
 @pytest.fixture()
 def files(tmp_path):
     """A dryer model file, ten simulated rows and a run's result table, in a fresh folder."""
-    spec = tmp_path / "dryer.json"
-    dryer().save(spec)
-    data = tmp_path / "d.csv"
-    assert main(["simulate", str(spec), "--modes", "1-5:normal,6-10:fan", "--seed", "1", "-o", str(data)]) == 0
+    spec, data = dryer_files(tmp_path, "1-5:normal,6-10:fan", 1, "d.csv")
     result = tmp_path / "result.csv"
     assert main(["run", str(spec), str(data), "-o", str(result)]) == 0
     return spec, data, result

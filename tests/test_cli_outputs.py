@@ -7,21 +7,15 @@ import threading
 from pathlib import Path
 
 import pytest
-from conftest import jmlgdsl_command
-from infer_models import dryer
+from conftest import dryer_files, jmlgdsl_command
 
 from jmlgdsl.cli import main
 from jmlgdsl.data import write_columns
-from jmlgdsl.simulate import simulate
 
 
 @pytest.fixture(scope="module")
 def files(tmp_path_factory):
-    folder = tmp_path_factory.mktemp("outputs")
-    spec, data = folder / "dryer.json", folder / "seq.csv"
-    dryer().save(spec)
-    write_columns(data, simulate(dryer(), modes="1-20:normal,21-40:fan", seed=1).columns())
-    return spec, data
+    return dryer_files(tmp_path_factory.mktemp("outputs"), "1-20:normal,21-40:fan", 1)
 
 
 def refused(argv, capsys, message):

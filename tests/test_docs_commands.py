@@ -9,7 +9,7 @@ import subprocess
 
 import pytest
 from conftest import ROOT, jmlgdsl_command
-from monitor_servers import MOSQUITTO, NO_MOSQUITTO, broker, publish, query, stop, until  # noqa: F401
+from monitor_servers import MOSQUITTO, NO_MOSQUITTO, publish, query, stop, until
 
 DOCS = sorted((ROOT / "docs").glob("*.md")) + [ROOT / "README.md"]
 NAMED = re.compile(r"\b(?:specs|examples)/[\w./-]*\w")  # a path into the repository's specs/ or examples/

@@ -30,7 +30,7 @@ def random_model(seed=5):
         P=P / P.sum(1, keepdims=True), p0=[0.3, 0.7], mu0=rng.normal(size=(K, nx)) * 50,
         Sigma0=np.diag(rng.random(nx)), modes=("normal", "leak"), states=("x1", "x2"),
         inputs=("valve", "pump"), outputs=("level",), input_defaults=[0.5, np.nan], dt=0.1,
-        name="tank", descriptions={"leak": 'A "small" leak'}, units={"level": "cm", "valve": "%"})
+        name="tank", descriptions={"leak": 'A "small" leak'}, engineering_units={"level": "cm", "valve": "%"})
 
 
 def test_written_spec_loads_back_to_the_same_model(tmp_path):
@@ -43,7 +43,7 @@ def test_written_spec_loads_back_to_the_same_model(tmp_path):
     assert back.input_defaults[0] == 0.5 and np.isnan(back.input_defaults[1])
     assert (back.name, back.dt, back.modes, back.states, back.inputs, back.outputs) == \
         ("tank", 0.1, ("normal", "leak"), ("x1", "x2"), ("valve", "pump"), ("level",))
-    assert back.units == model.units
+    assert back.engineering_units == model.engineering_units
     assert back.descriptions == {"leak": "A 'small' leak"}
 
 

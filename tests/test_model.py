@@ -16,7 +16,7 @@ def random_model(seed=0, K=3, nx=2, ny=2, nu=1):
         mu0=rng.normal(size=(K, nx)), Sigma0=np.eye(nx) * np.pi, F=rng.normal(size=(K, nx, nu)),
         G=rng.normal(size=(K, ny, nu)), f=rng.normal(size=(K, nx)), g=rng.normal(size=(K, ny)),
         modes=("a", "b", "c"), input_defaults=[np.nan], dt=0.1 / 3, name="rnd",
-        descriptions={"a": "first"}, units={"y1": "m"})
+        descriptions={"a": "first"}, engineering_units={"y1": "m"})
 
 
 def same(m1, m2):
@@ -25,7 +25,7 @@ def same(m1, m2):
     assert np.array_equal(m1.input_defaults, m2.input_defaults, equal_nan=True)
     assert (m1.modes, m1.states, m1.inputs, m1.outputs, m1.dt, m1.name) == \
            (m2.modes, m2.states, m2.inputs, m2.outputs, m2.dt, m2.name)
-    assert m1.descriptions == m2.descriptions and m1.units == m2.units
+    assert m1.descriptions == m2.descriptions and m1.engineering_units == m2.engineering_units
 
 
 @pytest.mark.parametrize("suffix", [".json", ".npz"])
@@ -33,6 +33,16 @@ def test_save_and_read_are_lossless(tmp_path, suffix):
     m = random_model()
     m.save(tmp_path / f"m{suffix}")
     same(m, jmlgdsl.load(tmp_path / f"m{suffix}"))
+
+
+def test_model_files_keep_the_key_units_for_the_engineering_units(tmp_path):
+    """Model.engineering_units are written under "units", the key model files have always used, so files
+    written before and after read alike."""
+    m = random_model()
+    assert m.to_dict()["units"] == {"y1": "m"}
+    m.save(tmp_path / "m.npz")
+    with np.load(tmp_path / "m.npz") as z:
+        assert '"units": {"y1": "m"}' in str(z["meta"])
 
 
 def test_mat_export_puts_the_mode_axis_last(tmp_path):

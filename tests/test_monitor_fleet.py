@@ -44,8 +44,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import jmlgdsl_command
-from monitor_servers import (LINES, MOSQUITTO, NO_MOSQUITTO, SPEC, WAIT, broker, free_port,  # noqa: F401
-                             publish, query)  # (broker: a fixture)
+from monitor_servers import LINES, MOSQUITTO, NO_MOSQUITTO, SPEC, WAIT, free_port, publish, query
 
 from jmlgdsl.cli import main
 from jmlgdsl.monitor.store.databases import SQLite

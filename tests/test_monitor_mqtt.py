@@ -18,8 +18,8 @@ import time
 import numpy as np
 import pytest
 from conftest import jmlgdsl_command
-from monitor_servers import (MOSQUITTO, NO_MOSQUITTO, SPEC, WAIT, broker, exported, expected_table,  # noqa: F401
-                             free_port, publish, query, samples, stop, until)  # (broker: a fixture)
+from monitor_servers import (MOSQUITTO, NO_MOSQUITTO, SPEC, WAIT, exported, expected_table, free_port, publish, query,
+                             samples, stop, until)
 
 from jmlgdsl.monitor.store.databases import SQLite
 

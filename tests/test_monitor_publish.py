@@ -17,8 +17,7 @@ import time
 
 import pytest
 from conftest import jmlgdsl_command
-from monitor_servers import (LINES, MOSQUITTO, NO_MOSQUITTO, SPEC, WAIT, Receiver, broker, free_port,  # noqa: F401
-                             query, stop, until)  # (broker: a fixture)
+from monitor_servers import LINES, MOSQUITTO, NO_MOSQUITTO, SPEC, WAIT, Receiver, free_port, query, stop, until
 
 from jmlgdsl.monitor import Store
 from jmlgdsl.monitor.store.databases import SQLite

@@ -19,8 +19,7 @@ import time
 
 import pytest
 from conftest import jmlgdsl_command
-from monitor_servers import (LINES, MOSQUITTO, NO_MOSQUITTO, SPEC, WAIT, broker, exported,  # noqa: F401
-                             expected_table, query, stop, until)  # (broker: a fixture)
+from monitor_servers import LINES, MOSQUITTO, NO_MOSQUITTO, SPEC, WAIT, exported, expected_table, query, stop, until
 
 from jmlgdsl.cli import main
 

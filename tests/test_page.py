@@ -13,8 +13,7 @@ import urllib.request
 import numpy as np
 import pytest
 from conftest import ROOT, jmlgdsl_command
-from monitor_servers import (DATA, SPEC, WAIT, dryer_store, exported, expected_table, free_port, page,  # noqa: F401
-                             store)
+from monitor_servers import DATA, SPEC, WAIT, exported, expected_table, free_port
 
 import jmlgdsl
 from jmlgdsl.cli import main

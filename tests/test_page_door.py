@@ -8,7 +8,7 @@ import socket
 import sqlite3
 
 import pytest
-from monitor_servers import WAIT, dryer_store, page, store  # noqa: F401  (fixtures)
+from monitor_servers import WAIT
 
 
 def raw(page, method, path, body=b"", host=None, headers=()):

@@ -5,7 +5,7 @@ import csv
 
 import numpy as np
 import pytest
-from infer_models import dryer
+from conftest import dryer_files
 
 from jmlgdsl.diagnosis import metrics
 from jmlgdsl.diagnosis.alarms import AlarmRule
@@ -17,12 +17,7 @@ MODES = ["normal", "fan", "grill", "fan_grill"]
 
 @pytest.fixture(scope="module")
 def files(tmp_path_factory):
-    d = tmp_path_factory.mktemp("alarms")
-    spec = d / "dryer.json"
-    dryer().save(spec)
-    data = d / "seq.csv"
-    assert main(["simulate", str(spec), "--modes", SCHEDULE, "--seed", "4", "-o", str(data)]) == 0
-    return spec, data
+    return dryer_files(tmp_path_factory.mktemp("alarms"), SCHEDULE, 4)
 
 
 def _table(path):

@@ -6,8 +6,8 @@ import threading
 from pathlib import Path
 
 import pytest
-from conftest import jmlgdsl_command
-from infer_models import DRYER_SEQ1, dryer
+from conftest import dryer_files, jmlgdsl_command
+from infer_models import DRYER_SEQ1
 
 from jmlgdsl.cli import main
 from jmlgdsl.infer import DEFAULT_ALGORITHM
@@ -15,12 +15,7 @@ from jmlgdsl.infer import DEFAULT_ALGORITHM
 
 @pytest.fixture(scope="module")
 def files(tmp_path_factory):
-    d = tmp_path_factory.mktemp("run")
-    spec = d / "dryer.json"
-    dryer().save(spec)
-    data = d / "seq1.csv"
-    assert main(["simulate", str(spec), "--modes", DRYER_SEQ1, "--seed", "3", "-o", str(data)]) == 0
-    return spec, data
+    return dryer_files(tmp_path_factory.mktemp("run"), DRYER_SEQ1, 3, "seq1.csv")
 
 
 def test_run_prints_a_diagnosis(files, capsys, tmp_path):

@@ -7,7 +7,8 @@ import hashlib
 
 import numpy as np
 
-from ..lang.plant import MATRIX_NAMES, MAX_MAGNITUDE, Plant, Report
+from ..lang.plant import MATRIX_NAMES, MAX_MAGNITUDE, Plant
+from ..lang.report import Report
 from ..model import Model
 from .blocks import ModeArrays
 
@@ -74,8 +75,8 @@ def stack(plant: Plant, modes: list[ModeArrays], report: Report) -> Model:
         P=plant.P, p0=plant.p0, mu0=np.stack([m.x0 for m in modes]), Sigma0=np.diag(plant.sd0 ** 2),
         input_defaults=layout.input_defaults, modes=[m.name for m in plant.modes],
         states=layout.states, inputs=layout.inputs, outputs=layout.outputs, dt=plant.dt, name=plant.name,
-        descriptions={m.name: m.description for m in plant.modes if m.description}, units=plant.units,
-        outlier_gate=plant.gates)
+        descriptions={m.name: m.description for m in plant.modes if m.description},
+        engineering_units=plant.engineering_units, outlier_gate=plant.gates)
 
 
 def _warn_identical(plant: Plant, arrays: list[list[np.ndarray]], report: Report):

@@ -5,8 +5,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..lang.check import check_file, check_text
-from ..lang.plant import Layout, Plant, Report
+from ..lang.check import check_spec_file, check_text
+from ..lang.plant import Layout, Plant
+from ..lang.report import Report
 from ..model import Model
 from .assemble import shift_inputs, stack, steady_mean, steady_state
 from .blocks import Lowering, ModeArrays
@@ -14,7 +15,7 @@ from .blocks import Lowering, ModeArrays
 
 def compile_file(path) -> Model:
     """Parse, check and compile a .jmlg file (SpecError on any problem, SpecWarning for warnings)."""
-    return compile_plant(*check_file(path))
+    return compile_plant(*check_spec_file(path))
 
 
 def compile_text(text: str, path: str = "<spec>") -> Model:

@@ -19,7 +19,8 @@ from scipy.linalg import expm
 from scipy.optimize import root
 
 from ..lang.check import check_ode_file
-from ..lang.plant import Plant, Pos, Report, show
+from ..lang.plant import Plant, show
+from ..lang.report import Pos, Report
 from ..model import Model
 from .assemble import shift_inputs, stack, steady_mean
 from .blocks import ModeArrays

@@ -132,6 +132,6 @@ def result_figure(result, path, true_modes=None, title="", y_sd=None, anomaly=No
     who = result.algorithm + (f", {plural(result.particles, 'particle')}" if result.particles else "")
     who += "" if result.lag == 0 else ", smoothed"
     return diagnosis_figure(path, model.modes, result.mode_posterior, time, result.y_pred + result.residuals,
-                            result.y_pred, model.outputs, true_modes=true_modes, output_units=model.units,
+                            result.y_pred, model.outputs, true_modes=true_modes, output_units=model.engineering_units,
                             title=title or f"{model.name}: mode diagnosis ({who})",
                             given=given(result.lag), y_sd=y_sd, anomaly=anomaly)

@@ -191,5 +191,17 @@ def _identity(model: Model) -> dict:
 
 def diagnose(model: Model, rows, options: Options = Options(), *, sinks=()) -> Diagnosis:
     """Diagnose every row of an iterable of data rows (see `jmlgdsl.data.iter_rows`) as `options` say,
-    handing each finished row to the sinks; the finished Diagnosis (its summary, truth scores and report)."""
+    handing each finished row to the sinks; the finished Diagnosis (its summary, truth scores and
+    report). This is `jmlgdsl.diagnose`:
+
+        >>> import jmlgdsl
+        >>> from jmlgdsl.data import iter_rows, open_source
+        >>> from jmlgdsl.diagnosis import Kept
+        >>> model = jmlgdsl.load("specs/dryer.jmlg")
+        >>> kept = Kept()
+        >>> with open_source("examples/dryer_seq1.csv") as source:
+        ...     done = jmlgdsl.diagnose(model, iter_rows(source, model, source.name), sinks=[kept])
+        >>> done.summary.T, model.modes[done.summary.current], done.alarms.raised, len(kept.rows)
+        (1000, 'fan', 3, 1000)
+    """
     return Diagnosis(model, options, sinks=sinks).run(rows)

@@ -43,7 +43,7 @@ class ScaleCheck:
         self.seen = []  # judged: a long-running diagnosis (and its checkpoint) need not carry them
         for name, size in zip(self.model.outputs, typical):
             if size > self.factor:
-                unit = self.model.units.get(name)
+                unit = self.model.engineering_units.get(name)
                 warnings.warn(DataWarning(
                     f"output {name!r}: its residuals are about {size:.3g} times the model's noise; "
                     f"is the column in the spec's unit{f' [{unit}]' if unit else ''}?"), stacklevel=2)

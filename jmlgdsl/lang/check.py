@@ -8,12 +8,13 @@ from ..errors import Diagnostic, SpecError
 from . import syntax as S
 from .declarations import declare
 from .parse import parse_file, parse_text
-from .plant import Equations, Plant, Report
+from .plant import Equations, Plant
+from .report import Report
 from .values import evaluate
 
 
-def check_file(path, values: dict | None = None) -> tuple[Plant, Report]:
-    """Parse and check a .jmlg file (check())."""
+def check_spec_file(path, values: dict | None = None) -> tuple[Plant, Report]:
+    """Parse and check a .jmlg spec file (check())."""
     return check(parse_file(path), values)
 
 

@@ -14,9 +14,9 @@ from ..names import suggest
 from . import syntax as S
 from .evaluate import evaluate_number
 from .limits import MAX_MODES, MAX_VARIABLES, check_sd
-from .plant import Report
 from .probabilities import initial_distribution, transition_matrix
-from .units import time_in_seconds
+from .report import Report
+from .durations import time_in_seconds
 from .unknowns import Unknown, resolve
 
 NOISE_KINDS = ("process", "measurement", "scale")

@@ -11,8 +11,9 @@ import sympy as sp
 from ..names import suggest
 from . import syntax as S
 from .evaluate import NOT_FINITE, EvalError, LetExpander, UnknownName, evaluate_number, finite_real, symbolic
-from .plant import Equations, Report
-from .units import time_in_seconds
+from .plant import Equations
+from .report import Report
+from .durations import time_in_seconds
 
 
 def equations(spec: S.Spec, lets: dict, time_unit: str, report: Report) -> Equations:
@@ -125,7 +126,7 @@ def check_divisors(spec: S.Spec, lets: dict, mode: str, env: dict, report: Repor
             report.error(f"{exc} in mode {mode!r}", exc.node.pos)
 
 
-def given_point(how: S.Linearize, states: list[str], inputs: list[str], u_bar: np.ndarray, nominal: dict,
+def given_point(how: S.LinearizeAt, states: list[str], inputs: list[str], u_bar: np.ndarray, nominal: dict,
                 report: Report) -> tuple[np.ndarray, np.ndarray]:
     """`linearize at x = v, ...`: every state given; inputs default to their operating values."""
     x, u = np.full(len(states), np.nan), np.array(u_bar, dtype=float)

@@ -8,7 +8,7 @@ import sympy as sp
 
 from ..names import suggest
 from .limits import MAX_EXPONENT, MAX_LET_CHAIN, MAX_SIZE
-from .plant import Report
+from .report import Report
 from .syntax import Expr
 
 

@@ -423,13 +423,13 @@ class _Builder(Transformer):
         self.spec.ode.extend(c)
 
     def linearize_each(self, meta, c):
-        self.spec.linearize.append(S.Linearize("each", _pos(meta)))
+        self.spec.linearize.append(S.LinearizeAt("each", _pos(meta)))
 
     def linearize_mode(self, meta, c):
-        self.spec.linearize.append(S.Linearize("mode", _pos(meta), mode=_name(c[0])))
+        self.spec.linearize.append(S.LinearizeAt("mode", _pos(meta), mode=_name(c[0])))
 
     def linearize_point(self, meta, c):
-        self.spec.linearize.append(S.Linearize("point", _pos(meta), point=tuple(c)))
+        self.spec.linearize.append(S.LinearizeAt("point", _pos(meta), point=tuple(c)))
 
     def _single(self, what, meta):
         """Remember statements that may appear once, so the checker can report a repeat."""

@@ -1,98 +1,18 @@
 """The checked plant: what the checker (jmlgdsl.lang.check) hands to the compiler (jmlgdsl.compile).
 It holds values, not syntax: names, numbers, numpy arrays and, for a plant written as ODEs, sympy
 expressions, with the source positions of what the compiler may still have to report (a mode, an
-operating point); and the positions and the Report that located diagnostics go to. Besides the
-checker's entry points (lang.check: a spec file or text to a checked plant), the compiler imports
-nothing else of the language."""
+operating point). Besides these types, the positions and report of lang.report and the checker's
+entry points (lang.check: a spec file or text to a checked plant), the compiler imports nothing else
+of the language."""
 
 from __future__ import annotations
 
-import warnings
-from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import Diagnostic, SpecError, SpecWarning
-from .limits import MAX_ERRORS, MAX_MAGNITUDE  # noqa: F401  (MAX_MAGNITUDE bounds what the compiler makes)
-
-
-@dataclass(frozen=True)
-class Pos:
-    """A 1-based line and column in the source file."""
-
-    line: int = 0
-    column: int = 0
-
-
-class Report:
-    """Diagnostics for one source file."""
-
-    def __init__(self, path: str, lines: list[str]):
-        self.path = path
-        self.lines = lines
-        self.errors: list[Diagnostic] = []  # the first MAX_ERRORS distinct errors, in the order reported
-        self.warnings: list[Diagnostic] = []
-        self._seen: set[Diagnostic] = set()  # every distinct error: repeats are dropped in constant time
-        self.held: list[tuple[str, Pos | None]] = []  # errors held back (holding()) until release()
-        self._holding = False
-
-    def _diagnostic(self, message: str, pos: Pos | None, severity: str) -> Diagnostic:
-        pos = pos or Pos()
-        src = self.lines[pos.line - 1] if 0 < pos.line <= len(self.lines) else None
-        return Diagnostic(message, self.path, pos.line, pos.column, src, severity)
-
-    def error(self, message: str, pos: Pos | None = None):
-        """Record an error; a repeat of one already recorded is dropped."""
-        if self._holding:
-            self.held.append((message, pos))
-            return
-        d = self._diagnostic(message, pos, "error")
-        if d not in self._seen:
-            self._seen.add(d)
-            if len(self.errors) < MAX_ERRORS:
-                self.errors.append(d)
-
-    @contextmanager
-    def holding(self):
-        """Hold back the errors reported inside, until release(): the checker's, in the values the compiler
-        applies last, so that one that fails before it gets there (a mode without a steady state)
-        reports that alone."""
-        self._holding = True
-        try:
-            yield
-        finally:
-            self._holding = False
-
-    def release(self):
-        """Record the errors held back."""
-        held, self.held = self.held, []
-        for message, pos in held:
-            self.error(message, pos)
-
-    @property
-    def error_count(self) -> int:
-        """How many distinct errors have been reported, shown or not."""
-        return len(self._seen)
-
-    def warn(self, message: str, pos: Pos | None = None):
-        self.warnings.append(self._diagnostic(message, pos, "warning"))
-
-    def raise_errors(self):
-        """Raise SpecError holding the errors reported so far, in source order: at most MAX_ERRORS of
-        them, and a last line that counts the others."""
-        if self.errors:
-            shown = sorted(self.errors, key=lambda d: (d.line, d.column))
-            more = self.error_count - len(self.errors)
-            if more:
-                shown.append(Diagnostic(f"... and {more:,} more error{'s' if more > 1 else ''}", self.path))
-            raise SpecError(shown)
-
-    def finish(self):
-        """Raise the errors, if any; otherwise issue the warnings as SpecWarning."""
-        self.raise_errors()
-        for w in self.warnings:
-            warnings.warn(SpecWarning(w), stacklevel=3)
+from .limits import MAX_MAGNITUDE  # noqa: F401  (MAX_MAGNITUDE bounds what the compiler makes)
+from .report import Pos
 
 
 @dataclass
@@ -234,7 +154,7 @@ def show(expr) -> str:
 
 
 @dataclass(frozen=True)
-class Linearize:
+class Linearization:
     """Where an ODE plant's modes are linearised: "each" mode's steady state, the steady state of
     mode number `mode` (written at `pos`), or a given "point" (x, u)."""
 
@@ -260,7 +180,7 @@ class Plant:
     initial: np.ndarray  # per state, its declared value (an ODE plant's steady-state guess), NaN where none
     sd0: np.ndarray  # per state, its initial standard deviation
     gates: np.ndarray  # per output, its gross-error gate in standard deviations
-    units: dict[str, str]
+    engineering_units: dict[str, str]  # variable name -> its unit of measure
     unknowns: list = field(default_factory=list)  # lang.unknowns.Unknown: numbers left to the data
     equations: Equations | None = None  # an ODE plant's
-    linearize: Linearize | None = None  # an ODE plant's
+    linearize: Linearization | None = None  # an ODE plant's

@@ -13,10 +13,11 @@ import sympy as sp
 from ..names import suggest
 from .evaluate import NOT_FINITE, EvalError, LetExpander, UnknownName, finite_numeric, finite_real, symbolic
 from .limits import MAX_DELAY_SAMPLES, MAX_ORDER, check_sd
-from .plant import (MATRIX_NAMES, Arx, Equation, Fopdt, Initial, Layout, Matrix, Report, history_name,
-                    part_name, register_name, show)
+from .plant import (MATRIX_NAMES, Arx, Equation, Fopdt, Initial, Layout, Matrix, history_name, part_name,
+                    register_name, show)
+from .report import Report
 from .syntax import Dist, Expr, Name, Statement
-from .units import time_in_seconds
+from .durations import time_in_seconds
 
 BLOCK_FORMS = ("Normal", "fopdt", "arx")
 FOPDT_KEYS = ("gain", "tau", "delay")

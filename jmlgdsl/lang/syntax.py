@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from .plant import Pos
+from .report import Pos
 
 
 @dataclass(frozen=True)
@@ -139,8 +139,8 @@ class Derivative:
 
 
 @dataclass(frozen=True)
-class Linearize:
-    """Where an ODE plant is linearised: each mode's steady state, one mode's, or a given point."""
+class LinearizeAt:
+    """`linearize at ...` as written: each mode's steady state, one mode's, or a given point."""
 
     kind: str  # "each" | "mode" | "point"
     pos: Pos
@@ -166,5 +166,5 @@ class Spec:
     blocks: list[ModeBlock] = field(default_factory=list)
     ode: list[Derivative] = field(default_factory=list)
     ode_unit: tuple[str, Pos] | None = None
-    linearize: list[Linearize] = field(default_factory=list)
+    linearize: list[LinearizeAt] = field(default_factory=list)
     repeated: list[tuple[str, Pos]] = field(default_factory=list)  # single statements given twice

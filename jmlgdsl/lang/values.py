@@ -15,7 +15,8 @@ from .declarations import Declared, ModeInfo, noise_values
 from .equations import check_divisors, equations, given_point
 from .evaluate import evaluate_number
 from .limits import MAX_STACKED, MAX_VARIABLES, check_sd
-from .plant import Equations, Layout, Linearize, Mode, Plant, Report
+from .plant import Equations, Layout, Linearization, Mode, Plant
+from .report import Report
 from .statements import Statements
 
 
@@ -32,8 +33,9 @@ def evaluate(d: Declared, report: Report, ode: Equations | None = None) -> Plant
     with report.holding():
         sd0 = initial_sd(d, layout, report)
         gates = outlier_gates(d, layout.outputs, report)
-    units = {decl.name.text: decl.unit for decl in [*d.inputs, *d.outputs, *d.states] if decl.unit}
-    return Plant(d.name, d.dt, layout, modes, d.P, d.p0, initial, sd0, gates, units, d.unknowns, ode, linearize)
+    engineering_units = {decl.name.text: decl.unit for decl in [*d.inputs, *d.outputs, *d.states] if decl.unit}
+    return Plant(d.name, d.dt, layout, modes, d.P, d.p0, initial, sd0, gates, engineering_units, d.unknowns, ode,
+                 linearize)
 
 
 # ------------------------------------------------------------------ a plant without ODEs
@@ -130,17 +132,17 @@ def _check_mode_statements(d: Declared, report: Report):
                              st.target.name.pos)
 
 
-def _linearize(d: Declared, ode: Equations, u_bar: np.ndarray, report: Report) -> tuple[Linearize, np.ndarray]:
+def _linearize(d: Declared, ode: Equations, u_bar: np.ndarray, report: Report) -> tuple[Linearization, np.ndarray]:
     """Where the modes are linearised, per the `linearize` statement (default: the steady state of each
     mode), and the declared state values that start the search for steady states (NaN at a given point,
     which needs none)."""
     spec = d.spec
     for extra in spec.linearize[1:]:
         report.error(f"'linearize' is given more than once (first at line {spec.linearize[0].pos.line})", extra.pos)
-    how = spec.linearize[0] if spec.linearize else S.Linearize("each", S.Pos())
+    how = spec.linearize[0] if spec.linearize else S.LinearizeAt("each", S.Pos())
     if how.kind == "point":
         x, u = given_point(how, ode.states, ode.inputs, u_bar, d.nominal, report)
-        return Linearize("point", x=x, u=u), np.full(len(ode.states), np.nan)
+        return Linearization("point", x=x, u=u), np.full(len(ode.states), np.nan)
     guesses = declared_values(d.states, d.nominal, report)
     for s in d.states:
         if s.value is None:
@@ -148,12 +150,12 @@ def _linearize(d: Declared, ode: Equations, u_bar: np.ndarray, report: Report) -
                          s.name.pos)
     report.raise_errors()
     if how.kind == "each":
-        return Linearize("each"), guesses
+        return Linearization("each"), guesses
     names = [m.name for m in d.modes]
     if how.mode.text not in names:
         report.error(f"unknown mode {how.mode.text!r}{suggest(how.mode.text, names)}", how.mode.pos)
-        return Linearize("mode", pos=how.mode.pos), guesses
-    return Linearize("mode", names.index(how.mode.text), how.mode.pos), guesses
+        return Linearization("mode", pos=how.mode.pos), guesses
+    return Linearization("mode", names.index(how.mode.text), how.mode.pos), guesses
 
 
 # ------------------------------------------------------------------ values of both kinds of plant

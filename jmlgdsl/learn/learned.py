@@ -228,7 +228,7 @@ def _frame(template: Model | None, modes: tuple, outputs: tuple, inputs: tuple, 
             raise JmlgError(f"the template's plant {template.name} has modes {', '.join(template.modes)}; give one "
                             f"experiment for each (got {', '.join(modes)})")
         return dict(name=template.name, dt=template.dt, inputs=template.inputs, outputs=template.outputs,
-                    units=template.units, input_defaults=template.input_defaults,
+                    engineering_units=template.engineering_units, input_defaults=template.input_defaults,
                     descriptions=template.descriptions, P=template.P, p0=template.p0), template.modes
     if not outputs:
         raise JmlgError("name the outputs (the output columns), or give a template")
@@ -236,7 +236,7 @@ def _frame(template: Model | None, modes: tuple, outputs: tuple, inputs: tuple, 
         if not 0 <= value <= 1:
             raise JmlgError(f"{option} must be a probability, not {value}")
     K = len(modes)
-    return dict(name=name, dt=dt, inputs=inputs, outputs=outputs, units={},
+    return dict(name=name, dt=dt, inputs=inputs, outputs=outputs, engineering_units={},
                 input_defaults=np.full(len(inputs), np.nan), descriptions={}, P=default_transitions(K, stay),
                 p0=healthy_prior(K, initial)), modes
 

@@ -27,11 +27,11 @@ def matrix(M) -> str:
     return "[" + "; ".join(" ".join(number(v) for v in row) for row in M) + "]"
 
 
-def _declaration(keyword, names, units, values=None) -> str:
+def _declaration(keyword, names, engineering_units, values=None) -> str:
     """An input/output declaration line: names with their [unit] and constant default where known."""
     items = []
     for i, name in enumerate(names):
-        item = name + (f" [{units[name]}]" if name in units else "")
+        item = name + (f" [{engineering_units[name]}]" if name in engineering_units else "")
         if values is not None and not np.isnan(values[i]):
             item += f" = {number(values[i])}"
         items.append(item)
@@ -92,8 +92,8 @@ def write_spec(model: Model, header: str = "") -> str:
     lines = [f"# {line}".rstrip() for line in header.splitlines()]
     lines += [f"plant {model.name}", f"sample {number(model.dt)} s"]
     if model.nu:
-        lines.append(_declaration("input ", model.inputs, model.units, model.input_defaults))
-    lines.append(_declaration("output", model.outputs, model.units))
+        lines.append(_declaration("input ", model.inputs, model.engineering_units, model.input_defaults))
+    lines.append(_declaration("output", model.outputs, model.engineering_units))
     lines.append("state  " + ", ".join(f"{s} sd {number(sd)}" for s, sd in zip(model.states, sd0)))
     lines.append("modes")
     for name in model.modes:

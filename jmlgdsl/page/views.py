@@ -22,7 +22,7 @@ def run_info(store: Store, run: Run, token_required: bool) -> dict:
     """The run's names, units, mode descriptions and alarm rule, whether actions need a token, and the
     run's unit with every unit of the store's fleet (none for one plant)."""
     return {"id": run.id, "plant": run.plant, "modes": run.modes, "outputs": run.outputs, "inputs": run.inputs,
-            "descriptions": run.descriptions, "units": run.units, "healthy": run.options.get("healthy", []),
+            "descriptions": run.descriptions, "units": run.engineering_units, "healthy": run.options.get("healthy", []),
             "filter": run.options.get("algorithm"), "lag": run.options.get("lag", 0),
             "source": run.options.get("source"), "token_required": token_required, "unit": run.unit,
             "fleet": store.units()}

@@ -14,7 +14,8 @@ from ..names import plural
 from ..output import check_count, replacing
 from ..simulate import step_bytes
 from . import figures
-from .sweep import Sequence, Simulated, nonlinear_plant, report, summarise, sweep, write_records_csv, write_table_csv
+from .sweep import (LabelledSequence, Simulated, nonlinear_plant, report, summarise, sweep, write_records_csv,
+                    write_table_csv)
 
 
 def sources(model: Model, data=(), simulate: int | None = None, modes: str | None = None,
@@ -45,7 +46,7 @@ def sources(model: Model, data=(), simulate: int | None = None, modes: str | Non
         if (read.modes < 0).any():
             raise DataError(f"{path}: data row {int((read.modes < 0).argmax()) + 1} has no true mode, so "
                             "the diagnosis error cannot be measured on it")
-        found.append(Sequence(Path(path).stem, read.y, read.u, read.modes))
+        found.append(LabelledSequence(Path(path).stem, read.y, read.u, read.modes))
     return found
 
 

@@ -44,7 +44,7 @@ JOB_BYTES = 4096  # a job, its seeds and its record, to refuse a sweep too large
 
 
 @dataclass(frozen=True)
-class Sequence:
+class LabelledSequence:
     """Data with the true mode at every step: y (T, ny), u (T, nu), modes (T,) indices."""
 
     name: str
@@ -73,7 +73,7 @@ class Job:
     """One filter run: a filter at one particle count on one sequence, with its own seeds."""
 
     model: Model
-    source: Sequence | Simulated
+    source: LabelledSequence | Simulated
     algorithm: str
     particles: int | None
     run: int
@@ -84,9 +84,9 @@ class Job:
     healthy: tuple[str, ...] | None = None  # the modes that raise no alarm (None: the spec's first mode)
 
 
-def sequence_of(job: Job) -> Sequence:
+def sequence_of(job: Job) -> LabelledSequence:
     """The data a job filters: the given sequence, or the run's simulated one."""
-    if isinstance(job.source, Sequence):
+    if isinstance(job.source, LabelledSequence):
         return job.source
     seed = job.data_seed
     return _simulated(job.source, job.model if job.source.plant is None else job.source.plant, seed.entropy,
@@ -94,7 +94,7 @@ def sequence_of(job: Job) -> Sequence:
 
 
 @functools.lru_cache(maxsize=8)
-def _simulated(source, plant, entropy, spawn_key) -> Sequence:
+def _simulated(source, plant, entropy, spawn_key) -> LabelledSequence:
     """One run's simulated sequence, kept while a worker's consecutive jobs filter the same run."""
     seed = np.random.SeedSequence(entropy, spawn_key=spawn_key)
     if isinstance(plant, str):
@@ -103,7 +103,7 @@ def _simulated(source, plant, entropy, spawn_key) -> Sequence:
         sim = simulate_nonlinear(nonlinear_plant(plant), source.steps, seed=seed, modes=source.schedule)
     else:
         sim = simulate(plant, source.steps, seed=seed, modes=source.schedule)
-    return Sequence(source.name, sim.y, sim.u, sim.modes)
+    return LabelledSequence(source.name, sim.y, sim.u, sim.modes)
 
 
 @functools.lru_cache(maxsize=4)

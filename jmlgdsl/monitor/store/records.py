@@ -31,7 +31,7 @@ class Run:
     outputs: list
     inputs: list
     descriptions: dict  # mode name -> the spec's description
-    units: dict  # name -> physical unit
+    engineering_units: dict  # name -> its unit of measure
     unit: str | None = None  # the unit of a fleet (None: a monitor of one plant)
 
     @property

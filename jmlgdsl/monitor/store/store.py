@@ -155,7 +155,7 @@ class Store:
                                  "VALUES (?,?,?,?,?,?,?,?,?,?,?,?,?,?)",
                                  (now(), VERSION, model.name, spec, sha, fingerprint,
                                   json.dumps(options, sort_keys=True), *names, json.dumps(model.descriptions),
-                                  json.dumps(model.units), unit))
+                                  json.dumps(model.engineering_units), unit))
         return self.run(new)
 
     def saved(self, run: int) -> Saved | None:

@@ -1,9 +1,9 @@
-"""Time units: the language writes times in s, min or h; the model keeps seconds."""
+"""Durations: the language writes times in s, min or h; the model keeps seconds."""
 
 from __future__ import annotations
 
 from ..names import suggest
-from .plant import Report
+from .report import Report
 from .syntax import Name
 
 SECONDS = {"s": 1.0, "sec": 1.0, "min": 60.0, "h": 3600.0, "hr": 3600.0}
