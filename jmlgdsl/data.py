@@ -169,7 +169,7 @@ class TimeFormat:
 _READING = weakref.WeakSet()  # the files open for reading, which no table may be written over
 
 
-class Source:
+class DataFile:
     """The lines of a data file or of standard input ('-'), decoded one at a time, so that a byte that
     is not UTF-8, a binary or UTF-16 file, or a closed standard input is a DataError naming the file
     and line (and a pipe is still read line by line, as the rows arrive). A line ends at LF, CR LF or
@@ -254,9 +254,9 @@ class Source:
         self.close()
 
 
-def open_source(path) -> Source:
+def open_source(path) -> DataFile:
     """The lines of a data file, or of standard input for '-'."""
-    return Source(path)
+    return DataFile(path)
 
 
 def open_target(path):

@@ -24,7 +24,7 @@ from ..infer.result import Step
 from ..infer.units import Stacked
 from ..errors import JmlgError
 from .rows import Assembler
-from .sources.contract import End, Event, Fatal, Readings, Row, Source, Times, Unreadable
+from .sources.contract import End, Event, Fatal, Readings, Source, WholeRow, Times, Unreadable
 from .sinks.outbox import Outbox
 from .store import TIMES, Commit, Store
 from ..version import VERSION
@@ -231,7 +231,7 @@ class Monitor:
         unit); True at the end of the data."""
         watches = self.units if unit is None else [self.units[unit]]
         match item:
-            case Row():
+            case WholeRow():
                 watches[0].position = item.position
                 watches[0].feed(item.row)
             case Readings():

@@ -5,7 +5,7 @@ own and hands the monitor typed items; the monitor commits what they hold to its
 acknowledges them, so that a source whose far side delivers again (an MQTT broker) loses nothing
 and a source that reads on from a place (a file) reads on from the last commit.
 
-    Row(row, position)              a whole row, and where to read on after it
+    WholeRow(row, position)         a whole row, and where to read on after it
     Readings(readings, arrival, token)  readings of tags at their own moments, put on the sample
                                     clock by jmlgdsl.monitor.rows
     Unreadable(message, token)      a message that holds no reading: a `malformed` event
@@ -23,7 +23,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Callable, Protocol
 
-from ...data import Row as DataRow
+from ...data import Row
 from ...data import TimeFormat
 
 
@@ -38,10 +38,10 @@ class Event:
 
 
 @dataclass(frozen=True)
-class Row:
+class WholeRow:
     """A whole row, and the source's position after it (saved with it: where a restart reads on)."""
 
-    row: DataRow
+    row: Row
     position: dict | None
 
 
@@ -83,18 +83,18 @@ class Fatal:
     message: str
 
 
-Item = Row | Readings | Unreadable | Event | Times | End | Fatal
+Item = WholeRow | Readings | Unreadable | Event | Times | End | Fatal
 
 
 class Source(Protocol):
     """What the monitor needs of a source."""
 
     name: str  # what the run records of it: its URL (never with credentials) or file
-    rows: bool  # True: it hands over Rows; False: Readings, which the monitor assembles into rows
+    rows: bool  # True: it hands over WholeRows; False: Readings, which the monitor assembles into rows
 
     def start(self, put: Callable[[Item], None], position) -> None:
         """Hand items over with `put` from threads of its own, reading on from `position` (what the last
-        commit saved of its Rows' positions; None: from the start; a list of them for a fleet's units)."""
+        commit saved of its WholeRows' positions; None: from the start; a list of them for a fleet's units)."""
 
     def acknowledge(self, tokens: list) -> None:
         """The tokens of the Readings and Unreadables a commit holds, once it is committed."""

@@ -15,7 +15,7 @@ import threading
 from ...data import iter_rows
 from ...errors import DataError
 from ..fleet import PLACEHOLDER, FleetError, for_unit
-from .contract import End, Event, Fatal, Row, Times
+from .contract import End, Event, Fatal, Times, WholeRow
 from .units import UnitSources
 
 POLL = 0.05  # seconds between looks at a followed file that has not grown
@@ -115,7 +115,7 @@ class CsvSource:
         self._thread = None
 
     def start(self, put, position: dict | None):
-        """Read rows in a thread: a Row for each, an Event for a bad line, End at the end (of standard
+        """Read rows in a thread: a WholeRow for each, an Event for a bad line, End at the end (of standard
         input, or of an unfollowed file), and before the first row with a time, Times: how the file
         writes its times."""
         if self.path == "-":
@@ -144,7 +144,7 @@ class CsvSource:
                         if told is None and rows.times is not None:
                             told = rows.times
                             put(Times(told))
-                        put(Row(row, {"offset": lines.offset, "line": lines.line}))
+                        put(WholeRow(row, {"offset": lines.offset, "line": lines.line}))
                     break
                 except DataError as exc:
                     put(Event("malformed", None, str(exc)))
