@@ -292,6 +292,7 @@ def test_run_on_several_files_refuses_what_it_cannot_do_before_any_work(unit_fil
     for extra, message in ((["--plot", str(tmp_path / "p.png")], "--plot takes one data file, not 2"),
                            (["-o", "-"], "several data files write a table each; give a folder"),
                            ([str(tmp_path / "a.csv")], "two data files would write the same table a.csv"),
+                           (["-"], "standard input (-) has no name to give its table; give files"),
                            (["-o", a], "is a file, not a folder")):
         assert main(["run", spec, a, b, *extra]) != 0
         assert message in capsys.readouterr().err
