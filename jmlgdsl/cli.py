@@ -1,10 +1,11 @@
 """The `jmlgdsl` command: a thin argparse shell over the Python API.
 
 Each subcommand is a module in jmlgdsl/commands/ with `register(subparsers)`, which adds its parser
-and sets `func(args) -> exit status`. With no arguments the full help, every command with a line,
-goes to standard error with exit status 2, as for any other usage error. User errors (JmlgError)
-print as located messages, exit 2; so does a request that runs out of memory after the up-front
-checks let it through. Warnings about the data (DataWarning) print as `warning: ...` lines.
+and sets `func(args) -> exit status` (a module whose name begins with an underscore holds what several
+commands share). With no arguments the full help, every command with a line, goes to standard error
+with exit status 2, as for any other usage error. User errors (JmlgError) print as located messages,
+exit 2; so does a request that runs out of memory after the up-front checks let it through. Warnings
+about the data (DataWarning) print as `warning: ...` lines.
 
 The command's linear algebra runs on one BLAS thread unless the user sets a thread count
 (OPENBLAS_NUM_THREADS, OMP_NUM_THREADS, MKL_NUM_THREADS): its matrices are small (a few dozen
@@ -29,7 +30,7 @@ ORDER = ("check", "compile", "simulate", "run", "monitor", "dashboard", "export"
 
 
 def _command_modules():
-    found = {m.name for m in pkgutil.iter_modules(commands.__path__)}
+    found = {m.name for m in pkgutil.iter_modules(commands.__path__) if not m.name.startswith("_")}
     names = [n for n in ORDER if n in found] + sorted(found - set(ORDER))
     return [importlib.import_module(f"{commands.__name__}.{n}") for n in names]
 

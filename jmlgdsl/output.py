@@ -122,6 +122,23 @@ def check_folder(path, names=(), inputs=(), option="-o") -> None:
         _not_an_input(path / name, inputs, what)
 
 
+def is_folder(path) -> bool:
+    """Whether an output `path` names a folder: it ends in a separator or is an existing folder."""
+    return str(path).endswith(("/", os.sep)) or os.path.isdir(path)
+
+
+def file_names(paths, suffix: str, what: str) -> list[str]:
+    """The file each of `paths` gives its `what` (a table, a unit spec), NAME+suffix for a file NAME.*:
+    a JmlgError for standard input, which has no name, or for two files that would write the same one."""
+    if "-" in paths:
+        raise JmlgError(f"standard input (-) has no name to give its {what}; give files")
+    names = [Path(path).stem + suffix for path in paths]
+    twice = sorted({name for name in names if names.count(name) > 1})
+    if twice:
+        raise JmlgError(f"two data files would write the same {what} {twice[0]}; give files with different names")
+    return names
+
+
 def physical_memory() -> int:
     """Bytes of memory this machine has (8 GiB where the system does not say)."""
     try:

@@ -128,10 +128,24 @@ def test_the_root_holds_only_the_model_entry_points_and_leaf_helpers():
     assert {p.name for p in PACKAGE.iterdir() if p.is_dir() and (p / "__init__.py").exists()} == PACKAGES
 
 
-def test_no_command_imports_another_command():
+def is_command(name) -> bool:
+    """Whether a module is a subcommand: one of jmlgdsl/commands/ whose name has no leading underscore (a
+    module with one holds what several commands share, imported through jmlgdsl.commands)."""
+    return name.startswith("jmlgdsl.commands.") and not name.rsplit(".", 1)[1].startswith("_")
+
+
+def test_no_command_imports_another_command_or_a_shared_module_but_through_the_package():
     for name, targets in graph().items():
-        if name.startswith("jmlgdsl.commands."):
+        if is_command(name):
             assert not {t for t in targets if t.startswith("jmlgdsl.commands.")}, name
+
+
+def test_every_command_module_is_short_parse_call_print():
+    """A command parses, calls the library and prints: every module of jmlgdsl/commands/ under 100
+    lines."""
+    long = {path.name: n for path in (PACKAGE / "commands").glob("*.py")
+            if (n := len(path.read_text().splitlines())) >= 100}
+    assert long == {}
 
 
 CHECKED_PLANT = "jmlgdsl.lang.plant"  # the checked plant's types: names, numbers, arrays, ODEs

@@ -128,6 +128,8 @@ def test_fit_units_refusals(units, tmp_path, capsys):
     (twin / "u1.csv").write_text(Path(files[0]).read_text())
     assert main(["fit", TEMPLATE, files[0], str(twin / "u1.csv"), "-o", f"{tmp_path / 'out'}/"]) == 2
     assert "two data files would write the same unit spec u1.jmlg" in capsys.readouterr().err
+    assert main(["fit", TEMPLATE, files[0], "-", "-o", f"{tmp_path / 'out'}/"]) == 2
+    assert "standard input (-) has no name to give its unit spec; give files" in capsys.readouterr().err
     assert main(["fit", TEMPLATE, *files, "--jobs", "0", "-o", f"{tmp_path / 'out'}/"]) == 2
     assert "--jobs must be 1 or more, got 0" in capsys.readouterr().err
     assert main(["fit", TEMPLATE, files[0], "--jobs", "0", "-o", str(tmp_path / "one.jmlg")]) == 2

@@ -69,3 +69,26 @@ def test_a_fleet_filter_saved_unit_by_unit_goes_on_bit_for_bit():
         for field in a._fields:
             assert np.array_equal(getattr(a, field), getattr(b, field), equal_nan=True), field
     assert np.array_equal(second.loglik, whole.loglik) and np.array_equal(second.t, whole.t)
+
+
+def test_a_diagnosis_stepped_from_outside_holds_each_row_until_its_record_comes_back():
+    """The steps a fleet drives a unit's Diagnosis through: `hold` a row (its readings pre-filtered),
+    step the filter, `heard` (the evidence handed in, the engine's predictive dropped), `finished`
+    with each record the filter gives back, which pairs it with the oldest row held."""
+    model = jmlgdsl.load("specs/dryer.jmlg")
+    sim = jmlgdsl.simulate(model, 8, seed=3)
+    rows = rows_of(sim.y, sim.u)
+    unit = Diagnosis(model, Options(lag=2, prefilter=2, explain=True))
+    done = []
+    for i, row in enumerate(rows):
+        readings = unit.hold(row)
+        np.testing.assert_allclose(readings, sim.y[max(0, i - 1):i + 1].mean(axis=0))
+        step = unit.filter.step(readings, row.u)
+        unit.heard(evidence=f"evidence of row {i + 1}")
+        assert unit.filter.engine.predictive is None  # no part of the saved state
+        if step is not None:
+            done.append(unit.finished(step))
+    done += unit.finish()
+    assert [d.row for d in done] == rows and [d.step.t for d in done] == list(range(1, len(rows) + 1))
+    assert [d.evidence for d in done] == [f"evidence of row {t}" for t in range(1, len(rows) + 1)]
+    assert unit.summary.T == len(rows)

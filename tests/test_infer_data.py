@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from infer_models import dryer
 
-from jmlgdsl import DataError, Model
-from jmlgdsl.data import DataWarning, iter_rows, read_csv, write_columns
+from jmlgdsl import DataError, Filter, Model
+from jmlgdsl.data import DataWarning, iter_rows, read_csv, with_defaults, write_columns
 
 
 def two_input_model():
@@ -96,3 +96,14 @@ def test_rows_arrive_before_the_stream_ends():
 def test_read_missing_file_is_a_data_error(tmp_path):
     with pytest.raises(DataError, match="cannot read .*nope.csv"):
         read_csv(tmp_path / "nope.csv", dryer())
+
+
+def test_a_missing_input_takes_its_default_the_same_way_for_every_reader():
+    model = two_input_model()  # flow has no default, power's is 3
+    filled = with_defaults(np.array([[2.0, np.nan], [np.nan, 5.0]]), model.input_defaults)
+    np.testing.assert_array_equal(filled, [[2.0, 3.0], [np.nan, 5.0]])  # NaN stays only without a default
+    np.testing.assert_array_equal(rows("level,flow,power\n1.5,2,\n", model)[0].u, filled[0])
+    given, defaulted = Filter(model), Filter(model)
+    assert np.array_equal(given.step([1.5], filled[0]).state_mean, defaulted.step([1.5], [2.0, np.nan]).state_mean)
+    with pytest.raises(DataError, match="flow"):  # an input with neither a value nor a default
+        Filter(model).step([1.5], filled[1])

@@ -167,3 +167,20 @@ def test_a_mode_with_no_steady_state_leaves_the_cap_in_force(data):
     f = jmlgdsl.Filter(drifting)
     rejected = [f.step(y).rejected is not None for y in burst(sim.y, 20, 1)]
     assert [t for t, r in enumerate(rejected) if r] == list(range(20, 20 + MAX_REJECTIONS))
+
+
+def test_a_filter_stepped_from_outside_through_its_gate_and_accept_goes_on_as_itself(data):
+    # a change that lasts: the filter's gate leaves it out MAX_REJECTIONS steps, then stops enforcing
+    model, sim = data
+    jumped = sim.y + np.where(np.arange(len(sim.y))[:, None] >= 30, span(model), 0.0)
+    alone, outside = jmlgdsl.Filter(model, "rbpf", seed=1), jmlgdsl.Filter(model, "rbpf", seed=1)
+    enforced = []
+    for y, u in zip(jumped, sim.u):
+        mine = alone.step(y, u)
+        enforced.append(bool(outside.gate.enforce[0]))
+        theirs = outside.accept(outside.engine.step(y, np.ones(model.ny, dtype=bool), u, outside.gate), y, u)
+        for field in ("t", "mode_posterior", "state_mean", "state_cov", "y_pred", "residual", "loglik", "ess"):
+            assert np.array_equal(getattr(mine, field), getattr(theirs, field)), field
+        assert (mine.rejected is None) == (theirs.rejected is None)
+    assert enforced.index(False) == 30 + MAX_REJECTIONS  # the gate the engine was handed moved with the counts
+    assert outside.t == alone.t and outside.loglik == alone.loglik

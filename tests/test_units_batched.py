@@ -292,7 +292,22 @@ def test_run_on_several_files_refuses_what_it_cannot_do_before_any_work(unit_fil
     for extra, message in ((["--plot", str(tmp_path / "p.png")], "--plot takes one data file, not 2"),
                            (["-o", "-"], "several data files write a table each; give a folder"),
                            ([str(tmp_path / "a.csv")], "two data files would write the same table a.csv"),
+                           (["-"], "standard input (-) has no name to give its table; give files"),
                            (["-o", a], "is a file, not a folder")):
         assert main(["run", spec, a, b, *extra]) != 0
         assert message in capsys.readouterr().err
     assert not list(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("algorithm", ["imm", "rbpf"])  # one vectorised engine; the units' own filters
+def test_a_step_of_many_units_names_its_fields_as_a_result_does(dryer, algorithm):
+    ys, us = fleet_data(dryer, 4, 40)
+    results = filter_units(dryer, ys, us, algorithm=algorithm, seed=1)
+    fleet = Units(dryer, 4, algorithm, seed=1)
+    for t in range(40):
+        steps = fleet.step([y[t] for y in ys], [u[t] for u in us])
+    assert steps.t.tolist() == [40] * 4
+    for i, result in enumerate(results):  # unit i's row of the step is row 40 of its Result, field by field
+        for field in FIELDS:
+            assert np.array_equal(getattr(steps, field)[i], getattr(result, field)[39], equal_nan=True), field
+    assert any(result.rejected[:40].any() for result in results)  # the rows a gate left out are compared too

@@ -4,32 +4,7 @@ from __future__ import annotations
 
 import sys
 
-
-def _list(kind):
-    """An argparse type for a comma-separated list of `kind`."""
-    def parse(text):
-        try:
-            return tuple(kind(item) for item in text.split(",") if item.strip())
-        except ValueError:
-            raise ValueError(text) from None
-    parse.__name__ = f"comma-separated {kind.__name__} list"
-    return parse
-
-
-def _lags(text):
-    """Smoothing lags from 'L,L,...': whole numbers >= 0, or 'offline'."""
-    lags = []
-    for item in (i.strip() for i in text.split(",") if i.strip()):
-        if item.lower() in ("offline", "off-line", "none"):
-            lags.append(None)
-        elif item.isdigit():
-            lags.append(int(item))
-        else:
-            raise ValueError(text)
-    return tuple(dict.fromkeys(lags))
-
-
-_lags.__name__ = "comma-separated list of lags (whole numbers or 'offline')"
+from . import add_cluster_option, healthy_modes, lags, listed
 
 
 def register(subparsers):
@@ -49,9 +24,9 @@ def register(subparsers):
                     "the tables (Markdown, CSV), every run (CSV) and figures to the output folder.")
     p.add_argument("spec", help="plant spec (.jmlg) or compiled model (.json/.npz)")
     p.add_argument("data", nargs="*", help="CSV data files with a 'mode' column (or use --simulate)")
-    p.add_argument("--filters", type=_list(str), default=DEFAULT_FILTERS,
+    p.add_argument("--filters", type=listed(str), default=DEFAULT_FILTERS,
                    help=f"comma-separated filters (default {','.join(DEFAULT_FILTERS)})")
-    p.add_argument("--particles", type=_list(int), default=DEFAULT_PARTICLES,
+    p.add_argument("--particles", type=listed(int), default=DEFAULT_PARTICLES,
                    help=f"comma-separated particle counts (default {','.join(map(str, DEFAULT_PARTICLES))})")
     p.add_argument("--runs", type=int, default=25, help="independent runs per setting (default 25)")
     p.add_argument("--seed", type=int, default=0, help="root seed; the same seed repeats the sweep exactly")
@@ -61,7 +36,7 @@ def register(subparsers):
     p.add_argument("--nonlinear", action="store_true",
                    help="with --simulate/--modes: simulate the spec's ODEs, not its linearised modes")
     p.add_argument("--prefilter", metavar="ma:K", help="moving average over K readings before filtering")
-    p.add_argument("--lag", type=_lags, default=(0,), metavar="L,...",
+    p.add_argument("--lag", type=lags, default=(0,), metavar="L,...",
                    help="smoothing lags to compare, e.g. 0,5,10,offline (0 is the filter; default 0): adds "
                         "tables and a figure of error and detection delay against the lag")
     p.add_argument("--healthy", metavar="MODE[,MODE...]",
@@ -69,11 +44,8 @@ def register(subparsers):
                         "the others are the faults to name")
     where = p.add_mutually_exclusive_group()
     where.add_argument("--workers", type=int, help="processes (default: every core; 1 runs in this process)")
-    where.add_argument("--cluster", metavar="auto|HOST:PORT",
-                       help="instead of --workers: every run a Ray task on a cluster, the same records as on this "
-                            "machine (auto: a Ray on this machine for this command, reachable from 127.0.0.1 "
-                            "only; HOST:PORT: a cluster started with ray start --head). Needs pip install "
-                            "'jmlgdsl[cluster]'")
+    add_cluster_option(where, "instead of --workers: every run a Ray task on a cluster, the same records as on this "
+                              "machine")
     p.add_argument("-o", "--output", default="bench", help="folder for tables and figures (default ./bench)")
     p.add_argument("--no-figures", action="store_true", help="write the tables only")
     p.set_defaults(func=main)
@@ -89,7 +61,6 @@ def main(args) -> int:
     from ..diagnosis.prefilter import parse
     from ..output import check_folder
     from ..studies.study import sources, study
-    from . import healthy_modes
 
     stems = [Path(p).stem for p in args.data] or ["simulated"]
     check_folder(args.output, ["runs.csv"] + [f"{s}-table.{x}" for s in stems for x in ("md", "csv")],

@@ -2,40 +2,37 @@
 
 from __future__ import annotations
 
-import argparse
 import sys
 
-from ..errors import JmlgError
-from . import positive, probability, whole
+from . import catch_all, names, positive, probability, whole
 
 
 def register(subparsers):
     p = subparsers.add_parser(
         "learn", help="learn a mode bank from experiments of every mode and write a .jmlg spec",
-        description="Fit one linear-Gaussian model per mode: an ARX least-squares fit (or an FOPDT fit of a step "
-                    "test) gives the structure and the start for EM, which learns the coefficients and both noise "
-                    "levels. Every mode is written over one shared state basis, the recent noise-free outputs and "
-                    "inputs, so the bank stays right when the plant switches. Every mode is validated (residual "
-                    "whiteness and input-residual correlation up to lag 25 with 99 % bands, free-run fit) and the "
-                    "bank is written as a readable, commented spec that 'jmlgdsl run' accepts. A sensor that is "
-                    "constant in a mode's data (stuck) or sensors that move together exactly (collinear) are "
-                    "modelled with noise at the rounding of their resolution and reported, per mode and sensor, "
-                    "before any fitting; a mode EM leaves unstable has its poles scaled inside the unit circle, "
-                    "and says so. Without --template "
-                    "the first --mode is the healthy one: the prior is 'initial FIRST 0.99, otherwise uniform' "
-                    "(--initial) and the transitions 'stay 0.99, otherwise uniform' (--stay). With several "
-                    "modes, cross-validation on the recordings chooses whether the others are learned relative "
-                    "to the first (few rows over many sensors: its least-squares regression, their changes "
-                    "shrunk as far as tells them apart best) or each on its own by EM, and, without --template, "
-                    "the noise scale of a catch-all mode 'anomaly' that stays quiet on held-out normal rows: "
-                    "'jmlgdsl run' then raises the alarm from the first mode and 'anomaly' and names the fault "
-                    "with the others. Each choice is printed as it is made.")
+        description="Fit one linear-Gaussian model per mode: an ARX least-squares fit (or an FOPDT fit of a step test) "
+                    "gives the structure and the start for EM, which learns the coefficients and both noise levels. "
+                    "Every mode is written over one shared state basis, the recent noise-free outputs and inputs, so "
+                    "the bank stays right when the plant switches. Every mode is validated (residual whiteness and "
+                    "input-residual correlation up to lag 25 with 99 % bands, free-run fit) and the bank is written "
+                    "as a readable, commented spec that 'jmlgdsl run' accepts. A sensor that is constant in a mode's "
+                    "data (stuck) or sensors that move together exactly (collinear) are modelled with noise at the "
+                    "rounding of their resolution and reported, per mode and sensor, before any fitting; a mode EM "
+                    "leaves unstable has its poles scaled inside the unit circle, and says so. Without --template the "
+                    "first --mode is the healthy one: the prior is 'initial FIRST 0.99, otherwise uniform' (--initial) "
+                    "and the transitions 'stay 0.99, otherwise uniform' (--stay). With several modes, "
+                    "cross-validation on the recordings chooses whether the others are learned relative to the first "
+                    "(few rows over many sensors: its least-squares regression, their changes shrunk as far as tells "
+                    "them apart best) or each on its own by EM, and, without --template, the noise scale of a "
+                    "catch-all mode 'anomaly' that stays quiet on held-out normal rows: 'jmlgdsl run' then raises the "
+                    "alarm from the first mode and 'anomaly' and names the fault with the others. Each choice is "
+                    "printed as it is made.")
     p.add_argument("--mode", action="append", required=True, metavar="NAME=CSV",
-                   help="a mode's experiment (repeat for every mode; repeat a name for several runs of "
-                        "one mode). A file with a 'mode' column gives only the rows labelled NAME, each "
-                        "unbroken stretch of them a run")
-    p.add_argument("--template", metavar="SPEC", help="spec giving names, units, sample time, mode descriptions, "
-                                                      "transitions and prior")
+                   help="a mode's experiment (repeat for every mode; repeat a name for several runs of one mode). A "
+                        "file with a 'mode' column gives only the rows labelled NAME, each unbroken stretch of them a "
+                        "run")
+    p.add_argument("--template", metavar="SPEC",
+                   help="spec giving names, units, sample time, mode descriptions, transitions and prior")
     structure = p.add_mutually_exclusive_group()
     structure.add_argument("--order", default="auto",
                            help="ARX order: N (na = nb = N), NA,NB,NK, or auto (default: by --criterion)")
@@ -53,21 +50,21 @@ def register(subparsers):
     p.add_argument("--stay", type=probability, default=0.99,
                    help="probability of staying in a mode, the rest uniform (without --template)")
     p.add_argument("--initial", type=probability, default=0.99, metavar="P",
-                   help="prior probability of the first --mode, taken as the healthy one; the rest is "
-                        "shared uniformly (without --template; default 0.99)")
-    p.add_argument("--relative-to", metavar="MODE|auto|none", default="auto", type=relative_to,
-                   help="learn every other mode relative to this one (the normal one): its dynamics and noise "
-                        "shrunk toward MODE's as far as cross-validation on the mode's own rows says, with its "
-                        "own offset and noise scale; for short fault recordings over many sensors. auto (the "
-                        "default): relative to the first --mode when cross-validation says that beats each "
-                        "mode's own regression; none: every mode on its own")
+                   help="prior probability of the first --mode, taken as the healthy one; the rest is shared "
+                        "uniformly (without --template; default 0.99)")
+    p.add_argument("--relative-to", metavar="MODE|auto|none", default="auto",
+                   help="learn every other mode relative to this one (the normal one): its dynamics and noise shrunk "
+                        "toward MODE's as far as cross-validation on the mode's own rows says, with its own offset "
+                        "and noise scale; for short fault recordings over many sensors. auto (the default): relative "
+                        "to the first --mode when cross-validation says that beats each mode's own regression; none: "
+                        "every mode on its own")
     p.add_argument("--catch-all", metavar="NAME[=SCALE]|none", default="auto", type=catch_all,
-                   help="add a mode NAME: the first mode with every noise sd times SCALE (as 'like FIRST "
-                        "{ noise scale SCALE }'); 'run' then raises the alarm from the first mode and NAME and "
-                        "names the fault with the other modes. Without =SCALE, the smallest scale that alarms "
-                        "on at most 0.5 %% of the first mode's rows held out by cross-validation. Default: "
-                        "'anomaly' so chosen when there are fault modes besides the first, none for a single "
-                        "mode or with --template; none: no catch-all")
+                   help="add a mode NAME: the first mode with every noise sd times SCALE (as 'like FIRST { noise "
+                        "scale SCALE }'); 'run' then raises the alarm from the first mode and NAME and names the "
+                        "fault with the other modes. Without =SCALE, the smallest scale that alarms on at most 0.5 %% "
+                        "of the first mode's rows held out by cross-validation. Default: 'anomaly' so chosen when "
+                        "there are fault modes besides the first, none for a single mode or with --template; none: no "
+                        "catch-all")
     p.add_argument("--max-iter", type=whole(0), default=100, help="EM iteration cap (default 100)")
     p.add_argument("--tol", type=float, default=1e-5, help="EM relative log-likelihood tolerance (default 1e-5)")
     p.add_argument("--figures", metavar="DIR", help="write validation (and step-fit) figures here")
@@ -77,64 +74,25 @@ def register(subparsers):
     p.set_defaults(func=main)
 
 
-def parse_modes(items):
-    """{name: [path, ...]} from NAME=CSV items, modes in the order first given."""
-    modes = {}
-    for item in items:
-        name, sep, path = item.partition("=")
-        if not (sep and name.isidentifier() and path):
-            raise JmlgError(f"--mode takes NAME=CSV, not {item!r}")
-        modes.setdefault(name, []).append(path)
-    return modes
-
-
-def catch_all(text: str):
-    """(name, scale) from NAME=SCALE, (name, None) from NAME (the scale chosen by cross-validation),
-    None from none, "auto" as it is."""
-    if text in ("auto", "none"):
-        return None if text == "none" else text
-    name, sep, scale = text.partition("=")
-    try:
-        value = float(scale) if sep else None
-    except ValueError:
-        value = float("nan")
-    if not (name.isidentifier() and (value is None or value > 1)):
-        raise argparse.ArgumentTypeError(f"expected NAME, NAME=SCALE with a scale above 1, or none, not {text!r}")
-    return name, value
-
-
-def relative_to(text: str):
-    """A mode's name, "auto", or None from none."""
-    return None if text == "none" else text
-
-
-def names(text: str) -> tuple[str, ...]:
-    """Column names from comma-separated text."""
-    return tuple(n.strip() for n in text.split(",") if n.strip())
-
-
 def main(args) -> int:
     """Run the command on parsed arguments; returns the exit status."""
-    import jmlgdsl
-
-    from ..learn import learn
+    from .. import load
+    from ..learn import learn, mode_files
     from ..output import check_file, check_folder
 
-    paths = parse_modes(args.mode)
+    paths = mode_files(args.mode)
     check_file(args.spec_out, inputs=[p for given in paths.values() for p in given] + [args.template])
     if args.figures:
         check_folder(args.figures, option="--figures")
-    bank = learn(paths, jmlgdsl.load(args.template) if args.template else None, outputs=args.outputs,
-                 inputs=args.inputs, dt=args.dt, name=args.name, stay=args.stay, initial=args.initial,
-                 order=args.order, fopdt=args.fopdt, criterion=args.criterion, max_order=args.max_order,
-                 max_delay=args.max_delay, max_iter=args.max_iter, tol=args.tol, relative_to=args.relative_to,
-                 catch_all=args.catch_all,
+    bank = learn(paths, load(args.template) if args.template else None, outputs=args.outputs,
+                 inputs=args.inputs, dt=args.dt, name=args.name, stay=args.stay, initial=args.initial, order=args.order,
+                 fopdt=args.fopdt, criterion=args.criterion, max_order=args.max_order, max_delay=args.max_delay,
+                 max_iter=args.max_iter, tol=args.tol, catch_all=args.catch_all,
+                 relative_to=None if args.relative_to == "none" else args.relative_to,
                  progress=None if args.quiet else (lambda text: print(text, file=sys.stderr, flush=True)))
     report = sys.stderr if args.spec_out == "-" else sys.stdout  # the spec alone on standard output
     bank.write(args.spec_out)
-    if args.spec_out != "-":
-        print(f"wrote {args.spec_out}", file=report)
-    print(bank.report(), file=report)
+    print(("" if args.spec_out == "-" else f"wrote {args.spec_out}\n") + bank.report(), file=report)
     for path in bank.write_figures(args.figures) if args.figures else ():
         print(f"wrote {path}", file=report)
     return 0

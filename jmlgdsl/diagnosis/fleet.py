@@ -41,6 +41,7 @@ from ..infer import ALGORITHMS
 from ..infer.units import Units, stackable
 from ..model import Model
 from ..names import plural
+from ..output import check_folder, file_names
 from ..progress import Progress
 from .evidence import Evidence
 from .options import Options
@@ -144,6 +145,15 @@ def unit_banks(model: Model, folder, units) -> tuple[list[Model], list[str]]:
     return banks, missing
 
 
+def file_banks(model: Model, folder, paths, spec) -> tuple[list[Model], str]:
+    """Each data file's bank as a unit of a fleet (`unit_banks`, the unit named by its file's stem), and a
+    line saying how many units have their own spec from `folder` and which take the plant's `spec`."""
+    units = [Path(path).stem for path in paths]
+    banks, missing = unit_banks(model, folder, units)
+    return banks, (f"unit specs: {len(units) - len(missing)} of {plural(len(units), 'unit')} from {folder}"
+                   + (f"; {', '.join(missing)} with {spec}" if missing else ""))
+
+
 def stepped_together(f) -> bool:
     """Whether a Fleet steps units with filters like Filter f together: every algorithm without a lag
     (a smoothing filter holds its records back, each unit's as long as its own data ask)."""
@@ -175,9 +185,10 @@ class History:
     seconds: float
 
     def write(self, folder):
-        """Each unit's table as FOLDER/NAME.csv for its NAME.csv (`table_names`), each whole or absent."""
+        """Each unit's table as FOLDER/NAME.csv for its NAME.csv (`jmlgdsl.output.file_names`), each whole or
+        absent."""
         Path(folder).mkdir(parents=True, exist_ok=True)
-        for name, unit in zip(table_names([unit.path for unit in self.units]), self.units):
+        for name, unit in zip(file_names([unit.path for unit in self.units], ".csv", "table"), self.units):
             with open_target(Path(folder) / name) as out:
                 out.write(unit.table)
 
@@ -198,16 +209,16 @@ class History:
         return "\n".join(lines)
 
 
-def table_names(paths) -> list[str]:
-    """The name of each data file's table, NAME.csv for a file NAME.*; a JmlgError for standard input
-    or two files that would write the same table."""
-    if "-" in paths:
-        raise JmlgError("standard input (-) cannot be one of several data files")
-    names = [Path(path).stem + ".csv" for path in paths]
-    twice = sorted({name for name in names if names.count(name) > 1})
-    if twice:
-        raise JmlgError(f"two data files would write the same table {twice[0]}; give files with different names")
-    return names
+def check_tables(folder, paths, inputs=()) -> None:
+    """Refuse, before any work, data files that cannot write a table each (`file_names`) and, unless
+    `folder` is None (no tables), a folder those tables cannot go to: standard output, a folder that
+    cannot be written or where a table would be one of the data files or the other `inputs`."""
+    names = file_names(paths, ".csv", "table")
+    if folder is None:
+        return
+    if folder == "-":
+        raise JmlgError("-o -: several data files write a table each; give a folder")
+    check_folder(folder, names, inputs=[*inputs, *paths])
 
 
 def diagnose_files(model: Model, paths, options: Options = Options(), *, tables: bool = True,

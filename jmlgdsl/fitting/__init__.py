@@ -16,7 +16,8 @@ The examples show fitted values no finer than the fit settles them: BFGS stops o
 (GTOL), so the last digits of an estimate move with the BLAS kernel a processor gets.
 
 `fit_units` fits one spec to each of many units' recordings on its own (a fleet of one design whose
-units each have their own numbers), in parallel, and `units_table` lays their values side by side;
+units each have their own numbers), in parallel, `units_table` lays their values side by side and
+`write_units` writes each unit's spec and that table to a folder (`check_units` first);
 `jmlgdsl run --unit-specs` then diagnoses each unit under its own fitted spec (docs/fleet.md).
 """
 
@@ -29,15 +30,16 @@ import os
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
-from ..data import Data, read_csv
+from ..data import Data, open_target, read_csv
 from ..infer.algorithms import algorithm_named
 from ..lang.parse import parse_file
+from ..output import check_folder, file_names
 from ..lang.syntax import Spec
 from .estimate import Fit, maximise
 from .family import Family, FitError
 from .rewrite import fitted_text
 
-__all__ = ["fit", "fit_units", "units_table", "Fit", "Family", "FitError"]
+__all__ = ["fit", "fit_units", "units_table", "check_units", "write_units", "Fit", "Family", "FitError"]
 
 
 def fit(spec, data, *, algorithm: str = "imm", samples: int = 0, starts: int | None = None, seed=None,
@@ -127,3 +129,20 @@ def units_table(units, fits) -> str:
         writer.writerow([unit, *cells, f"{result.loglik:.10g}", "; ".join(result.warnings)])
     return out.getvalue()
 
+
+def check_units(folder, paths, inputs=()) -> None:
+    """Refuse, before any work, recordings that cannot each give a unit spec (`file_names`) or a `folder`
+    their specs and units.csv cannot go to: one that cannot be written, or where a file written would be
+    one of the recordings or the other `inputs`."""
+    check_folder(folder, file_names(paths, ".jmlg", "unit spec") + ["units.csv"], inputs=[*inputs, *paths])
+
+
+def write_units(folder, paths, fits) -> None:
+    """Each unit's fitted spec as FOLDER/NAME.jmlg for its recording NAME.csv in `paths`, and
+    FOLDER/units.csv, every unit's values side by side (`units_table`); each file whole or absent."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    for name, result in zip(file_names(paths, ".jmlg", "unit spec"), fits):
+        result.write(folder / name)
+    with open_target(folder / "units.csv") as out:
+        out.write(units_table([Path(path).stem for path in paths], fits))

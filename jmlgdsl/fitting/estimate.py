@@ -69,6 +69,11 @@ class Fit:
         """Whether the fit passed every check on its peak and curvature (no warnings)."""
         return not self.warnings
 
+    def status(self) -> str:
+        """How the fit went, in a line: its likelihood evaluations and seconds, and converged or its warnings."""
+        return (f"{self.evaluations} likelihood evaluations in {self.seconds:.1f} s, "
+                + ("warnings: " + "; ".join(self.warnings) if self.warnings else "converged"))
+
     def values(self) -> dict[str, float]:
         """{unknown: estimate}."""
         return dict(zip(self.names, map(float, self.estimate)))

@@ -70,21 +70,11 @@ class Result:
     seconds: float  # wall-clock time spent filtering (and smoothing)
     rejected: np.ndarray | None = None  # (T, ny) readings left out as gross errors
     lag: int | None = 0  # row t is p(z_t | y_1:t+lag): 0 filtered, None smoothed off-line
+
     @classmethod
     def from_steps(cls, model: Model, algorithm: str, particles: int | None, steps, seconds: float) -> "Result":
         """Stack on-line step records into arrays."""
-        K, nx, ny, T = model.K, model.nx, model.ny, len(steps)
-
-        def stack(name, shape):
-            return np.array([getattr(s, name) for s in steps]).reshape((T,) + shape)
-
-        rejected = np.zeros((T, ny), dtype=bool)
-        for i, s in enumerate(steps):
-            if s.rejected is not None:
-                rejected[i] = s.rejected
-        return cls(model, algorithm, particles, stack("mode_posterior", (K,)), stack("state_mean", (nx,)),
-                   stack("state_cov", (nx, nx)), stack("y_pred", (ny,)), stack("residual", (ny,)),
-                   stack("loglik", ()), stack("ess", ()), seconds, rejected)
+        return cls(model, algorithm, particles, seconds=seconds, **stacked(steps, model))
 
     @property
     def map_modes(self) -> np.ndarray:
@@ -104,6 +94,26 @@ class Result:
     def diagnosis_error(self, true_modes) -> float:
         """Percentage of steps whose MAP mode differs from the true mode indices (T,)."""
         return diagnosis_error(self.map_modes, true_modes)
+
+
+def stacked(steps, model: Model) -> dict:
+    """The fields of Step records as arrays with a leading axis, a row per record (over time for a
+    Result, over units for jmlgdsl.infer.units.UnitSteps), by the names both give them: a record's
+    `residual` stacks into `residuals`, its `loglik` into `loglik_steps`, its `rejected` into rows that
+    are all False where it left nothing out."""
+    n, K, nx, ny = len(steps), model.K, model.nx, model.ny
+
+    def stack(name, shape):
+        return np.array([getattr(s, name) for s in steps]).reshape((n,) + shape)
+
+    rejected = np.zeros((n, ny), dtype=bool)
+    for i, s in enumerate(steps):
+        if s.rejected is not None:
+            rejected[i] = s.rejected
+    return dict(mode_posterior=stack("mode_posterior", (K,)), state_mean=stack("state_mean", (nx,)),
+                state_cov=stack("state_cov", (nx, nx)), y_pred=stack("y_pred", (ny,)),
+                residuals=stack("residual", (ny,)), loglik_steps=stack("loglik", ()), ess=stack("ess", ()),
+                rejected=rejected)
 
 
 @dataclass

@@ -47,7 +47,7 @@ from .engine import Estimate, FilterError, Gate, screen
 from .imm import SURE, mix, moments, predict, refresh, whitened
 from .online import MAX_REJECTIONS, Filter, _arrays, _inputs, _overflow, _readings
 from .resample import normalize_rows, row_extreme
-from .result import Predictive, Result, Step
+from .result import Predictive, Result, Step, stacked
 
 ALL = slice(None)  # every unit, as an index that takes views, not copies
 
@@ -278,15 +278,16 @@ def _index(units, rows):
 
 
 class UnitSteps(NamedTuple):
-    """One step of many units, as arrays with a leading unit axis (the fields of `Step`)."""
+    """One step of many units, as arrays with a leading unit axis: the fields of `Step`, named as a
+    `Result` (arrays over time) names them (`jmlgdsl.infer.result.stacked`), and each unit's t."""
 
     t: np.ndarray  # (n,)
     mode_posterior: np.ndarray  # (n, K)
     state_mean: np.ndarray  # (n, nx)
     state_cov: np.ndarray  # (n, nx, nx)
     y_pred: np.ndarray  # (n, ny)
-    residual: np.ndarray  # (n, ny)
-    loglik: np.ndarray  # (n,)
+    residuals: np.ndarray  # (n, ny)
+    loglik_steps: np.ndarray  # (n,) log p(y_t | y_1:t-1), each unit's
     ess: np.ndarray  # (n,)
     rejected: np.ndarray  # (n, ny) bool
 
@@ -299,7 +300,7 @@ class UnitSteps(NamedTuple):
         """The i-th unit's step, as a Filter would give it."""
         rejected = self.rejected[i] if self.rejected[i].any() else None
         return Step(int(self.t[i]), self.mode_posterior[i], self.state_mean[i], self.state_cov[i], self.y_pred[i],
-                    self.residual[i], float(self.loglik[i]), float(self.ess[i]), rejected)
+                    self.residuals[i], float(self.loglik_steps[i]), float(self.ess[i]), rejected)
 
 
 class Units:
@@ -358,7 +359,7 @@ class Units:
         else:
             steps = self._batched(index, t, y, mask, u)
         self.t[index] = t
-        self.loglik[index] += steps.loglik
+        self.loglik[index] += steps.loglik_steps
         self.seconds += time.perf_counter() - start
         return steps
 
@@ -434,9 +435,7 @@ class Units:
                 records.append(f.accept(est, y[i], u[i]))
             except FilterError as exc:  # named in the order the units would fail one after the other
                 raise _unit_error(index, i, exc) from None
-        return UnitSteps(t, *(np.array([getattr(s, f) for s in records]) for f in UnitSteps._fields[1:-1]),
-                         np.array([np.zeros(self.model.ny, dtype=bool) if s.rejected is None else s.rejected
-                                   for s in records]).reshape(len(records), self.model.ny))
+        return UnitSteps(t, **stacked(records, self.model))
 
 
 def _unit_error(index, i, exc):

@@ -28,7 +28,7 @@ from experiment files to a spec, as `jmlgdsl learn` does (learned):
     True
 """
 
-__all__ = ["learn", "LearnedBank", "experiments_of"]
+__all__ = ["learn", "LearnedBank", "experiments_of", "mode_files"]
 
 
 def __getattr__(name):

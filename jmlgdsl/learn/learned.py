@@ -186,6 +186,18 @@ def experiments_of(data, mode: str, index: int) -> list[Experiment]:
             for r in stretches]
 
 
+def mode_files(items) -> dict[str, list[str]]:
+    """The experiments' files by mode, {name: [path, ...]} with the modes in the order first given, from
+    NAME=CSV texts as `jmlgdsl learn --mode` takes them; a JmlgError for any other text."""
+    modes = {}
+    for item in items:
+        name, sep, path = item.partition("=")
+        if not (sep and name.isidentifier() and path):
+            raise JmlgError(f"--mode takes NAME=CSV, not {item!r}")
+        modes.setdefault(name, []).append(path)
+    return modes
+
+
 def _experiments(source, columns: Columns, mode: str, index: int) -> list[Experiment]:
     """One source's experiments of a mode: an Experiment as it is, a CSV file as `experiments_of` reads it."""
     if isinstance(source, Experiment):
