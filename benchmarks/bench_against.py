@@ -22,7 +22,7 @@ SETTINGS = (("pf", 100), ("rbpf", 100), ("la-rbpf", 10), ("la-rbpf", 1000), ("fc
 PROBE = '''
 import sys, warnings
 import jmlgdsl
-from jmlgdsl.simulate import simulate
+from jmlgdsl.simulation.linear import simulate
 warnings.simplefilter("ignore")
 specs, runs, settings = sys.argv[1], int(sys.argv[2]), eval(sys.argv[3])
 dryer, cstr = jmlgdsl.load(specs + "/dryer.jmlg"), jmlgdsl.load(specs + "/cstr10.jmlg")

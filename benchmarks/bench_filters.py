@@ -25,7 +25,7 @@ import numpy as np
 
 import jmlgdsl
 from jmlgdsl import Model
-from jmlgdsl.simulate import simulate
+from jmlgdsl.simulation.linear import simulate
 
 ROOT = Path(__file__).resolve().parent.parent
 SPECS = ROOT / "specs"

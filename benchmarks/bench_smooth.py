@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 import jmlgdsl
-from jmlgdsl.simulate import simulate
+from jmlgdsl.simulation.linear import simulate
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "benchmarks" / "studies"))

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 import jmlgdsl
-from jmlgdsl.simulate import simulate
+from jmlgdsl.simulation.linear import simulate
 
 ROOT = Path(__file__).resolve().parent.parent
 

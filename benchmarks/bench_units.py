@@ -29,7 +29,7 @@ import jmlgdsl
 from jmlgdsl.infer import Filter
 from jmlgdsl.infer.online import _readings
 from jmlgdsl.infer.units import Units
-from jmlgdsl.simulate import simulate
+from jmlgdsl.simulation.linear import simulate
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import ledger  # noqa: E402  (benchmarks/ledger.py, the results ledger)

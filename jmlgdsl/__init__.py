@@ -39,7 +39,8 @@ _LAZY = {
     "Filter": "jmlgdsl.infer",
     "Result": "jmlgdsl.infer",
     "diagnose": "jmlgdsl.diagnosis",
-    "simulate_nonlinear": "jmlgdsl.nonlinear",
+    "simulate": "jmlgdsl.simulation.linear",
+    "simulate_nonlinear": "jmlgdsl.simulation.nonlinear",
     "fit": "jmlgdsl.fitting",
     "read_csv": "jmlgdsl.data",
 }
@@ -61,11 +62,6 @@ def load(path) -> Model:
     return compile_file(path)
 
 
-# Bound eagerly: a lazy attribute named like its submodule would be replaced by the module itself
-# the first time anything imports jmlgdsl.simulate.
-from .simulate import simulate  # noqa: E402
-
-
 def __getattr__(name):
     if name in _LAZY:
         return getattr(importlib.import_module(_LAZY[name]), name)
@@ -73,4 +69,4 @@ def __getattr__(name):
 
 
 __all__ = ["load", "Model", "ModelError", "SpecError", "SpecWarning", "DataError", "JmlgError",
-           "Diagnostic", "simulate", *_LAZY]
+           "Diagnostic", *_LAZY]

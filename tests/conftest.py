@@ -40,7 +40,7 @@ from infer_models import dryer  # noqa: E402
 from jmlgdsl.compile.lower import compile_text  # noqa: E402
 from jmlgdsl.data import write_columns  # noqa: E402
 from jmlgdsl.errors import SpecError  # noqa: E402
-from jmlgdsl.simulate import simulate  # noqa: E402
+from jmlgdsl.simulation.linear import simulate  # noqa: E402
 
 
 def jmlgdsl_command() -> list[str]:

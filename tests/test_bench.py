@@ -13,10 +13,10 @@ from infer_models import dryer
 import jmlgdsl
 from jmlgdsl.studies import sweep
 from jmlgdsl.cli import main
-from jmlgdsl.cluster import ClusterError, disconnect
+from jmlgdsl.diagnosis.cluster import ClusterError, disconnect
 from jmlgdsl.errors import DataError
-from jmlgdsl.progress import Progress
-from jmlgdsl.simulate import simulate
+from jmlgdsl.diagnosis.progress import Progress
+from jmlgdsl.simulation.linear import simulate
 
 SHORT = "1-20:normal,21-40:fan,41-60:grill"
 

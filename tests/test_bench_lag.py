@@ -11,7 +11,7 @@ from jmlgdsl.studies import sweep
 from jmlgdsl.cli import main
 from jmlgdsl.data import write_columns
 from jmlgdsl.diagnosis.metrics import switch_delays
-from jmlgdsl.simulate import simulate
+from jmlgdsl.simulation.linear import simulate
 
 SHORT = "1-20:normal,21-40:fan,41-60:grill"
 

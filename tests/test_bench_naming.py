@@ -12,7 +12,7 @@ from jmlgdsl.cli import main
 from jmlgdsl.data import write_columns
 from jmlgdsl.diagnosis.metrics import naming_counts
 from jmlgdsl.diagnosis.report import naming_report
-from jmlgdsl.simulate import simulate
+from jmlgdsl.simulation.linear import simulate
 from jmlgdsl.studies import sweep
 
 EVERY_MODE = "1-15:normal,16-30:fan,31-45:grill,46-60:fan_grill"  # 15 rows of each of the 3 faults

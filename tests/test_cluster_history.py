@@ -15,7 +15,7 @@ from conftest import ROOT, SOURCE, STARTUP_ENV, jmlgdsl_command
 
 import jmlgdsl
 from jmlgdsl.cli import main
-from jmlgdsl.cluster import ClusterError, connect, disconnect
+from jmlgdsl.diagnosis.cluster import ClusterError, connect, disconnect
 from jmlgdsl.diagnosis import Options
 from jmlgdsl.diagnosis.fleet import diagnose_files
 from jmlgdsl.errors import DataError

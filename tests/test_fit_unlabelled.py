@@ -21,7 +21,7 @@ from jmlgdsl.fitting.labels import label_rounds
 from jmlgdsl.fitting.posterior import Cached, Posterior, bfgs
 from jmlgdsl.fitting.likelihood import loglik
 from jmlgdsl.lang.parse import parse_text
-from jmlgdsl.priors import Prior
+from jmlgdsl.lang.priors import Prior
 
 # Three tanks in a cascade with a leak, a clog and a biased sensor (examples/fit/tanks.jmlg, sampled
 # every 10 s so that a short record holds whole episodes); the unknowns' priors have medians 25 % and

@@ -301,7 +301,7 @@ def test_imm_keeps_settled_kalman_pieces_without_changing_the_result(monkeypatch
     Kalman pieces; the result equals recomputing them at every step (SURE < 0: never sure) to
     rounding, through switches and partly and fully missing readings."""
     from jmlgdsl.infer import imm
-    from jmlgdsl.simulate import simulate
+    from jmlgdsl.simulation.linear import simulate
 
     model = random_model(np.random.default_rng(8), K=3, nx=3, ny=6, stay=0.98)
     sim = simulate(model, modes=np.repeat([0, 1, 2, 0], 60), seed=4)

@@ -114,7 +114,7 @@ def test_outputs_that_read_a_run_of_states_filter_as_their_matrices():
     with its states reordered so that C must be multiplied out."""
     from jmlgdsl import Model
     from jmlgdsl.infer import filter as run_filter
-    from jmlgdsl.simulate import simulate
+    from jmlgdsl.simulation.linear import simulate
 
     rng = np.random.default_rng(5)
     K, nx, ny = 3, 14, 12

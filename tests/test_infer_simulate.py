@@ -6,7 +6,7 @@ from infer_models import DRYER_SEQ1, dryer
 
 from jmlgdsl import DataError
 from jmlgdsl.data import read_csv, write_columns
-from jmlgdsl.simulate import parse_schedule, simulate
+from jmlgdsl.simulation.linear import parse_schedule, simulate
 
 
 def test_schedule_covers_the_published_sequence():

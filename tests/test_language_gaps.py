@@ -11,7 +11,7 @@ from conftest import assert_located
 
 from jmlgdsl.compile.lower import compile_file, compile_text
 from jmlgdsl.errors import SpecWarning
-from jmlgdsl.nonlinear import simulate_nonlinear
+from jmlgdsl.simulation.nonlinear import simulate_nonlinear
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 DOC = ROOT / "docs" / "language.md"

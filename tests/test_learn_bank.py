@@ -16,7 +16,7 @@ from jmlgdsl.learn import bank, figures, learn
 from jmlgdsl.learn.em import forward
 from jmlgdsl.learn.prbs import prbs
 from jmlgdsl.learn.statespace import StateSpace
-from jmlgdsl.simulate import simulate
+from jmlgdsl.simulation.linear import simulate
 
 DRYER = Path(__file__).resolve().parents[1] / "specs" / "dryer.jmlg"
 SEQUENCE_1 = "1-70:normal,71-238:fan,239-365:grill,366-513:normal,514-705:grill,706-1000:fan"

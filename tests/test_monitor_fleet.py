@@ -48,7 +48,7 @@ from monitor_servers import LINES, MOSQUITTO, NO_MOSQUITTO, SPEC, WAIT, free_por
 
 from jmlgdsl.cli import main
 from jmlgdsl.monitor.store.databases import SQLite
-from jmlgdsl.monitor.fleet import FleetError, unit_names
+from jmlgdsl.monitor.units import FleetError, unit_names
 
 UNITS = ["pump01", "pump02", "pump03"]
 # each unit's rows, cut from the dryer recording (LINES[0] is the header): pump01 the first 400 rows,

@@ -16,7 +16,7 @@ from conftest import jmlgdsl_command
 from monitor_servers import LINES, SPEC, WAIT, query, stop, until
 
 from jmlgdsl.cli import main
-from jmlgdsl.cluster import plain
+from jmlgdsl.diagnosis.cluster import plain
 from jmlgdsl.monitor.shards import ray_told, split
 
 pytest.importorskip("ray", reason="Ray is not installed (pip install '.[cluster]')")

@@ -15,7 +15,7 @@ from monitor_servers import SPEC, exported, expected_table, free_port, query, sa
 import jmlgdsl
 from jmlgdsl.errors import JmlgError
 from jmlgdsl.monitor import read_tags
-from jmlgdsl.monitor.fleet import FleetError
+from jmlgdsl.monitor.units import FleetError
 from jmlgdsl.monitor.sources import Connection, open_source
 from jmlgdsl.monitor.sources.udp import UdpSource
 

@@ -11,8 +11,8 @@ import jmlgdsl
 from jmlgdsl.compile.lower import compile_text
 from jmlgdsl.compile.ode import zoh
 from jmlgdsl.errors import SpecError
-from jmlgdsl.nonlinear import load_nonlinear, simulate_nonlinear
-from jmlgdsl.simulate import simulate
+from jmlgdsl.simulation.nonlinear import load_nonlinear, simulate_nonlinear
+from jmlgdsl.simulation.linear import simulate
 
 DATA = Path(__file__).resolve().parent / "data"
 SPECS = Path(__file__).resolve().parent.parent / "specs"

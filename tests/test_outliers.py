@@ -9,7 +9,7 @@ from infer_models import dryer
 
 import jmlgdsl
 from jmlgdsl.infer.online import MAX_REJECTIONS
-from jmlgdsl.simulate import simulate
+from jmlgdsl.simulation.linear import simulate
 
 SCHEDULE = "1-40:normal,41-80:fan"
 

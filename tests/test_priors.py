@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from jmlgdsl.priors import Prior, PriorError
+from jmlgdsl.lang.priors import Prior, PriorError
 
 CASES = [
     (Prior("Normal", (1.5, 0.4)), stats.norm(1.5, 0.4)),

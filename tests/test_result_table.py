@@ -9,7 +9,7 @@ import jmlgdsl
 from jmlgdsl.cli import main
 from jmlgdsl.data import read_csv, write_columns
 from jmlgdsl.infer.table import read_table, write_result
-from jmlgdsl.simulate import simulate
+from jmlgdsl.simulation.linear import simulate
 
 
 def test_a_result_written_from_python_is_the_run_table(tmp_path, capsys):

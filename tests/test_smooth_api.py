@@ -8,7 +8,7 @@ from infer_models import random_model
 import jmlgdsl
 from jmlgdsl.infer import ALGORITHMS, FilterError
 from jmlgdsl.infer.smooth import smooth_exact, smooth_imm
-from jmlgdsl.simulate import simulate
+from jmlgdsl.simulation.linear import simulate
 
 FIELDS = ("mode_posterior", "state_mean", "state_cov", "y_pred", "residuals", "loglik_steps")
 

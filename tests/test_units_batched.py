@@ -16,7 +16,7 @@ from jmlgdsl.errors import DataError
 from jmlgdsl.infer import ALGORITHMS, Filter, FilterError, kalman
 from jmlgdsl.infer.rbpf import Exact
 from jmlgdsl.infer.units import Units, _groups, filter_units
-from jmlgdsl.simulate import simulate
+from jmlgdsl.simulation.linear import simulate
 
 from infer_models import random_model
 

@@ -30,7 +30,7 @@ import jmlgdsl
 from jmlgdsl import drawing
 from jmlgdsl.studies import figures
 from jmlgdsl.diagnosis.metrics import switch_delays
-from jmlgdsl.simulate import simulate
+from jmlgdsl.simulation.linear import simulate
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from studies import DRYER, FIGURES, RESULTS, SCHEDULES, SPECS  # noqa: E402

@@ -30,7 +30,7 @@ import jmlgdsl
 from jmlgdsl import drawing
 from jmlgdsl.diagnosis import figure as run_figure
 from jmlgdsl.studies import figures, sweep
-from jmlgdsl.simulate import parse_schedule
+from jmlgdsl.simulation.linear import parse_schedule
 
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "benchmarks"))

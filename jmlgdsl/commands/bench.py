@@ -57,7 +57,7 @@ def main(args) -> int:
 
     import jmlgdsl
 
-    from ..cluster import disconnect
+    from ..diagnosis.cluster import disconnect
     from ..diagnosis.prefilter import parse
     from ..output import check_folder
     from ..studies.study import sources, study

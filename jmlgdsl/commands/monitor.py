@@ -10,7 +10,7 @@ from . import (STORE_HELP, add_alarm_options, add_filter_options, add_page_optio
 
 
 def register(subparsers):
-    from ..monitor import fleet, rows, sinks, sources
+    from ..monitor import rows, sinks, sources, units
 
     p = subparsers.add_parser(
         "monitor", help="diagnose a running plant live, keeping every conclusion in a store",
@@ -30,7 +30,7 @@ def register(subparsers):
                         "mqtts://HOST:PORT/PREFIX, opc.tcp://HOST:PORT/PATH, "
                         "sparkplug://HOST:PORT/GROUP[/EDGE_NODE[/DEVICE]] (sparkplugs:// over TLS) or udp://HOST:PORT")
     p.add_argument("--store", required=True, metavar="PATH|URL", help=STORE_HELP + "; made when absent")
-    for flag, keywords in fleet.COMMAND_LINE.items():
+    for flag, keywords in units.COMMAND_LINE.items():
         p.add_argument(flag, **keywords)
     p.add_argument("--shards", type=whole(1), metavar="N",
                    help="with --cluster: the number of shards (default one per CPU of the cluster, at most one per "
@@ -61,12 +61,13 @@ def register(subparsers):
 def main(args) -> int:
     import jmlgdsl
 
-    from ..monitor import MonitorOptions, fleet, launch, read_tags, sinks, sources
+    from ..monitor import MonitorOptions, launch, read_tags, sinks, sources
+    from ..monitor.units import unit_names
 
     model = jmlgdsl.load(args.spec)
     check_particles(args, model)
     tags = read_tags(args.tags, model)
-    units = None if args.units is None else fleet.unit_names(args.units)
+    units = None if args.units is None else unit_names(args.units)
     options = MonitorOptions(diagnosis_options(args), args.grace, args.stale, args.max_gap)
     launch.check_fleet(units, cluster=args.cluster, shards=args.shards, unit_specs=args.unit_specs)
     banks = launch.unit_spec_banks(model, args.spec, args.unit_specs, units, log)

@@ -78,7 +78,7 @@ def main(args) -> int:
 
 def fleet(args) -> int:
     """`run` on several data files, one unit of the plant each."""
-    from ..cluster import joined
+    from ..diagnosis.cluster import joined
     from ..diagnosis.fleet import check_tables, diagnose_files, file_banks
     from ..errors import JmlgError
 

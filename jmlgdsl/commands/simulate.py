@@ -67,11 +67,11 @@ def main(args) -> int:
     from ..data import write_columns
     from ..names import plural
     from ..output import check_count, check_file
-    from ..simulate import simulate, step_bytes
+    from ..simulation.linear import simulate, step_bytes
 
     check_file(args.output, inputs=[args.spec, args.inputs])
     if args.nonlinear:
-        from ..nonlinear import load_nonlinear, simulate_nonlinear
+        from ..simulation.nonlinear import load_nonlinear, simulate_nonlinear
 
         plant = load_nonlinear(args.spec)
         model = plant.model

@@ -6,7 +6,7 @@ from __future__ import annotations
 import matplotlib
 import numpy as np
 
-from ..drawing import figure, save
+from .drawing import figure, save
 from ..infer.table import given
 from ..names import plural
 

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from ..data import iter_rows, open_source, open_target
 from ..errors import DataError, JmlgError
 from ..model import Model
-from ..progress import Progress
+from .progress import Progress
 from .alarms import DetectThenName, catch_alls
 from .options import Options
 from .pipeline import Diagnosis

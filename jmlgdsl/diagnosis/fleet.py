@@ -42,7 +42,7 @@ from ..infer.units import Units, stackable
 from ..model import Model
 from ..names import plural
 from ..output import check_folder, file_names
-from ..progress import Progress
+from .progress import Progress
 from .evidence import Evidence
 from .options import Options
 from .pipeline import Diagnosis
@@ -227,11 +227,11 @@ def diagnose_files(model: Model, paths, options: Options = Options(), *, tables:
     its table when `tables`; a file without data rows, or with a bad one, is a DataError naming it.
     `models` gives each file its unit's own bank (in the order of `paths`; default `model` for all).
 
-    With `cluster` (an address as `jmlgdsl.cluster.connect` takes it: 'auto' or HOST:PORT) the files
+    With `cluster` (an address as `jmlgdsl.diagnosis.cluster.connect` takes it: 'auto' or HOST:PORT) the files
     are split into as many contiguous chunks as the cluster has CPUs (at most one per file), each chunk
     a Fleet in a Ray task: every CPU busy, and each chunk's units as many as can share one vectorised
     filter. `progress` (a stream, or None) counts the files as their chunks finish. The process stays
-    joined to the cluster (`jmlgdsl.cluster.disconnect()` leaves it). The tasks read the files where
+    joined to the cluster (`jmlgdsl.diagnosis.cluster.disconnect()` leaves it). The tasks read the files where
     they run, a relative path taken from this process's working folder: a cluster of machines needs
     them in a folder every machine sees at the same path. A chunk that fails stops the others and
     raises its own error."""
@@ -240,7 +240,7 @@ def diagnose_files(model: Model, paths, options: Options = Options(), *, tables:
     models = [model] * len(paths) if models is None else list(models)
     if cluster is None:
         return _diagnose_chunk(model, paths, models, "", tables, options)
-    from ..cluster import completed, connect
+    from .cluster import completed, connect
 
     ray = connect(cluster)
     count = max(1, min(len(paths), int(ray.cluster_resources().get("CPU", 1))))

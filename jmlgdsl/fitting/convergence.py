@@ -17,7 +17,7 @@ import numpy as np
 from ..data import Data
 from ..errors import JmlgError
 from ..model import Model
-from ..simulate import simulate
+from ..simulation.linear import simulate
 from .likelihood import labelled, loglik
 
 NEWTON_LIMIT = 0.5  # a Newton step from the estimate longer than this many standard errors: not at the peak

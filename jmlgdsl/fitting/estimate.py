@@ -1,7 +1,7 @@
 """Maximum a posteriori values of a spec's unknowns, their Laplace standard errors, and optionally
 draws from the posterior by random-walk Metropolis.
 
-Every unknown moves in its unconstrained coordinate z (jmlgdsl.priors): the log posterior
+Every unknown moves in its unconstrained coordinate z (jmlgdsl.lang.priors): the log posterior
 log p(data | theta) + log p(theta) is maximised by BFGS over z, so no bound is ever crossed. Data
 without labels first go through rounds of labelling by their most probable modes (jmlgdsl.fitting.labels),
 which bring the search into the basin the data decide. At the maximum the gradient vanishes, so the

@@ -15,7 +15,7 @@ import dataclasses
 from dataclasses import dataclass
 
 from ..names import suggest
-from ..priors import FAMILIES, Prior, PriorError
+from .priors import FAMILIES, Prior, PriorError
 from . import syntax as S
 from .evaluate import evaluate_number
 from .report import Report

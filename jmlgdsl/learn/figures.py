@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..drawing import figure, save
+from ..diagnosis.drawing import figure, save
 
 #: Resolution of the learning figures (dots per inch).
 DPI = 110

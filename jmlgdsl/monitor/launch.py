@@ -58,7 +58,7 @@ def watch(model, spec: str, store: str, password: str | None, source, connection
 
 def _sharded(model, spec, store, password, connection, *, options, tags, units, banks, new_run, cluster, shards,
              stop, log):
-    from ..cluster import joined
+    from ..diagnosis.cluster import joined
     from .shards import ray_told, run_shards
 
     with joined(cluster, report=ray_told(log)) as ray:

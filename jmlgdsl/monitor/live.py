@@ -86,7 +86,7 @@ class Monitor:
     and the assembler's; they are recorded with the run, and a restart with others is refused, as is
     another model, unless `new_run`.
 
-    `units` names the units of a fleet (jmlgdsl.monitor.fleet): each has its run in the store, its
+    `units` names the units of a fleet (jmlgdsl.monitor.units): each has its run in the store, its
     own diagnosis, assembler and source position, and every commit holds every unit's rows and
     state. The source then hands over (unit index, item) pairs (None: an item for every unit); a
     source of one plant hands over items. Without a lag the units' filters step together

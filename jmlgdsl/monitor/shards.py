@@ -22,7 +22,7 @@ import re
 import socket
 import threading
 
-from ..cluster import completed
+from ..diagnosis.cluster import completed
 from .live import Monitor, MonitorOptions, Stopped, open_runs, recorded_options
 from .sources import Connection, open_source
 from .store import Store, StoreError, is_url
@@ -35,7 +35,7 @@ RETRIED = re.compile(r"Task Shard\.run failed\. There are infinite retries remai
 
 
 def ray_told(log):
-    """Ray's messages for a fleet's monitor (jmlgdsl.cluster.connect's `report`), in its log's words: a
+    """Ray's messages for a fleet's monitor (jmlgdsl.diagnosis.cluster.connect's `report`), in its log's words: a
     shard's process that died is one line that says what follows; that Ray tries the shard's task
     again says nothing more; anything else is Ray's own text."""
 

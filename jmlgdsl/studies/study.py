@@ -12,7 +12,7 @@ from ..errors import DataError
 from ..model import Model
 from ..names import plural
 from ..output import check_count, replacing
-from ..simulate import step_bytes
+from ..simulation.linear import step_bytes
 from . import figures
 from .sweep import (LabelledSequence, Simulated, nonlinear_plant, report, summarise, sweep, write_records_csv,
                     write_table_csv)

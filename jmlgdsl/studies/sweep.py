@@ -32,8 +32,8 @@ from ..model import Model
 from ..names import plural
 from ..output import check_count
 from ..diagnosis.prefilter import moving_average
-from ..progress import Progress
-from ..simulate import simulate
+from ..diagnosis.progress import Progress
+from ..simulation.linear import simulate
 
 DEFAULT_PARTICLES = (1, 4, 10, 25, 50, 100, 200, 400, 800, 1600)
 DEFAULT_FILTERS = ("pf", "rbpf", "la-rbpf", "fc-rbpf", "imm")
@@ -98,7 +98,7 @@ def _simulated(source, plant, entropy, spawn_key) -> LabelledSequence:
     """One run's simulated sequence, kept while a worker's consecutive jobs filter the same run."""
     seed = np.random.SeedSequence(entropy, spawn_key=spawn_key)
     if isinstance(plant, str):
-        from ..nonlinear import simulate_nonlinear
+        from ..simulation.nonlinear import simulate_nonlinear
 
         sim = simulate_nonlinear(nonlinear_plant(plant), source.steps, seed=seed, modes=source.schedule)
     else:
@@ -109,7 +109,7 @@ def _simulated(source, plant, entropy, spawn_key) -> LabelledSequence:
 @functools.lru_cache(maxsize=4)
 def nonlinear_plant(path):
     """An ODE plant, compiled once per process."""
-    from ..nonlinear import load_nonlinear
+    from ..simulation.nonlinear import load_nonlinear
 
     return load_nonlinear(path)
 
@@ -206,7 +206,7 @@ def make_jobs(model, sources, filters=DEFAULT_FILTERS, particles=DEFAULT_PARTICL
 def execute(jobs, workers=None, cluster=None, progress=None) -> list[dict]:
     """Run every job (in order of the list): serially for workers=1, in a process pool over
     `workers` processes (default: every core), or each job a Ray task on the cluster at `cluster`
-    ('auto' or HOST:PORT, as `jmlgdsl.cluster.connect` takes it; the process stays joined).
+    ('auto' or HOST:PORT, as `jmlgdsl.diagnosis.cluster.connect` takes it; the process stays joined).
     A failed run stops the sweep with its error."""
     if workers is not None and workers < 1:
         raise DataError(f"the number of worker processes must be at least 1, got {workers}")
@@ -224,7 +224,7 @@ def execute(jobs, workers=None, cluster=None, progress=None) -> list[dict]:
                 bar.update()
 
     if cluster is not None:
-        from ..cluster import completed, connect
+        from ..diagnosis.cluster import completed, connect
 
         ray = connect(cluster)
         task = ray.remote(num_cpus=1)(run_job)

@@ -20,7 +20,7 @@ import time
 
 from ..sources import bus
 from ..sources.contract import Event, Fatal
-from ..fleet import PLACEHOLDER, for_unit
+from ..units import PLACEHOLDER, for_unit
 from ..sources.mqtt import REFUSED, Waits, closed, paho_client
 from ..sources.urls import address
 from ...errors import JmlgError

@@ -8,7 +8,7 @@ of the --source URL:
     sparkplug://HOST:PORT/GROUP/...  sparkplug: Sparkplug B edge nodes; sparkplugs:// over TLS
     udp://HOST:PORT                  udp: datagrams sent to HOST:PORT
 
-and, for the units of a fleet, the same with {unit} in them (jmlgdsl.monitor.fleet). A new source
+and, for the units of a fleet, the same with {unit} in them (jmlgdsl.monitor.units). A new source
 is a module with `open_source(connection, model, tags, units)` and its line in SCHEMES.
 """
 

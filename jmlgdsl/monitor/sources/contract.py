@@ -14,7 +14,7 @@ and a source that reads on from a place (a file) reads on from the last commit.
     End()                           the data end (standard input, an unfollowed file)
     Fatal(message)                  what trying again cannot mend: the monitor stops with it
 
-A source of a fleet's units (jmlgdsl.monitor.fleet) hands over (unit index, item) pairs instead
+A source of a fleet's units (jmlgdsl.monitor.units) hands over (unit index, item) pairs instead
 (None: an item of every unit, say its one connection's event).
 """
 

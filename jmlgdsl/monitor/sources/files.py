@@ -14,7 +14,7 @@ import threading
 
 from ...data import iter_rows
 from ...errors import DataError
-from ..fleet import PLACEHOLDER, FleetError, for_unit
+from ..units import PLACEHOLDER, FleetError, for_unit
 from .contract import End, Event, Fatal, Times, WholeRow
 from .units import UnitSources
 

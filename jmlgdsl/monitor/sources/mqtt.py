@@ -1,6 +1,6 @@
 """Readings from an MQTT broker (paho-mqtt 2): each spec name NAME from topic PREFIX/NAME (or the tag
 file's topic), and objects of several names per sample on PREFIX itself. For the units of a fleet
-(jmlgdsl.monitor.fleet) the topics are PREFIX/UNIT/NAME and PREFIX/UNIT, all on one connection.
+(jmlgdsl.monitor.units) the topics are PREFIX/UNIT/NAME and PREFIX/UNIT, all on one connection.
 
 The session is persistent (a fixed client id, clean session off) and subscribed at QoS 1, so the
 broker keeps what is published while the monitor is down and delivers it when it is back. Messages
@@ -19,7 +19,7 @@ import time
 import paho.mqtt.client as mqtt
 
 from . import bus
-from ..fleet import PLACEHOLDER, for_unit, unit_tags
+from ..units import PLACEHOLDER, for_unit, unit_tags
 from .contract import Fatal, Readings, Unreadable
 from .payload import Malformed, decode
 from .urls import address

@@ -31,7 +31,7 @@ from asyncua.crypto import security_policies
 
 from ...errors import JmlgError
 from . import bus
-from ..fleet import PLACEHOLDER, FleetError, unit_tags
+from ..units import PLACEHOLDER, FleetError, unit_tags
 from .contract import Fatal, Readings, Unreadable
 from .payload import Malformed, number
 from .tags import TagError

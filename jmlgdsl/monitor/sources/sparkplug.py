@@ -47,7 +47,7 @@ import time
 
 from ...errors import JmlgError
 from . import bus
-from ..fleet import FleetError
+from ..units import FleetError
 from .contract import Event, Readings, Unreadable
 from .mqtt import MqttSource
 from .payload import Malformed

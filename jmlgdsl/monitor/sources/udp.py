@@ -13,7 +13,7 @@ import threading
 import time
 
 from ...errors import JmlgError
-from ..fleet import FleetError
+from ..units import FleetError
 from .contract import Event, Readings, Unreadable
 from .payload import MAX_PAYLOAD, Malformed, decode
 from .urls import address

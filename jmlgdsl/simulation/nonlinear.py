@@ -9,11 +9,11 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .compile.ode import (OdeSystem, check_ode_file, flow, linearise, mode_input_shifts, mode_parameters,
+from ..compile.ode import (OdeSystem, check_ode_file, flow, linearise, mode_input_shifts, mode_parameters,
                           ode_system)
-from .errors import DataError
-from .model import Model
-from .simulate import Simulation, simulate
+from ..errors import DataError
+from ..model import Model
+from .linear import Simulation, simulate
 
 
 @dataclass(frozen=True)
@@ -49,7 +49,7 @@ def load_nonlinear(path) -> NonlinearPlant:
 
 def simulate_nonlinear(plant, T: int | None = None, seed=None, modes=None, u=None) -> Simulation:
     """Simulate T steps of the ODEs (`plant`: a spec path or a NonlinearPlant), with the arguments of
-    jmlgdsl.simulate.simulate: x_t = Phi_k(x_{t-1}, u_t) + B_k w_t, y_t = h_k(x_t, u_t) + D_k v_t.
+    jmlgdsl.simulation.linear.simulate: x_t = Phi_k(x_{t-1}, u_t) + B_k w_t, y_t = h_k(x_t, u_t) + D_k v_t.
 
     The modes, the initial state and the noise terms B_k w_t and D_k v_t are those of the linearised
     model's simulation with the same seed, so the two runs differ only by the linearisation."""

@@ -1,4 +1,4 @@
-"""A fleet: many units of one plant (pumps, dryers, gearboxes of one design) watched by one monitor
+"""The units of a fleet: many units of one plant (pumps, dryers, gearboxes of one design) watched by one monitor
 with one spec. `--units pump01..pump200` names the units; `{unit}` in the source and in the tag
 file stands for each unit's name:
 

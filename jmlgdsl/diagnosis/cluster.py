@@ -11,7 +11,7 @@ HOST:PORT` joins a cluster started with `ray start --head` (docs/fleet.md). Ray 
 (pip install 'jmlgdsl[cluster]'), imported only here and only when a cluster is asked for. Usage
 statistics, which Ray would otherwise offer to send, stay off.
 
-    >>> from jmlgdsl.cluster import connect
+    >>> from jmlgdsl.diagnosis.cluster import connect
     >>> ray = connect("auto")             # doctest: +SKIP
     >>> ray.get(ray.remote(lambda xs: sum(xs)).remote([1, 2]))     # doctest: +SKIP
     3
@@ -28,7 +28,7 @@ import socket
 import subprocess
 import sys
 
-from .errors import JmlgError
+from ..errors import JmlgError
 
 LOCAL = "auto"
 REACH = 5.0  # seconds a cluster's head has to answer

@@ -8,11 +8,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import DataError
-from .gaussian import psd_sqrt
-from .model import Model
-from .names import plural
-from .seeds import generator
+from ..errors import DataError
+from ..gaussian import psd_sqrt
+from ..model import Model
+from ..names import plural
+from ..seeds import generator
 
 _PIECE = re.compile(r"^\s*(\d+)\s*(?:-\s*(\d+))?\s*:\s*([A-Za-z_][\w]*)\s*$")
 
