@@ -27,7 +27,8 @@ def register(subparsers):
                     "modes, cross-validation on the recordings chooses whether the others are learned relative "
                     "to the first (few rows over many sensors: its least-squares regression, their changes "
                     "shrunk as far as tells them apart best) or each on its own by EM, and, without --template, "
-                    "the noise scale of a catch-all mode 'anomaly' that stays quiet on held-out normal rows: "
+                    "the noise scale of a catch-all mode 'anomaly' and an inflation of the first mode's noise, "
+                    "the pair that stays quiet on held-out normal rows and alarms on the most fault rows: "
                     "'jmlgdsl run' then raises the alarm from the first mode and 'anomaly' and names the fault "
                     "with the others. Each choice is printed as it is made.")
     p.add_argument("--mode", action="append", required=True, metavar="NAME=CSV",
@@ -64,8 +65,10 @@ def register(subparsers):
     p.add_argument("--catch-all", metavar="NAME[=SCALE]|none", default="auto", type=catch_all,
                    help="add a mode NAME: the first mode with every noise sd times SCALE (as 'like FIRST "
                         "{ noise scale SCALE }'); 'run' then raises the alarm from the first mode and NAME and "
-                        "names the fault with the other modes. Without =SCALE, the smallest scale that alarms "
-                        "on at most 0.5 %% of the first mode's rows held out by cross-validation. Default: "
+                        "names the fault with the other modes. Without =SCALE, the scale and an inflation of the "
+                        "first mode's noise that alarm on at most 0.5 %% of the first mode's rows held out by "
+                        "cross-validation and on the most rows of the other modes' recordings (for a single mode, "
+                        "the smallest quiet scale). Default: "
                         "'anomaly' so chosen when there are fault modes besides the first, none for a single "
                         "mode or with --template; none: no catch-all")
     p.add_argument("--max-iter", type=whole(0), default=100, help="EM iteration cap (default 100)")
