@@ -8,10 +8,10 @@ import pytest
 import jmlgdsl
 from jmlgdsl.cli import main as cli
 from jmlgdsl.errors import DataError
-from jmlgdsl.diagnosis.alarms import catch_alls
+from jmlgdsl.diagnosis.alarms import catch_alls, sub_bank
 from jmlgdsl.learn import learn
 from jmlgdsl.learn.bank import Experiment
-from jmlgdsl.learn.detector import QUIET, SCALES, catch_all_scale
+from jmlgdsl.learn.detector import QUIET, SCALES, choose_detector
 from jmlgdsl.learn.relative import Reference, RelativeFit, relative_wins
 from jmlgdsl.learn.basis import Lags
 
@@ -71,20 +71,47 @@ def test_relative_wins_is_a_sign_test_over_the_held_out_blocks():
     assert relative_wins([fit([0, 0, 0, 0, 0])]) == (False, 0, 0)
 
 
-def test_the_catch_all_scale_is_the_smallest_quiet_one_on_held_out_normal_rows():
+def test_without_fault_rows_the_catch_all_scale_is_the_smallest_quiet_one_on_held_out_normal_rows():
     rng = np.random.default_rng(11)
     y = plant(rng, 8, 2000)
     steps = np.full(8, 1e-4)
     reference = Reference.of([y], [np.empty((2000, 0))], Lags(1), steps)
     P = np.array([[0.999, 0.001], [0.01, 0.99]])
-    chosen = catch_all_scale(reference, [y], [np.empty((2000, 0))], P, np.array([0.99, 0.01]))
+    chosen = choose_detector(reference, [y], [np.empty((2000, 0))], [], P, np.array([0.99, 0.01]))
+    shares = chosen.shares[0]  # the healthy mode's noise as fitted
     i = SCALES.index(chosen.scale)
-    assert chosen.quiet and chosen.shares[i] <= QUIET
-    assert all(share > QUIET for share in chosen.shares[:i])
+    assert chosen.inflation == 1 and chosen.detected is None
+    assert chosen.quiet and shares[i] <= QUIET
+    assert all(share > QUIET for share in shares[:i])
     # the shares fall as the scale grows: a wider catch-all explains less of normal operation
-    assert chosen.shares[-1] <= chosen.shares[0]
+    assert shares[-1] <= shares[0]
     # a right model with this much data: the detector alarms on normal rows only at the smallest scales
     assert chosen.scale <= 2.0
+
+
+def test_fault_recordings_choose_a_detector_that_sees_them_and_stays_quiet_on_fresh_normal_rows():
+    # faults of an offset of 4 on one of 8 sensors (about 1.2 sd of the one-step residual): a catch-all
+    # wide enough to stay quiet by itself sees few of their rows; a healthy mode whose noise is
+    # inflated to its held-out residuals' and a narrow catch-all add them up
+    ny, names, rng = 8, [f"s{j}" for j in range(8)], np.random.default_rng(21)
+    offsets = {f"f{i}": 4.0 * np.eye(ny)[i] for i in range(3)}
+    data = {"normal": Experiment(plant(rng, ny, 400), np.empty((400, 0)), "normal")}
+    data.update({name: Experiment(plant(rng, ny, 200, offset), np.empty((200, 0)), name)
+                 for name, offset in offsets.items()})
+    said = []
+    model = learn(data, outputs=names, order=1, progress=said.append).model
+    alone = learn({"normal": data["normal"]}, outputs=names, order=1, catch_all=("anomaly", None)).model
+    assert catch_alls(model, ["normal"]) == ["anomaly"]
+    line = next(text for text in said if text.startswith("catch-all noise scale"))
+    assert "over normal's noise x" in line and "detects the most of the fault recordings' rows" in line
+    normal, faulty = plant(rng, ny, 2000), [plant(rng, ny, 300, offset) for offset in offsets.values()]
+
+    def alarmed(bank, y):
+        return jmlgdsl.filter(sub_bank(bank, ["normal", "anomaly"]), y).mode_posterior[:, 1] > 0.5
+    for bank in (model, alone):
+        assert alarmed(bank, normal).mean() <= 0.01  # quiet on normal operation it has not seen
+    seen = np.mean([alarmed(model, y).mean() for y in faulty])
+    assert seen >= 0.4 and seen > 3 * np.mean([alarmed(alone, y).mean() for y in faulty])
 
 
 def test_plain_learn_adds_a_catch_all_that_run_recognises():

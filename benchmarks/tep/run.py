@@ -1,7 +1,7 @@
 """The Tennessee Eastman benchmark: detect and name 18 faults on the Braatz recordings.
 
     python benchmarks/tep/run.py                      # fetch, learn, run, score; record in the ledger
-    python benchmarks/tep/run.py --data DIR           # the .dat files already unpacked in DIR
+    python benchmarks/tep/run.py --cache DIR          # the wheel already fetched into DIR
 
 The recordings (Braatz et al.; 52 variables, 3-minute samples) come from the wheel of bibmon 1.2.0
 on PyPI (`pip download bibmon==1.2.0 --no-deps`), checked against its sha256 and read out of it,

@@ -10,23 +10,24 @@ from . import catch_all, names, positive, probability, whole
 def register(subparsers):
     p = subparsers.add_parser(
         "learn", help="learn a mode bank from experiments of every mode and write a .jmlg spec",
-        description="Fit one linear-Gaussian model per mode: an ARX least-squares fit (or an FOPDT fit of a step test) "
-                    "gives the structure and the start for EM, which learns the coefficients and both noise levels. "
-                    "Every mode is written over one shared state basis, the recent noise-free outputs and inputs, so "
-                    "the bank stays right when the plant switches. Every mode is validated (residual whiteness and "
-                    "input-residual correlation up to lag 25 with 99 % bands, free-run fit) and the bank is written "
-                    "as a readable, commented spec that 'jmlgdsl run' accepts. A sensor that is constant in a mode's "
-                    "data (stuck) or sensors that move together exactly (collinear) are modelled with noise at the "
-                    "rounding of their resolution and reported, per mode and sensor, before any fitting; a mode EM "
-                    "leaves unstable has its poles scaled inside the unit circle, and says so. Without --template the "
-                    "first --mode is the healthy one: the prior is 'initial FIRST 0.99, otherwise uniform' (--initial) "
-                    "and the transitions 'stay 0.99, otherwise uniform' (--stay). With several modes, "
-                    "cross-validation on the recordings chooses whether the others are learned relative to the first "
-                    "(few rows over many sensors: its least-squares regression, their changes shrunk as far as tells "
-                    "them apart best) or each on its own by EM, and, without --template, the noise scale of a "
-                    "catch-all mode 'anomaly' that stays quiet on held-out normal rows: 'jmlgdsl run' then raises the "
-                    "alarm from the first mode and 'anomaly' and names the fault with the others. Each choice is "
-                    "printed as it is made.")
+        description="Fit one linear-Gaussian model per mode: an ARX least-squares fit (or an FOPDT fit of a step "
+                    "test) gives the structure and the start for EM, which learns the coefficients and both noise "
+                    "levels. Every mode is written over one shared state basis, the recent noise-free outputs and "
+                    "inputs, so the bank stays right when the plant switches. Every mode is validated (residual "
+                    "whiteness and input-residual correlation up to lag 25 with 99 % bands, free-run fit) and the "
+                    "bank is written as a readable, commented spec that 'jmlgdsl run' accepts. A sensor that is "
+                    "constant in a mode's data (stuck) or sensors that move together exactly (collinear) are modelled"
+                    " with noise at the rounding of their resolution and reported, per mode and sensor, before any "
+                    "fitting; a mode EM leaves unstable has its poles scaled inside the unit circle, and says so. "
+                    "Without --template the first --mode is the healthy one: the prior is 'initial FIRST 0.99, "
+                    "otherwise uniform' (--initial) and the transitions 'stay 0.99, otherwise uniform' (--stay). With"
+                    " several modes, cross-validation on the recordings chooses whether the others are learned "
+                    "relative to the first (few rows over many sensors: its least-squares regression, their changes "
+                    "shrunk as far as tells them apart best) or each on its own by EM, and, without --template, the "
+                    "noise scale of a catch-all mode 'anomaly' and an inflation of the first mode's noise, the pair "
+                    "that stays quiet on held-out normal rows and alarms on the most fault rows: 'jmlgdsl run' then "
+                    "raises the alarm from the first mode and 'anomaly' and names the fault with the others. Each "
+                    "choice is printed as it is made.")
     p.add_argument("--mode", action="append", required=True, metavar="NAME=CSV",
                    help="a mode's experiment (repeat for every mode; repeat a name for several runs of one mode). A "
                         "file with a 'mode' column gives only the rows labelled NAME, each unbroken stretch of them a "
@@ -61,10 +62,10 @@ def register(subparsers):
     p.add_argument("--catch-all", metavar="NAME[=SCALE]|none", default="auto", type=catch_all,
                    help="add a mode NAME: the first mode with every noise sd times SCALE (as 'like FIRST { noise "
                         "scale SCALE }'); 'run' then raises the alarm from the first mode and NAME and names the "
-                        "fault with the other modes. Without =SCALE, the smallest scale that alarms on at most 0.5 %% "
-                        "of the first mode's rows held out by cross-validation. Default: 'anomaly' so chosen when "
-                        "there are fault modes besides the first, none for a single mode or with --template; none: no "
-                        "catch-all")
+                        "fault with the others. Without =SCALE, the scale and an inflation of the first mode's noise "
+                        "that alarm on at most 0.5 %% of its rows held out by cross-validation and on the most rows of "
+                        "the other modes' recordings (one mode: the smallest quiet scale). Default: 'anomaly' so "
+                        "chosen with fault modes besides the first; none (the default for one mode or a --template)")
     p.add_argument("--max-iter", type=whole(0), default=100, help="EM iteration cap (default 100)")
     p.add_argument("--tol", type=float, default=1e-5, help="EM relative log-likelihood tolerance (default 1e-5)")
     p.add_argument("--figures", metavar="DIR", help="write validation (and step-fit) figures here")

@@ -410,18 +410,25 @@ def assemble(learned: list[LearnedMode], *, P, p0, operating_input=None, **names
         states=basis.state_names(outputs, inputs, n), **names)
 
 
-def with_catch_all(model: Model, name: str, scale: float, *, stay: float, initial: float) -> Model:
+def with_catch_all(model: Model, name: str, scale: float, *, stay: float, initial: float,
+                   inflation: float = 1.0) -> Model:
     """The bank and one more mode, `name`: the first (healthy) mode with every noise standard
     deviation times `scale`, as `like HEALTHY { noise scale S }` writes it. Anything unlike normal
     operation is more probable under it than under the healthy mode, so with the healthy mode alone
-    it makes a detector that no fault mode has to be right for (`run --detect`). The transitions
-    become `stay STAY, otherwise uniform` and the prior `initial HEALTHY INITIAL, otherwise uniform`
-    over the larger bank."""
+    it makes a detector that no fault mode has to be right for (`run --detect`). `inflation` (at
+    least 1) first multiplies the healthy mode's own noise sd: a fit's residuals are smaller on its
+    own rows than on rows it has not seen, and the detector's level is set by the latter
+    (`detector`). The transitions become `stay STAY, otherwise uniform` and the prior `initial
+    HEALTHY INITIAL, otherwise uniform` over the larger bank."""
     if name in model.modes:
         raise JmlgError(f"the catch-all mode {name!r} is already a mode of the bank")
     if not scale > 1:
         raise JmlgError(f"the catch-all's noise scale must be above 1, not {scale}")
+    if not inflation >= 1:
+        raise JmlgError(f"the healthy mode's noise inflation must be at least 1, not {inflation}")
     healthy = model.modes[0]
+    noise = {key: np.concatenate([getattr(model, key)[:1] * inflation, getattr(model, key)[1:]]) for key in "BD"}
+    model = model.replace(**noise)
     grown = {key: np.concatenate([getattr(model, key), getattr(model, key)[:1] * factor])
              for key, factor in (("A", 1), ("F", 1), ("f", 1), ("C", 1), ("G", 1), ("g", 1), ("mu0", 1),
                                  ("B", scale), ("D", scale))}

@@ -23,7 +23,7 @@ from ..output import writing
 from . import validate
 from .bank import (AUTO, Experiment, LearnedMode, assemble, default_transitions, healthy_prior, learn_modes,
                    with_catch_all)
-from .detector import catch_all_scale
+from .detector import choose_detector
 from .relative import Reference
 from .resolution import RELATIVE, resolution
 from .writer import write_spec
@@ -95,8 +95,10 @@ def learn(experiments: dict, template: Model | None = None, *, outputs=(), input
 
     `catch_all` = (NAME, SCALE): one more mode, the first mode with its noise times SCALE
     (`bank.with_catch_all`), with which the first mode alone detects anything unlike it; `run`
-    then detects with the two and names the fault with the others. SCALE None: the smallest scale
-    that stays quiet on the first mode's rows held out (`detector.catch_all_scale`). "auto" (the
+    then detects with the two and names the fault with the others. SCALE None: the scale chosen by
+    cross-validation together with an inflation of the first mode's own noise: of the pairs that
+    stay quiet on the first mode's rows held out, the one that detects the most of the other
+    modes' rows (without other modes, the smallest quiet scale; `detector.choose_detector`). "auto" (the
     default): ("anomaly", None) for a bank of a healthy mode and fault modes learned without a
     template, none otherwise; None: none. Not with a template, whose transitions and prior have no
     place for it.
@@ -128,13 +130,14 @@ def learn(experiments: dict, template: Model | None = None, *, outputs=(), input
     chosen = None
     if catch_all is not None:
         name_, scale = catch_all
+        inflation = 1.0
         if scale is None:
-            chosen = _catch_all_scale(model, learned[0], by_mode, name_, stay, initial)
-            scale = chosen.scale
+            chosen = _detector(model, learned[0], by_mode, name_, stay, initial)
+            scale, inflation = chosen.scale, chosen.inflation
             if progress is not None:
                 progress(chosen.describe(modes[0]))
         catch_all = name_, scale
-        model = with_catch_all(model, name_, scale, stay=stay, initial=initial)
+        model = with_catch_all(model, name_, scale, stay=stay, initial=initial, inflation=inflation)
     origins = dict.fromkeys(s.source if isinstance(s, Experiment) else str(s) for given in sources.values()
                             for s in given)
     reference = next((lm for lm in learned if lm.relative is None), None)
@@ -157,10 +160,11 @@ def learn(experiments: dict, template: Model | None = None, *, outputs=(), input
 CATCH_ALL = "anomaly"
 
 
-def _catch_all_scale(model: Model, healthy: LearnedMode, by_mode: dict, name: str, stay, initial):
-    """The catch-all's scale chosen on the healthy mode's runs held out (`detector.catch_all_scale`),
-    with the transitions and prior of the detector `run` splits from the bank with it; each
-    output's resolution read from every mode's runs, as learning read it."""
+def _detector(model: Model, healthy: LearnedMode, by_mode: dict, name: str, stay, initial):
+    """The catch-all's scale and the healthy mode's noise inflation chosen on the healthy mode's
+    runs held out and the other modes' runs (`detector.choose_detector`), with the transitions and
+    prior of the detector `run` splits from the bank with it; each output's resolution read from
+    every mode's runs, as learning read it."""
     from ..diagnosis.alarms import sub_bank
 
     runs = by_mode[healthy.name]
@@ -170,7 +174,8 @@ def _catch_all_scale(model: Model, healthy: LearnedMode, by_mode: dict, name: st
     everything = [e for exps in by_mode.values() for e in exps]
     steps = resolution(np.vstack([np.hstack([e.y, e.u]) for e in everything]))[:model.ny]
     reference = Reference.of(ys, us, healthy.mode.lags, steps)
-    return catch_all_scale(reference, ys, us, detector.P, detector.p0)
+    faults = [([e.y for e in runs], [e.u for e in runs]) for mode, runs in by_mode.items() if mode != healthy.name]
+    return choose_detector(reference, ys, us, faults, detector.P, detector.p0)
 
 
 def experiments_of(data, mode: str, index: int) -> list[Experiment]:
