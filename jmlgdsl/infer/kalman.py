@@ -206,14 +206,16 @@ def tolerance(Sig, Linv=None):
     the covariance step taken from Sig, the step's own rounding error instead where it is larger:
     eps * kappa relative, for kappa = max_i (S^-1)_ii L_ii^2, which no scaling of the outputs changes
     and which is at most the condition number of S scaled to a unit diagonal. The gain and the
-    filtered covariance go through S^-1, so a covariance nearer than that gives the same step to
-    within its arithmetic. A learned bank of 52 sensors (kappa near 5e6) never settles to SETTLED:
-    its covariances wander by about 1e-9 from step to step, their rounding."""
+    filtered covariance go through S^-1 and are computed only to about that, so keeping the pieces of
+    a covariance nearer than that moves the results by about what the step's own rounding does (the
+    densities by up to kappa times as much, relative). A learned bank of 52 sensors (kappa near 5e6)
+    never settles to SETTLED: its covariances wander by about 1e-9 from step to step, their rounding."""
     sd = np.sqrt(np.abs(np.diagonal(Sig, axis1=-2, axis2=-1)))
     relative = SETTLED
     if Linv is not None and Linv.shape[-1] > 1:
         # (S^-1)_ii is the squared length of Linv's column i, and L_ii = 1 / Linv_ii
-        kappa = (np.einsum("...ki,...ki->...i", Linv, Linv) / np.diagonal(Linv, axis1=-2, axis2=-1) ** 2).max(axis=-1)
+        inverse_diagonal = np.einsum("...ki,...ki->...i", Linv, Linv)
+        kappa = (inverse_diagonal / np.diagonal(Linv, axis1=-2, axis2=-1) ** 2).max(axis=-1)
         relative = np.maximum(SETTLED, EPS * kappa)[..., None, None]
     return relative * (sd[..., :, None] * sd[..., None, :])
 
