@@ -176,3 +176,32 @@ def test_the_filtered_covariance_stays_positive_when_outputs_are_read_almost_exa
     mask = np.arange(n) % 3 > 0
     *_, filtered = kalman.covariance_step(Sig, 0.9 * np.eye(n), np.eye(n), C, R, mask)
     assert np.linalg.eigvalsh(filtered).min() > 0
+
+
+def test_a_diagonal_noise_of_many_outputs_gives_the_products_numbers():
+    """K R K' in the Joseph update: with a diagonal R of many outputs (a learned bank's) the columns of
+    K are scaled instead of multiplied out, to the same bits, K laid out as the step has it (a view)."""
+    rng = np.random.default_rng(3)
+    K = kalman.transpose(rng.normal(size=(4, 20, 30)))
+    R = np.stack([np.diag(rng.uniform(1e-9, 10.0, 20)) for _ in range(4)])
+    assert (kalman.times(K, R) @ kalman.transpose(K)).tobytes() == ((K @ R) @ kalman.transpose(K)).tobytes()
+    R[2, 0, 5] = R[2, 5, 0] = 1e-3  # not diagonal: the product
+    assert kalman.times(K, R).tobytes() == (K @ R).tobytes()
+
+
+def test_the_settled_tolerance_is_the_steps_rounding_in_any_units():
+    """Given the step's inverse Cholesky factor, covariances count as settled to eps * kappa, kappa =
+    max_i (S^-1)_ii L_ii^2: SETTLED for a well-conditioned S, the same bits as without the factor;
+    for six sensors sharing all but 1e-6 of their noise, (S^-1)_11 L_11^2 = (1 - 1/6) * 1e6, whatever
+    units the sensors read in."""
+    rng = np.random.default_rng(4)
+    Sig = random_spd(rng, 6)
+    Linv, _ = kalman.inverse_cholesky(random_spd(rng, 6) + 6 * np.eye(6))
+    assert kalman.tolerance(Sig, Linv).tobytes() == kalman.tolerance(Sig).tobytes()
+    shared = (1 - 1e-6) * np.ones((6, 6)) + 1e-6 * np.eye(6)
+    Linv, _ = kalman.inverse_cholesky(shared)
+    relative = kalman.tolerance(Sig, Linv) / kalman.tolerance(Sig)
+    assert np.allclose(relative, kalman.EPS * (1 - 1 / 6) * 1e6 / kalman.SETTLED, rtol=1e-3)
+    units = np.diag(10.0 ** np.arange(6))
+    Linv_units, _ = kalman.inverse_cholesky(units @ shared @ units)
+    np.testing.assert_allclose(kalman.tolerance(Sig, Linv_units), kalman.tolerance(Sig, Linv), rtol=1e-6)

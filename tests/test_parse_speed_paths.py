@@ -15,6 +15,7 @@ from jmlgdsl.errors import SpecError
 from jmlgdsl.lang.evaluate import numeric
 from jmlgdsl.lang.limits import MAX_NESTING
 from jmlgdsl.lang.parse import grammar, parse_text
+from jmlgdsl.lang import syntax
 from jmlgdsl.lang.syntax import Expr, Pos
 
 SPEC = """\
@@ -141,3 +142,26 @@ def test_units_time_references_and_other_matrices_still_parse():
 ])
 def test_syntax_errors_around_matrices_read_as_before(old, new, error):
     assert outcome(SPEC.replace(old, new)) == [error]
+
+
+def test_a_numbers_only_matrix_is_evaluated_without_a_node_per_entry(monkeypatch):
+    """A learned spec's 19 matrices of 52 x 52 would take a second to load if every entry became a
+    number node: the values are read from the token, the nodes made only when something walks them."""
+    made = []
+
+    class Counted(syntax.Expr):
+        def __new__(cls, op, *args, **kwargs):
+            made.append(op)
+            return super().__new__(cls)
+
+    monkeypatch.setattr(syntax, "Expr", Counted)
+    rows = np.arange(2500.0).reshape(50, 50) / 7
+    literal = "[" + "; ".join(" ".join(map(repr, row.tolist())) for row in rows) + "]"
+    node = parse_text(spec_with(literal)).blocks[0].statements[0].expr
+    value = numeric(node, no_lookup)
+    assert value.tobytes() == rows.tobytes()
+    unwalked = made.count("number")
+    assert unwalked < 10  # the spec's other numbers
+    last = node.args[49][49]
+    assert (last.op, last.args, last.pos) == ("number", (rows[49, 49],), Pos(8, 7 + literal.rindex(" ") + 1))
+    assert made.count("number") == unwalked + 2500  # walked: every entry, each at its column

@@ -5,8 +5,9 @@ the mixture over histories is collapsed to one Gaussian per mode at every step.
 
 The covariance half of those Kalman steps never sees the data. Once the mode posterior is sure of
 its mode and the filters have settled, a mode's mixed covariance repeats from step to step (to
-kalman.SETTLED), so its factor, gain and filtered covariance are kept and a step costs the mixing
-and the means: on a wide bank most steps then skip the O(K nx^3) work.
+kalman.tolerance: SETTLED, or the covariance step's own rounding error where that is larger), so its
+factor, gain and filtered covariance are kept and a step costs the mixing and the means: on a wide
+bank most steps then skip the O(K nx^3) work.
 
 The arithmetic of a step (`mix`, `predict`, `whitened`, `refresh`, `moments`) broadcasts over
 leading axes: `IMM` calls it for one plant, and `jmlgdsl.infer.units` for many units of one plant
@@ -23,7 +24,7 @@ from .resample import normalize
 from .result import Predictive
 
 LOG_FLOOR = np.finfo(float).min  # below every finite log-probability
-# Mass off the most probable mode below which the mixed covariances may repeat to kalman.SETTLED.
+# Mass off the most probable mode below which the mixed covariances may repeat (to kalman.tolerance).
 SURE = 1e-12
 
 
@@ -73,25 +74,28 @@ def whitened(y, mask, y_pred, Linv):
 def refresh(model, C, covs, mask, kept, reusable):
     """(Linv, log det S, gain', filtered covariance) per mode for mixed covariances covs (..., K, nx,
     nx), and what to keep for the next step: (covs the pieces belong to, the pieces, their
-    kalman.tolerance). kept is that of the last step (None: nothing kept); reusable (...) says where
+    kalman.tolerance, or None until a comparison needs it: a posterior that is never sure never pays
+    for it). kept is that of the last step (None: nothing kept); reusable (...) says where
     it may serve, for the same mask, after a posterior sure of its mode. Only the covariances that
     moved beyond their tolerance there, or everywhere else, are computed afresh: a covariance can
     only repeat when the last posterior sat on one mode (else the spread of the means, which follows
     the data, enters the mixing), so only then is it compared."""
     if kept is None or not reusable.any():
         pieces = kalman.covariance_step(covs, model.A, model.Q, C, model.R, mask)
-        return pieces, (covs, pieces, kalman.tolerance(covs))
+        return pieces, (covs, pieces, None)
     base, pieces, tol = kept
+    if tol is None:
+        tol = kalman.tolerance(base, pieces[0])
     fresh = ~(reusable[..., None] & kalman.settled(covs, base, tol))
     if not fresh.any():
-        return pieces, kept
+        return pieces, (base, pieces, tol)
     shape = covs.shape[:-2]
     C = C if kalman.picks(C) else np.broadcast_to(C, shape + C.shape[-2:])[fresh]
     new = kalman.covariance_step(covs[fresh], *(np.broadcast_to(M, shape + M.shape[-2:])[fresh]
                                                 for M in (model.A, model.Q)),
                                  C, np.broadcast_to(model.R, shape + model.R.shape[-2:])[fresh], mask)
     base, tol, pieces = base.copy(), tol.copy(), tuple(p.copy() for p in pieces)
-    base[fresh], tol[fresh] = covs[fresh], kalman.tolerance(covs[fresh])
+    base[fresh], tol[fresh] = covs[fresh], kalman.tolerance(covs[fresh], new[0])
     for p, n in zip(pieces, new):
         p[fresh] = n
     return pieces, (base, pieces, tol)

@@ -230,7 +230,7 @@ class BatchIMM:
     def _keep(self, units, mask, kept):
         """Store refresh's kept pieces for units whose posterior is sure (padded to every output)."""
         base, Linv, logdet, gain_t, Sig, tol = kept
-        tol = kalman.tolerance(base) if tol is None else tol
+        tol = kalman.tolerance(base, Linv) if tol is None else tol
         m = Linv.shape[-1]
         self._mask[units] = mask
         self._base[units], self._tol[units], self._Sig[units], self._logdet[units] = base, tol, Sig, logdet

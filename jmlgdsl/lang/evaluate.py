@@ -9,7 +9,7 @@ import sympy as sp
 from ..names import suggest
 from .limits import MAX_EXPONENT, MAX_LET_CHAIN, MAX_SIZE
 from .report import Report
-from .syntax import Expr
+from .syntax import Expr, NumberRows
 
 
 class EvalError(Exception):
@@ -95,7 +95,11 @@ def numeric(node: Expr, lookup):
     if op in BINARY:
         return _fold(node, lambda e: numeric(e, lookup), _numeric_binary)
     if op == "matrix":
-        if _plain(args):
+        if isinstance(args, NumberRows):
+            values = args.values()
+            if len({len(row) for row in values}) == 1:
+                return np.array(values, float)
+        elif _plain(args):
             return np.array([[e.args[0] for e in row] for row in args], float)
         rows = [[numeric(e, lookup) for e in row] for row in args]
         try:

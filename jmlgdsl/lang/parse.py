@@ -43,19 +43,10 @@ def _one_token(children) -> bool:
     return bool(children) and isinstance(children[0], Token)
 
 
-def _numeric_rows(tok: Token) -> tuple:
+def _numeric_rows(tok: Token) -> S.NumberRows:
     """The rows of a NUMERIC_MATRIX token as the `row` rule gives them: number entries, each placed at
-    its own column of the token's line (the token holds no newline)."""
-    line, column = tok.line, tok.column
-    rows, row = [], []
-    for m in _number_or_semicolon().finditer(tok):
-        if m.group() == ";":
-            rows.append(tuple(row))
-            row = []
-        else:
-            row.append(S.Expr("number", (float(m.group()),), S.Pos(line, column + m.start())))
-    rows.append(tuple(row))
-    return tuple(rows)
+    its own column of the token's line (the token holds no newline), made when first walked."""
+    return S.NumberRows(str(tok), S.Pos(tok.line, tok.column), _number_or_semicolon())
 
 
 # Rules that nest one expression inside another: the depth MAX_NESTING counts.

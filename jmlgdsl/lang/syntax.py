@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 from .report import Pos
@@ -11,12 +13,63 @@ from .report import Pos
 class Expr:
     """An expression node. `op` is one of: number (args = (value,)), var (name,),
     indexed (name, lag) with lag an int offset from t or None for an absolute index in `index`,
-    call (name, *args), add, sub, mul, div, pow, neg (operands), matrix (rows of entries)."""
+    call (name, *args), add, sub, mul, div, pow, neg (operands), matrix (rows of entries: a NumberRows
+    for a one-line literal of numbers only)."""
 
     op: str
     args: tuple
     pos: Pos = Pos()
     index: int | None = None  # absolute time index for indexed nodes such as h[0]
+
+
+class NumberRows(Sequence):
+    """The rows of a one-line matrix literal of numbers only, `[0.12 -3.4e-05; 1, 2]` (the grammar's
+    NUMERIC_MATRIX token), as a matrix node's args: read when first walked into the number nodes the
+    general `row` rule gives, each at its own column; `values()` reads the numbers alone. A learned
+    spec's matrices hold hundreds of thousands of entries, and only an error that points at one of them
+    needs its node."""
+
+    def __init__(self, text: str, pos: Pos, entries: re.Pattern):
+        self.text = text  # the whole token, brackets included, on one line
+        self.pos = pos  # where the token starts
+        self._entries = entries  # matches each entry and each `;` of the text
+        self._rows = None
+
+    def values(self) -> list[list[float]]:
+        """The entries' values row by row (rows may differ in length, as written): the floats the
+        number nodes hold."""
+        return [[float(x) for x in row.replace(",", " ").split()] for row in self.text[1:-1].split(";")]
+
+    @property
+    def rows(self) -> tuple:
+        """The rows as tuples of number nodes (made once)."""
+        if self._rows is None:
+            line, column = self.pos.line, self.pos.column
+            rows, row = [], []
+            for m in self._entries.finditer(self.text):
+                if m.group() == ";":
+                    rows.append(tuple(row))
+                    row = []
+                else:
+                    row.append(Expr("number", (float(m.group()),), Pos(line, column + m.start())))
+            rows.append(tuple(row))
+            self._rows = tuple(rows)
+        return self._rows
+
+    def __getitem__(self, index):
+        return self.rows[index]
+
+    def __len__(self):
+        return self.text.count(";") + 1
+
+    def __eq__(self, other):
+        return self.rows == (other.rows if isinstance(other, NumberRows) else other)
+
+    def __hash__(self):
+        return hash(self.rows)
+
+    def __repr__(self):
+        return repr(self.rows)
 
 
 @dataclass(frozen=True)
