@@ -344,7 +344,7 @@ def test_imm_keeps_kalman_pieces_that_settle_only_to_their_rounding(monkeypatch)
     tolerance allows: its densities go through S^-1, which moves kappa times as much (relative),
     so the log-likelihoods agree to 1e-5 (eps * kappa^2 bounds it; the recomputed ones wander too)."""
     from jmlgdsl.infer import imm
-    from jmlgdsl.simulate import simulate
+    from jmlgdsl.simulation.linear import simulate
 
     model = wandering_bank()
     sim = simulate(model, modes=np.zeros(200, dtype=int), seed=3)
