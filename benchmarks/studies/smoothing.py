@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 import jmlgdsl
-from jmlgdsl import drawing
+from jmlgdsl.diagnosis import drawing
 from jmlgdsl.studies import figures
 from jmlgdsl.diagnosis.metrics import switch_delays
 from jmlgdsl.simulation.linear import simulate

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 import jmlgdsl
-from jmlgdsl import drawing
+from jmlgdsl.diagnosis import drawing
 from jmlgdsl.diagnosis import figure as run_figure
 from jmlgdsl.studies import figures, sweep
 from jmlgdsl.simulation.linear import parse_schedule
