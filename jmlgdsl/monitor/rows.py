@@ -45,7 +45,6 @@ from datetime import datetime
 import numpy as np
 
 from ..data import Row, TimeFormat, with_defaults
-from ..names import plural
 from .sources.contract import Event
 
 AHEAD = 60.0  # seconds a reading may be stamped past the wall clock it arrives at
@@ -129,7 +128,6 @@ class Assembler:
         self.ahead = []  # messages held ahead of the stream, [[(name, value, time)]], in a row
         self.iso = False  # the source writes its times as clock times (ISO 8601 text, OPC UA's stamps)
         self.held = False  # the source is disconnected or catching up: rows leave only when complete
-        self.filled = 0  # readings older than their tag's newest taken while held (one event on release)
 
     @property
     def holding(self) -> bool:
@@ -143,14 +141,9 @@ class Assembler:
         self.held = True
 
     def release(self):
-        """The source has caught up: rows leave by the grace again; the rows and events that are due,
-        first one `out_of_order` event for the readings that filled in behind the stream while held."""
-        events = [Event("out_of_order", None, f"{plural(self.filled, 'reading')} came after newer readings "
-                                              "while the source caught up, and filled in the rows held for them")
-                  ] if self.filled else []
-        self.held, self.filled = False, 0
-        rows, closing = self._close() if self.next_slot is not None else ([], [])
-        return rows, events + closing
+        """The source has caught up: rows leave by the grace again; the rows and events that are due."""
+        self.held = False
+        return self._close() if self.next_slot is not None else ([], [])
 
     @property
     def times(self) -> TimeFormat:
@@ -259,9 +252,7 @@ class Assembler:
             self.next_slot = self.origin = slot
         events = []
         newest = self.newest.get(name, -math.inf)
-        if time < newest and self.holding:
-            self.filled += 1
-        elif time < newest:
+        if time < newest:
             events.append(Event("out_of_order", name, f"a reading for {self.at(time)} came after one for "
                                                      f"{self.at(newest)}", time))
         values = self.open.setdefault(slot, {})
