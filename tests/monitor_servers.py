@@ -128,13 +128,16 @@ class Brokers:
     def __init__(self, folder):
         self.folder, self.running = folder, {}
 
-    def __call__(self, password=False, port=None, tls=None):
-        """Start one; `tls`: (certificate file, key file) of a TLS listener."""
+    def __call__(self, password=False, port=None, tls=None, persistent=False):
+        """Start one; `tls`: (certificate file, key file) of a TLS listener; `persistent`: it saves its
+        sessions and the messages they hold when stopped, in the folder, and takes them up again when
+        started again on the same port."""
         port = port or free_port()
         config = self.folder / f"mosquitto-{port}.conf"
         # run as this user (a broker started by root would drop to 'mosquitto', who cannot read the folder)
-        lines = [f"listener {port} 127.0.0.1", f"user {getpass.getuser()}", "persistence false",
-                 "max_queued_messages 0"]
+        lines = [f"listener {port} 127.0.0.1", f"user {getpass.getuser()}", "max_queued_messages 0"]
+        lines += ["persistence true", f"persistence_location {self.folder}/",
+                  f"persistence_file mosquitto-{port}.db"] if persistent else ["persistence false"]
         if tls:
             lines += [f"certfile {tls[0]}", f"keyfile {tls[1]}"]
         if password:

@@ -116,6 +116,52 @@ def test_the_row_clock_moves_on_evidence_not_on_one_message():
     assert events == ["ahead", "ahead", "jump", "gap"] and rows == [5000.0, 5001.0, 5002.0, 5003.0]
 
 
+def test_rows_held_while_the_source_catches_up_wait_for_every_reading():
+    # a source back from an outage sends the readings of the moment first, then what it kept: held,
+    # the rows wait for them, whatever the grace; released, the grace rules again
+    stream = {t: [("temp", 50.0 + t, float(t)), ("current", 15.0, float(t))] for t in range(1, 60)}
+    a = assembler()
+    rows = [row.time for t in range(1, 11) for row in a.add(stream[t])[0]]
+    a.hold()
+    events = []
+    for t in [50, 51, 52, 11, *range(12, 50), 53]:  # three ahead of the stream (a jump), then what was kept
+        r, e = a.add(stream[t])
+        rows += [row.time for row in r]
+        events += [event.kind for event in e]
+    assert rows == [float(t) for t in range(1, 54)]
+    assert events == ["ahead", "ahead", "jump"] + ["out_of_order"] * 78  # what was kept filled in behind it
+    assert a.add([("temp", 50.0, 57.0)]) == ([], [])  # row 54 waits for its readings, far past its grace
+    rows, events = a.release()
+    assert [row.time for row in rows] == [54.0, 55.0] and events == []  # 56 is within the grace of the newest
+
+
+def test_a_message_held_ahead_while_the_source_catches_up_is_used_once_the_stream_reaches_it():
+    stream = {t: [("temp", 50.0 + t, float(t)), ("current", 15.0, float(t))] for t in range(1, 60)}
+    a = assembler()
+    for t in range(1, 11):
+        a.add(stream[t])
+    a.hold()
+    rows, events = a.add(stream[50])
+    assert rows == [] and "held, and used once the stream catches up with it, or if 2 more" in events[0].detail
+    rows = [row.time for t in range(11, 51) for row in a.add(stream[t])[0]]
+    assert rows == [float(t) for t in range(11, 51)]  # 50 held ahead, then used; the second 50 a duplicate
+    # not held, a message ahead of the stream is dropped by the stream going on where it was
+    a = assembler()
+    for t in [*range(1, 11), 50, *range(11, 51)]:
+        a.add(stream[t])
+    assert a.open == {} and a.watermark == 50.0 and a.newest == {"temp": 50.0, "current": 50.0}
+
+
+def test_a_stream_stamped_on_arrival_is_not_held(tmp_path):
+    path = tmp_path / "tags.toml"
+    path.write_text('[tags.temp]\ntime = "arrival"\n[tags.current]\ntime = "arrival"\n')
+    a = Assembler(MODEL, read_tags(path, MODEL))
+    a.add([("temp", 50.0, None), ("current", 15.0, None)], 1000.0)
+    a.hold()
+    rows, _ = a.advance(1005.0)  # what comes late is stamped late: nothing to wait for
+    assert [row.time for row in rows] == [1001.0, 1002.0, 1003.0]
+
+
 def test_a_reading_stamped_past_the_wall_clock_is_not_used():
     a = assembler()
     a.add([("temp", 50.0, 1000.0), ("current", 15.0, 1000.0)], 1000.0)
@@ -289,6 +335,57 @@ def test_a_stalled_diagnosis_is_an_event_once_until_a_row_comes(tmp_path, monkey
     assert stopped.events["stall"] == 2 and len(details) == 2
     assert details[0].startswith("no row diagnosed for 0 s while ") and "messages arrived (late " in details[0]
     assert sum(line.startswith("stall: no row diagnosed") for line in logged) == 2
+
+
+def test_a_monitor_holds_rows_while_its_source_is_down_and_catching_up(tmp_path):
+    # the source's connect and disconnect events hold the rows; its readings of the moment come first
+    # after the outage, then what it kept, and every row gets its readings; the catch-up time after the
+    # connection passed, the grace rules again
+    import threading
+    import time
+
+    from jmlgdsl.monitor import Monitor, MonitorOptions, Store
+    from jmlgdsl.monitor.sources.contract import Event
+    from jmlgdsl.monitor.store.databases import SQLite
+
+    catch_up = 0.3
+
+    def sample(t):
+        return Readings([("temp", 50.0 + t, float(t)), ("current", 15.0, float(t))], None, t)
+
+    class Reconnecting:
+        rows, name = False, "test://reconnecting"
+
+        def start(self, put, position):  # a thread of its own, as a bus's client has
+            threading.Thread(target=self.publish, args=(put,), daemon=True).start()
+
+        def publish(self, put):
+            put(Event("connect", None, "connected"))
+            for t in range(1, 11):
+                put(sample(t))
+            put(Event("disconnect", None, "lost"))
+            put(Event("connect", None, "connected again"))
+            for t in [30, 31, 32, *range(11, 30)]:
+                put(sample(t))
+            put(Readings([("current", 15.0, 33.0)], None, 33))  # row 33 without its temp
+            put(sample(40))  # far past row 33's grace: it is held still
+            time.sleep(3 * catch_up)
+            put(End())
+
+        def acknowledge(self, tokens):
+            pass
+
+        def stop(self):
+            pass
+
+    with Store(tmp_path / "s.db") as store:
+        stopped = Monitor(MODEL, store, Reconnecting(), spec=None, options=MonitorOptions(catch_up=catch_up),
+                          tags=read_tags(None, MODEL)).run()
+        temps = [(time, SQLite.unvector(y, 1)[0])
+                 for time, y in store.db.execute("SELECT time, y FROM sample ORDER BY t")]
+    assert temps[:32] == [(float(t), 50.0 + t) for t in range(1, 33)]
+    assert [time for time, _ in temps[32:]] == [33.0, 34.0, 35.0, 36.0, 37.0, 38.0]  # released by the grace
+    assert math.isnan(temps[32][1]) and "late" not in stopped.events and stopped.events["jump"] == 1
 
 
 def test_a_run_records_the_options_its_store_has_always_recorded():

@@ -68,7 +68,7 @@ def main(args) -> int:
     check_particles(args, model)
     tags = read_tags(args.tags, model)
     units = None if args.units is None else unit_names(args.units)
-    options = MonitorOptions(diagnosis_options(args), args.grace, args.stale, args.max_gap)
+    options = MonitorOptions(diagnosis_options(args), args.grace, args.stale, args.max_gap, args.catch_up)
     launch.check_fleet(units, cluster=args.cluster, shards=args.shards, unit_specs=args.unit_specs)
     banks = launch.unit_spec_banks(model, args.spec, args.unit_specs, units, log)
     recipe = sources.connection(vars(args))

@@ -73,12 +73,14 @@ class Stopped:
 class MonitorOptions:
     """A monitor's options: its diagnosis's (jmlgdsl.diagnosis.Options, with `run`'s defaults; a
     monitor always explains) and the assembler's, which puts readings on the sample clock (grace and
-    stale None: 2 and 10 sample times)."""
+    stale None: 2 and 10 sample times; catch_up: the seconds of the wall clock its rows are held after
+    the source connects, not recorded with the run, as it says how long to wait, not what to compute)."""
 
     diagnosis: Options = Options()
     grace: float | None = None
     stale: float | None = None
     max_gap: float = 3600.0
+    catch_up: float = 5.0
 
 
 class Monitor:
@@ -150,6 +152,8 @@ class Monitor:
                 raise MonitorError(unresumable(self.store, run, saved, exc)) from None
             watch.rows, watch.position = saved.rows, saved.position
         watch.resumed = saved is not None
+        if watch.assembler is not None and watch.assembler.held:  # saved while held: its source connects anew
+            watch.connection(True)
         return watch
 
     @property
@@ -247,6 +251,9 @@ class Monitor:
                     watch.arrived()
                 self.tokens.append(item.token)
             case Event():
+                if item.kind in ("connect", "disconnect"):
+                    for watch in watches:
+                        watch.connection(item.kind == "connect")
                 self._event(watches, unit, item)
             case Times():
                 watches[0].times = item.format
@@ -293,7 +300,9 @@ class Monitor:
     def commit(self):
         """Store what was handled since the last commit with the state after it, every unit's in one
         transaction (with how far the sinks have delivered); then acknowledge it to the source, and hand
-        it to the sinks."""
+        it to the sinks. The rows of a source that has caught up are released first."""
+        for watch in self.units:
+            watch.caught_up()
         self.step()
         reports, marks = self.outbox.collect()
         for unit, item in reports:  # the sinks' events, kept with this commit
@@ -338,6 +347,22 @@ class Watch:
         self.last_row = clock.monotonic()  # when the last row was diagnosed (or the monitor started)
         self.since = {}  # messages since that row, and its events by kind
         self.stalled = False  # whether the stall since that row was told
+        self.held_until = None  # when its assembler's rows are released (monotonic; None: not on a clock)
+
+    def connection(self, up: bool):
+        """The source connected (`up`) or lost its connection: the assembler holds its rows while it is
+        down and for the catch-up time after it is back, as what was kept meanwhile comes in."""
+        if self.assembler is None:
+            return
+        self.assembler.hold()
+        self.held_until = clock.monotonic() + self.monitor.options.catch_up if up else None
+
+    def caught_up(self):
+        """Release the assembler's rows once the catch-up time after a connection has passed."""
+        if self.held_until is not None and clock.monotonic() >= self.held_until:
+            self.held_until = None
+            self.assembled(*self.assembler.release())
+            self.dirty = True
 
     def arrived(self):
         """A message for this unit was handled: a `stall` event (once until the next row) when no row

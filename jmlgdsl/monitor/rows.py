@@ -26,6 +26,14 @@ reading in between where the stream was (a `jump`: the source came back after an
 where the stream was drops what is held. A reading without a time of its own in such a stream is
 `malformed`, unless its tag says it takes its arrival time. So no single message, however stamped,
 makes the rows after it `late`.
+
+While the source is disconnected, and for a while after it connects again (`hold`, `release`: the
+monitor says when), readings can still come for rows the stream has passed: a broker delivers what
+it kept, a plant sends what it kept while cut off, often after the readings of the moment. Rows are
+then held: a row leaves only when complete, whatever the grace, and a message held ahead of the
+stream is not dropped by readings where the stream was but taken in once the stream comes within
+the horizon of it. On release the grace rules again. A stream of readings stamped on arrival is
+never held (what comes late is stamped late).
 """
 
 from __future__ import annotations
@@ -52,6 +60,9 @@ COMMAND_LINE = {
                     "sample times)"),
     "--max-gap": dict(type=float, default=3600.0, metavar="SECONDS", help="a gap without any reading up to this long "
                       "is diagnosed as rows of missing readings; a longer one is skipped (default 3600)"),
+    "--catch-up": dict(type=float, default=5.0, metavar="SECONDS", help="while the source is disconnected, and this "
+                       "long (of the wall clock) after it connects, rows wait for every missing reading: what was "
+                       "kept meanwhile may still come (default 5)"),
 }
 CLOCK = TimeFormat("datetime")  # ISO 8601, UTC: events' clock times, and the rows' of a source that writes such
 
@@ -116,6 +127,23 @@ class Assembler:
         self.wall = True  # every reading so far took its arrival time: the wall clock may close rows
         self.ahead = []  # messages held ahead of the stream, [[(name, value, time)]], in a row
         self.iso = False  # the source writes its times as clock times (ISO 8601 text, OPC UA's stamps)
+        self.held = False  # the source is disconnected or catching up: rows leave only when complete
+
+    @property
+    def holding(self) -> bool:
+        """Whether rows are held now: while the monitor says so, in a stream whose readings carry their
+        own times."""
+        return self.held and not self.wall
+
+    def hold(self):
+        """The source is disconnected, or has just connected and may still deliver readings for rows
+        the stream has passed: rows leave only when complete until `release`."""
+        self.held = True
+
+    def release(self):
+        """The source has caught up: rows leave by the grace again; the rows and events that are due."""
+        self.held = False
+        return self._close() if self.next_slot is not None else ([], [])
 
     @property
     def times(self) -> TimeFormat:
@@ -160,7 +188,9 @@ class Assembler:
                                 "time = \"arrival\" for the tag in the tag file)"))
         if future:
             events.append(_future(future, arrival, self.at))
-        if taken:
+        if taken and self.holding:
+            events += self._reached()
+        elif taken:
             self.ahead = []  # the stream goes on where it was: what was held ahead of it was not followed
         if ahead:
             events += self._ahead(ahead)
@@ -192,9 +222,10 @@ class Assembler:
         if len(self.ahead) < FOLLOWED:
             names = list(dict.fromkeys(name for name, _, _ in readings))
             return [Event("ahead", names[0] if len(names) == 1 else None,
-                          f"a reading{'s' * (len(readings) > 1)} for {self.at(low)} came {low - self.watermark:g} s "
-                          f"ahead of the stream (its newest reading is for {self.at(self.watermark)}): held, and used "
-                          "only if "
+                          f"{'readings' if len(readings) > 1 else 'a reading'} for {self.at(low)} came "
+                          f"{low - self.watermark:g} s ahead of the stream (its newest reading is for "
+                          f"{self.at(self.watermark)}): held, and used "
+                          f"{'once the stream catches up with it, or ' if self.holding else 'only '}if "
                           f"{FOLLOWED - 1} more messages follow it there", low)]
         held, self.ahead = self.ahead, []
         start = min(t for _, _, t in held[0])
@@ -203,6 +234,15 @@ class Assembler:
                         low)]
         for message in held:
             for reading in message:
+                events += self._take(*reading)
+        return events
+
+    def _reached(self):
+        """While rows are held: take in the messages held ahead that the stream has come within the
+        horizon of (a source catching up sends its readings of the moment before those it kept)."""
+        events = []
+        while self.ahead and min(t for _, _, t in self.ahead[0]) <= self.watermark + self.horizon:
+            for reading in self.ahead.pop(0):
                 events += self._take(*reading)
         return events
 
@@ -237,7 +277,7 @@ class Assembler:
         while True:
             slot = self.next_slot
             values = self.open.get(slot)
-            if not self._complete(slot, values) and self.watermark < slot * self.dt + self.grace:
+            if not self._complete(slot, values) and (self.holding or self.watermark < slot * self.dt + self.grace):
                 return rows, events
             if values is None:
                 later = [s for s in self.open if s > slot]
