@@ -410,10 +410,13 @@ class Units:
         """The units through their own Filters: the engines of the units that measured the same outputs
         and hold as many particles stepped together (their algorithm's `step_together`), each other one
         on its own."""
+        spec = ALGORITHMS[self.algorithm]
+        if spec.share is not None:
+            spec.share([f.engine for f in self._filters])
         filters = [self._filters[unit] for unit in np.arange(self.count)[index]]
         estimates = [None] * len(filters)
         groups = {}
-        together = ALGORITHMS[self.algorithm].step_together
+        together = spec.step_together
         if together is not None:
             for i, f in enumerate(filters):  # units of one bank that measured the same and hold as many particles
                 groups.setdefault((id(f.model), mask[i].tobytes(), len(f.engine.z)), []).append(i)
