@@ -21,7 +21,7 @@ import numpy as np
 
 from .covariances import CovarianceGraph, Representatives
 from . import kalman
-from .engine import (OPEN, Estimate, FilterError, Genealogy, Resampler, mixture_moments, offsets, rows_drawn, sample_rows,
+from .engine import (OPEN, Estimate, FilterError, Gate, Genealogy, Resampler, mixture_moments, offsets, rows_drawn, sample_rows,
                      screen, systematic_rows)
 from .resample import ess, fearnhead_clifford, normalize, normalize_rows, systematic
 from .result import Predictive
@@ -162,7 +162,9 @@ def step_together(engines, y, mask, u, gates) -> list:
         views laid out as in each engine's own step (a matrix product's order of sums follows them)."""
         es, g = [engines[i] for i in chosen], len(chosen)
         z, mu, logw = (np.stack([getattr(e, name) for e in es]) for name in ("z", "mu", "logw"))
-        offsets = np.stack([e._offsets(u[i]) for i, e in zip(chosen, es)])
+        # units under the same inputs (the usual case) share their offsets, computed once
+        offsets = (first._offsets(u[0])[None] if (u == u[0]).all() else
+                   np.stack([e._offsets(u[i]) for i, e in zip(chosen, es)]))
         pred = (mu @ first._map).reshape(g, n, K, nx + ny) + offsets[:, None]
         if pairs:  # every (particle, mode) pair in order, and rows of every mode of each node
             cand = pred.reshape(g, n * K, nx + ny)
@@ -186,13 +188,11 @@ def step_together(engines, y, mask, u, gates) -> list:
     kept = list(range(len(engines)))
     parent, mode, prior, log_prior, quad, logdet, r, mu_p, y_pred, gain_t, Sig_f, Linv, pred = weighed(kept)
     estimates, flagged = [None] * len(engines), [None] * len(engines)
-    for i, gate in enumerate(gates):
-        if gate.closer_look(quad[i]):  # under every mode of every particle
-            e = engines[i]
-            Linv_every = Linv[i] if pairs else rows.at(e.node)[0]
-            every = pred.reshape(len(engines), n * K, nx + ny)[i]
-            estimates[i], flagged[i] = screen(e, y[i], mask, u[i], gate, y[i, mask] - every[:, nx:][:, mask],
-                                              kalman.standard_deviations(Linv_every))
+    for i in Gate.closer_looks(gates, quad):  # under every mode of every particle
+        Linv_every = Linv[i] if pairs else rows.at(engines[i].node)[0]
+        every = pred.reshape(len(engines), n * K, nx + ny)[i]
+        estimates[i], flagged[i] = screen(engines[i], y[i], mask, u[i], gates[i], y[i, mask] - every[:, nx:][:, mask],
+                                          kalman.standard_deviations(Linv_every))
     if any(est is not None for est in estimates):  # the engines whose step screening redid are done
         kept = [i for i, est in enumerate(estimates) if est is None]
         if not kept:
