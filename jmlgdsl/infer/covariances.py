@@ -199,6 +199,9 @@ class Representatives:
     def pick(self, graph, nodes) -> np.ndarray:
         """The representatives of the classes of `nodes` (n,): a class met for the first time takes
         the first of its nodes in order."""
+        rep = self.table(graph)[graph.classes.buffer[nodes]]
+        if rep.min(initial=0) >= 0:  # every class met before (a converged graph: every step)
+            return rep
         return Representatives.pick_together([self], graph, nodes, np.zeros(len(nodes), dtype=np.int64))
 
     @staticmethod

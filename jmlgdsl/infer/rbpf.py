@@ -86,9 +86,19 @@ class RaoBlackwellised:
         """Select the next particles from this step's candidates (candidate j: particle parent[j] into
         mode[j], weight q[j], filtered mean mu_f[j]; `pairs`: they are every (particle, mode) pair in
         order; `selected`: what `select` gives, if made already), the step's predictive and genealogy
-        kept; the ESS."""
-        return advance_together([self], rows, parent if pairs else parent[None], mode if pairs else mode[None], pairs,
-                                log_prior[None], r[None], Linv[None], q[None], mu_f[None], mask, [selected])[0]
+        kept; the ESS. (`advance_together` is this for many engines side by side.)"""
+        n = len(self.z)
+        self.predictive = Predictive(mode, log_prior, r, Linv, mask)
+        chosen, logw, size = self.select(q, parent, mode) if selected is None else selected
+        key = chosen if pairs else parent[chosen] * self.K + mode[chosen]  # (parent, mode) as one number
+        resampled = self.resampler is not None and logw is self.resampler.uniform  # all weights 1 / N
+        chosen, self.logw, self.copies = merge_copies(key, chosen, logw, n * self.K, resampled)
+        self.genealogy = Genealogy(parent, mode, q, chosen)
+        self.z = mode[chosen]
+        self.mu = mu_f[chosen]
+        self.node = self.reps.pick(self.graph, self.graph.children(rows, self.node[parent[chosen]], self.z))
+        self.tidy()
+        return size
 
     def tidy(self):
         """Keep the nodes in bounds after a step: forget the classes the particles left, as a graph of
@@ -226,8 +236,8 @@ def advance_together(engines, rows, parent, mode, pairs, log_prior, r, Linv, q, 
     key = chosen if pairs else parents[row] * K + modes[row]  # (parent, mode) as one number
     resampled = np.array([e.resampler is not None and logw is e.resampler.uniform  # all weights 1 / N
                           for e, (_, logw, _) in zip(engines, picks)])
-    kept, logw, copies, owner = merge_copies(key, chosen, np.concatenate([w for _, w, _ in picks]), n * K, resampled,
-                                             lengths)
+    kept, logw, copies, owner = merge_copies_together(key, chosen, np.concatenate([w for _, w, _ in picks]), n * K,
+                                                      resampled, lengths)
     row = owner * J + kept
     z, mu = modes[row], mu_f.reshape(g * J, -1)[row]
     child = graph.children(rows, np.stack([e.node for e in engines]).reshape(-1)[owner * n + parents[row]], z)
@@ -286,12 +296,32 @@ def weigh(prior, log_prior, mode, K, quad, logdet, r, mu_p, y_pred, gain_t, Sig_
     return q, loglik, mu_f, mean, cov, posterior, (prior[..., None, :] @ y_pred)[..., 0, :]
 
 
-def merge_copies(key, chosen, logw, size, equal, lengths):
+def merge_copies(key, chosen, logw, size, equal=False):
     """Chosen candidates with equal keys (same parent, same mode) are identical particles: keep one
-    of each, in key order, with the summed weight. Engines side by side give theirs one after the
-    other, `lengths` (g,) of each, every engine's merged as alone. Keys lie in [0, size); `equal[i]`
-    says every logw of engine i is the same (as after resampling), so c copies weigh log c + logw[0].
-    An engine whose chosen candidates are all distinct keeps them as they are.
+    of each, in key order, with the summed weight. Keys lie in [0, size); `equal` says every logw
+    is the same (as after resampling), so c copies weigh log c + logw[0].
+    Returns (chosen, log-weights, copy counts). (`merge_copies_together`: many engines' at once.)"""
+    counts = np.bincount(key, minlength=size)
+    distinct = counts.nonzero()[0]
+    if len(distinct) == len(key):
+        return chosen, logw, counts[key]
+    if key is chosen:  # a candidate is its own key
+        kept = distinct
+    else:
+        first = np.empty(size, dtype=np.int64)
+        first[key[::-1]] = chosen[::-1]  # the first chosen candidate with each key
+        kept = first[distinct]
+    counts = counts[distinct]
+    if equal:
+        return kept, np.log(counts) + logw[0], counts
+    top = logw.max()
+    summed = np.bincount(key, weights=np.exp(logw - top), minlength=size)[distinct]
+    return kept, np.log(summed, out=np.full(len(summed), -np.inf), where=summed > 0) + top, counts
+
+
+def merge_copies_together(key, chosen, logw, size, equal, lengths):
+    """`merge_copies` of engines side by side, their chosen candidates one after the other (`lengths`
+    (g,) of each, `equal` (g,) each one's `equal`), every engine's merged as alone.
     Returns (chosen, log-weights, copy counts, the engine of each), one after the other."""
     g = len(lengths)
     owner = np.repeat(np.arange(g), lengths)
