@@ -1,12 +1,14 @@
 """The Kalman kernel against textbook formulas, and the shared covariance graph against the kernel."""
 
+import types
+
 import numpy as np
 import pytest
 from infer_models import random_model
 from scipy.stats import multivariate_normal
 
 from jmlgdsl.infer import kalman
-from jmlgdsl.infer.covariances import CovarianceGraph
+from jmlgdsl.infer.covariances import CovarianceGraph, Representatives
 
 
 def random_spd(rng, n):
@@ -68,20 +70,32 @@ def test_graph_rows_equal_the_kernel():
         assert -0.5 * (z @ z + logdet + np.log(2 * np.pi)) == pytest.approx(ll)
 
 
-def test_graph_merges_equal_covariances_and_compacts():
+def test_graph_keeps_covariances_exactly_and_each_engine_its_first_of_a_class():
     model = random_model(np.random.default_rng(3), K=2, nx=2, ny=1)
     graph = CovarianceGraph(model, rtol=1e-10)
     S = np.array([[2.0, 0.3], [0.3, 1.0]])
     ids = graph.add(np.stack([S, S * (1 + 1e-14), S * 1.01, S]))
-    assert ids[0] == ids[1] == ids[3] != ids[2] and graph.size == 2
+    assert ids[0] == ids[3] and len(set(ids[:3])) == 3 and graph.size == 3
+    classes = graph.classes.data[ids]
+    assert classes[0] == classes[1] != classes[2]
+    # two engines meet the two near-equal covariances in opposite orders: each keeps the one it met
+    # first, whatever the other met, as a graph of its own would
+    first, second = Representatives(graph, ids[[0]]), Representatives(graph, ids[[1]])
+    np.testing.assert_array_equal(first.pick(graph, ids[[1, 2, 0]]), ids[[0, 2, 0]])
+    np.testing.assert_array_equal(second.pick(graph, ids[[0, 2, 1]]), ids[[1, 2, 1]])
+    assert first.held == second.held == 2
     rows = graph.rows(np.array([True]))
-    child = graph.children(rows, np.array([0, 0, 1]), np.array([1, 1, 0]))
-    assert child[0] == child[1] and graph.size == 4
-    expected = rows.Sig_f(np.array([1, 0]), np.array([0, 1]))
-    np.testing.assert_allclose(graph.Sig[child[2]], expected[0])
-    renumbered = graph.compact(np.array([child[2], child[0]]))
+    child = graph.children(rows, ids[[0, 0, 2]], np.array([1, 1, 0]))
+    assert child[0] == child[1] and graph.size == 5
+    expected = rows.Sig_f(ids[[2, 0]], np.array([0, 1]))
+    np.testing.assert_array_equal(graph.Sig[child[2]], expected[0])
+    engine = types.SimpleNamespace(node=child[[2, 0]], reps=first)
+    first.keep(graph, first.pick(graph, engine.node))
+    assert first.held == 2  # the classes of its particles' nodes: S's is forgotten
+    graph.compact([engine])
     assert graph.size == 2
-    np.testing.assert_array_equal(graph.Sig[renumbered], expected)
+    np.testing.assert_array_equal(graph.Sig[engine.node], expected)
+    np.testing.assert_array_equal(first.pick(graph, engine.node), engine.node)
 
 
 def test_graph_keeps_a_small_variance_apart_from_a_large_one():
@@ -90,7 +104,8 @@ def test_graph_keeps_a_small_variance_apart_from_a_large_one():
     # A temperature (variance 1) beside a concentration (variance 1e-8): 1 % apart in the
     # concentration is a different covariance, though far below 1e-10 of the largest variance.
     ids = graph.add(np.stack([np.diag([1.0, 1e-8]), np.diag([1.0, 1.01e-8]), np.diag([1.0, 1e-8 * (1 + 1e-14)])]))
-    assert ids[0] != ids[1] and ids[0] == ids[2]
+    classes = graph.classes.data[ids]
+    assert classes[0] != classes[1] and classes[0] == classes[2]
 
 
 @pytest.mark.parametrize("n", [1, 4, 16])  # a square root, numpy's batch, BLAS matrix by matrix

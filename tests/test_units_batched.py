@@ -14,7 +14,7 @@ import jmlgdsl
 from jmlgdsl.cli import main
 from jmlgdsl.errors import DataError
 from jmlgdsl.infer import ALGORITHMS, Filter, FilterError, kalman
-from jmlgdsl.infer.rbpf import Exact
+from jmlgdsl.infer.rbpf import Exact, RaoBlackwellised
 from jmlgdsl.infer.units import Units, _groups, filter_units
 from jmlgdsl.simulation.linear import simulate
 
@@ -156,6 +156,23 @@ def test_every_particle_filter_over_units_equals_each_unit_alone(dryer, algorith
     for batched, y, u in zip(results, ys, us):
         assert_same(batched, jmlgdsl.filter(dryer, y, u, algorithm=algorithm, particles=particles, seed=7, **options))
     assert results[2].rejected.any() and results[3].rejected.any()
+
+
+@pytest.mark.parametrize("spare", [RaoBlackwellised.spare_nodes, -10**9])  # -10**9: compacted at every step
+def test_rao_blackwellised_units_share_one_covariance_graph_each_unit_its_own_bits(dryer, monkeypatch, spare):
+    """The units' engines hold one graph (each keeping its own representative of a class of nearly
+    equal covariances), compacted for all of them together, and each unit's results stay those of
+    its Filter alone, whose own graph is compacted on its own."""
+    monkeypatch.setattr(RaoBlackwellised, "spare_nodes", spare)
+    ys, us = fleet_data(dryer, 4, 60, seed=3)
+    results = filter_units(dryer, ys, us, algorithm="la-rbpf", particles=5, seed=7)
+    for batched, y, u in zip(results, ys, us):
+        assert_same(batched, jmlgdsl.filter(dryer, y, u, algorithm="la-rbpf", particles=5, seed=7))
+    fleet = Units(dryer, 3, "la-rbpf", 5, seed=1)
+    for t in range(5):
+        fleet.step(ys[0][t:t + 1].repeat(3, axis=0), us[0][t:t + 1].repeat(3, axis=0))
+    graphs = {id(f.engine.graph) for f in fleet._filters}
+    assert len(graphs) == 1 and fleet._filters[0].engine.graph.shared
 
 
 @pytest.mark.parametrize("algorithm", ["la-rbpf", "pf"])

@@ -33,7 +33,8 @@ from .scale import ScaleCheck
 from .truth import Truth
 
 MAX_SEGMENTS = 30  # mode segments the summary lists; the rest are counted
-CHECKPOINT_FORMAT = 3  # 3: data only (jmlgdsl.sealed); 2 and before: a Python pickle, never read back
+CHECKPOINT_FORMAT = 4  # 4: a covariance graph holds its classes' representatives (shared by a fleet's units); 3: data
+#                        only (jmlgdsl.sealed); 2 and before: a Python pickle, never read back
 PICKLED = b"jmlgdsl-checkpoint\n"  # how a checkpoint of format 2 or before begins
 # the classes a diagnosis's state is made of: the only ones reading a checkpoint back may make
 SAVED_KINDS = (*FILTER_KINDS, Row, AlarmRule, AlarmStream, Evidence, MovingAverage, ScaleCheck, Truth, Summary)

@@ -25,8 +25,9 @@ class Algorithm:
     whole record after one filter pass (jmlgdsl.infer.smooth: KimPass, HistoryPass; None: the
     filter's own window over the whole record). For many units (jmlgdsl.infer.units):
     `vectorised` says one engine with a unit axis steps every unit (each unit's numbers those of its
-    Filter alone, bit for bit), and `step_together` steps the engines of units with the same readings
-    and as many particles in one call (None: each on its own)."""
+    Filter alone, bit for bit), `step_together` steps the engines of units with the same readings
+    and as many particles in one call (None: each on its own), and `share`, given every unit's
+    engine before each step, lets them share what they can (rbpf.share: one covariance graph)."""
 
     name: str
     engine: type
@@ -36,6 +37,7 @@ class Algorithm:
     whole_record: type | None = None
     vectorised: bool = False
     step_together: Callable | None = None
+    share: Callable | None = None
 
     @property
     def uses_particles(self) -> bool:
@@ -57,15 +59,15 @@ ALGORITHMS = {a.name: a for a in (
     Algorithm("pf", pf.BootstrapPF, 200, "bootstrap particle filter over mode and state", Genealogies,
               step_together=pf.step_together),
     Algorithm("rbpf", rbpf.RBPF, 100, "Rao-Blackwellised PF, modes drawn from the transition prior", Genealogies,
-              step_together=rbpf.step_together),
+              step_together=rbpf.step_together, share=rbpf.share),
     Algorithm("la-rbpf", rbpf.LookAheadRBPF, 10, "look-ahead RBPF: every next mode weighed before resampling",
-              Genealogies, step_together=rbpf.step_together),
+              Genealogies, step_together=rbpf.step_together, share=rbpf.share),
     Algorithm("fc-rbpf", rbpf.FearnheadCliffordRBPF, 4, "look-ahead RBPF with Fearnhead-Clifford optimal selection",
-              Genealogies, step_together=rbpf.step_together),
+              Genealogies, step_together=rbpf.step_together, share=rbpf.share),
     Algorithm("imm", IMM, None, "interacting multiple models: one moment-matched Gaussian per mode", ImmWindow,
               whole_record=KimPass, vectorised=True),
     Algorithm("exact", rbpf.Exact, None, "every mode history: the exact posterior, for short sequences", Genealogies,
-              whole_record=HistoryPass, step_together=rbpf.step_together),
+              whole_record=HistoryPass, step_together=rbpf.step_together, share=rbpf.share),
 )}
 
 

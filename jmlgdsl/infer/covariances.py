@@ -4,9 +4,10 @@ A Kalman covariance depends only on the mode history and on which outputs were m
 the data values. Particles therefore hold an index into a table of distinct covariances (nodes),
 and for each node, mode and observation mask the covariance work is done once and cached: the
 Cholesky factor of the innovation covariance, the gain and the child node. Covariances whose
-entries agree to a relative tolerance (each entry relative to its own variances) are one node, so
-once the Riccati recursion has converged the table stops growing and a step costs no covariance
-arithmetic at all.
+entries agree to a relative tolerance (each entry relative to its own variances) are one class,
+and an engine's particles hold one node of each class (its representative), so once the Riccati
+recursion has converged an engine's nodes stop growing and a step costs no covariance arithmetic
+at all. The units of a fleet share one graph: a covariance any of them met is worked out once.
 """
 
 from __future__ import annotations
@@ -77,15 +78,24 @@ class _Rows:
 
 
 class CovarianceGraph:
-    """Distinct covariances (nodes) and their cached per-mode Kalman steps, keyed by observation mask."""
+    """Distinct covariances (nodes) and their cached per-mode Kalman steps, keyed by observation mask.
+
+    A node is one covariance exactly (its bytes), so its pieces and its children are a pure function
+    of it: the engines of a fleet's units share one graph (`shared`), and each gets the same bits
+    whichever of them met a covariance first. Nodes whose entries agree to rtol are one class; an
+    engine keeps the first node of each class it meets as the class's representative
+    (`Representatives`) and holds only representatives, as a graph of its own would.
+    """
 
     def __init__(self, model, rtol=1e-10):
         self.model = model
         self.rtol = rtol
-        nx = model.nx
-        self._Sig = _Growing((nx, nx))
-        self._keys_seen: dict[bytes, int] = {}
+        self._Sig = _Growing((model.nx, model.nx))
+        self.classes = _Growing((), np.int64)  # each node's class
+        self._nodes: dict[bytes, int] = {}  # a covariance's bytes -> its node
+        self._keys_seen: dict[bytes, int] = {}  # a class's key -> the class
         self._rows: dict[bytes, _Rows] = {}
+        self.shared = False  # engines of several units hold it: they compact it together (rbpf.share)
 
     @property
     def size(self) -> int:
@@ -108,17 +118,20 @@ class CovarianceGraph:
         return [row.tobytes() for row in np.column_stack([scale.astype(np.int64), ticks])]
 
     def add(self, Sigs) -> np.ndarray:
-        """Node indices for covariances (n, nx, nx), creating nodes for the ones not seen before."""
+        """Node indices for covariances (n, nx, nx), creating nodes for the values not met before."""
         out = np.empty(len(Sigs), dtype=np.int64)
         new = []
-        for i, key in enumerate(self._keys(Sigs)):
-            node = self._keys_seen.get(key)
+        for i, row in enumerate(np.ascontiguousarray(Sigs).reshape(len(Sigs), -1)):
+            key = row.tobytes()
+            node = self._nodes.get(key)
             if node is None:
-                node = self._keys_seen[key] = self._Sig.size + len(new)
+                node = self._nodes[key] = self._Sig.size + len(new)
                 new.append(i)
             out[i] = node
         if new:
             self._Sig.extend(Sigs[new])
+            seen = self._keys_seen
+            self.classes.extend([seen.setdefault(key, len(seen)) for key in self._keys(Sigs[new])])
         return out
 
     def rows(self, mask) -> _Rows:
@@ -148,12 +161,80 @@ class CovarianceGraph:
             child = rows.child.buffer[node, mode]
         return child
 
-    def compact(self, nodes) -> np.ndarray:
-        """Keep only the nodes in use (dropping every cache) and return `nodes` renumbered."""
-        live, renumbered = np.unique(nodes, return_inverse=True)
+    def compact(self, holders):
+        """Keep only the nodes the holders (engines: `node`, their particles' nodes, and `reps`, their
+        Representatives) use, renumbering them and their classes (dropping every cache)."""
+        live = np.unique(np.concatenate([np.concatenate([h.node, h.reps.nodes()]) for h in holders]))
+        renumbered = np.full(self.size, -1, dtype=np.int64)
+        renumbered[live] = np.arange(len(live))
         Sig = self.Sig[live].copy()
         self._Sig = _Growing(Sig.shape[1:])
+        self.classes = _Growing((), np.int64)
+        self._nodes.clear()
         self._keys_seen.clear()
         self._rows.clear()
         self.add(Sig)
-        return renumbered.reshape(np.shape(nodes))
+        for h in holders:
+            h.node = renumbered[h.node]
+            h.reps.renumber(self, renumbered)
+
+
+class Representatives:
+    """One engine's representative node of each class of covariances it has met: the first node of
+    the class it met, as a graph of its own keeps the first covariance of each key. So its results
+    do not depend on what other engines sharing the graph met, or in which order."""
+
+    def __init__(self, graph, root):
+        self.of = np.full(16, -1, dtype=np.int64)  # class -> its representative node, -1: not met
+        self.held = 0  # the classes met: the size a graph of the engine's own would have
+        self.pick(graph, root)
+
+    def table(self, graph) -> np.ndarray:
+        """The representative of every class of `graph`, -1 for those not met."""
+        width = graph.classes.size
+        if len(self.of) < width:
+            self.of = np.concatenate([self.of, np.full(max(width, 2 * len(self.of)) - len(self.of), -1)])
+        return self.of[:width]
+
+    def pick(self, graph, nodes) -> np.ndarray:
+        """The representatives of the classes of `nodes` (n,): a class met for the first time takes
+        the first of its nodes in order."""
+        rep = self.table(graph)[graph.classes.buffer[nodes]]
+        if rep.min(initial=0) >= 0:  # every class met before (a converged graph: every step)
+            return rep
+        return Representatives.pick_together([self], graph, nodes, np.zeros(len(nodes), dtype=np.int64))
+
+    @staticmethod
+    def pick_together(each, graph, nodes, owner) -> np.ndarray:
+        """`pick` of several engines' Representatives `each` side by side: node i is owner[i]'s."""
+        classes = graph.classes.buffer[nodes]
+        rep = (each[0].table(graph)[None] if len(each) == 1 else np.stack([r.table(graph) for r in each]))[owner, classes]
+        missing = rep < 0
+        if missing.any():  # new classes, taken in order: (engine, class) pairs, first occurrences
+            pair = owner[missing] * graph.classes.size + classes[missing]
+            new, first = np.unique(pair, return_index=True)
+            for j, c, node in zip(new // graph.classes.size, new % graph.classes.size, nodes[missing][first]):
+                each[j].of[c] = node
+                each[j].held += 1
+            rep[missing] = np.array([each[j].of[c] for j, c in zip(owner[missing], classes[missing])], dtype=np.int64)
+        return rep
+
+    def nodes(self) -> np.ndarray:
+        """The representative nodes."""
+        return self.of[self.of >= 0]
+
+    def keep(self, graph, nodes):
+        """Forget every class but those of `nodes`, as compacting a graph of the engine's own forgets
+        the covariances its particles no longer hold."""
+        live = np.unique(graph.classes.buffer[nodes])
+        kept = self.of[live]
+        self.of[:] = -1
+        self.of[live] = kept
+        self.held = len(live)
+
+    def renumber(self, graph, renumbered):
+        """Follow a move into `graph` (compacting, or joining another): the representatives as
+        renumbered, each at its node's class there."""
+        nodes = renumbered[self.nodes()]
+        self.of = np.full(max(16, graph.classes.size), -1, dtype=np.int64)
+        self.of[graph.classes.buffer[nodes]] = nodes

@@ -66,6 +66,12 @@ class Gate(NamedTuple):
         closer look of `screen` (never, and at no cost, when the gate is open)."""
         return self.bound < np.inf and quad.min() > self.bound
 
+    @staticmethod
+    def closer_looks(gates, quad) -> np.ndarray:
+        """The positions of the gates (one per engine stepped together) whose steps need the closer
+        look, each engine's squared distances a row of quad: `closer_look` of each, in one call."""
+        return np.flatnonzero(quad.min(axis=-1) > np.array([gate.bound for gate in gates]))
+
 
 OPEN = Gate(np.empty(0), np.empty(0, dtype=bool), np.inf)  # nothing is ever flagged
 

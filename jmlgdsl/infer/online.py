@@ -155,7 +155,7 @@ class Filter:
 # What a Filter's state is made of: the classes and functions its saved state (jmlgdsl.sealed) may
 # hold, and the only ones reading it back may make.
 SAVED_KINDS = (Filter, Step, Gate, Genealogy, Resampler, covariances.CovarianceGraph, covariances._Growing,
-               covariances._Rows, *(a.engine for a in ALGORITHMS.values()),
+               covariances._Rows, covariances.Representatives, *(a.engine for a in ALGORITHMS.values()),
                *dict.fromkeys(a.window for a in ALGORITHMS.values()), *SCHEMES.values())
 
 

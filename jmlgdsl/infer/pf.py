@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..gaussian import psd_sqrt
-from .engine import (OPEN, Estimate, Genealogy, Resampler, mixture_moments, offsets, rows_drawn, sample_rows, screen,
+from .engine import (OPEN, Estimate, Gate, Genealogy, Resampler, mixture_moments, offsets, rows_drawn, sample_rows, screen,
                      systematic_rows)
 from .kalman import inverse_cholesky, log_density, quad_form
 from .resample import normalize_rows, row_extreme, systematic
@@ -116,9 +116,9 @@ def step_together(engines, y, mask, u, gates) -> list:
     Linv, logdet = Linv[z], logdet[z]
     r, quad = whitened(y, mask, y_pred, Linv)
     estimates, flagged = [None] * g, [None] * g
-    for i, (e, gate) in enumerate(zip(engines, gates)):
-        if gate.closer_look(quad[i]):
-            estimates[i], flagged[i] = screen(e, y[i], mask, u[i], gate, *e._every_mode(y[i], mask, b[i], c[i]))
+    for i in Gate.closer_looks(gates, quad):
+        e = engines[i]
+        estimates[i], flagged[i] = screen(e, y[i], mask, u[i], gates[i], *e._every_mode(y[i], mask, b[i], c[i]))
     kept = [i for i, est in enumerate(estimates) if est is None]
     if not kept:
         return estimates

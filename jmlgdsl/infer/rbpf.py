@@ -19,9 +19,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .covariances import CovarianceGraph
+from .covariances import CovarianceGraph, Representatives
 from . import kalman
-from .engine import (OPEN, Estimate, FilterError, Genealogy, Resampler, mixture_moments, offsets, rows_drawn, sample_rows,
+from .engine import (OPEN, Estimate, FilterError, Gate, Genealogy, Resampler, mixture_moments, offsets, rows_drawn, sample_rows,
                      screen, systematic_rows)
 from .resample import ess, fearnhead_clifford, normalize, normalize_rows, systematic
 from .result import Predictive
@@ -39,7 +39,8 @@ class RaoBlackwellised:
         self.model, self.n, self.rng, self.resampler = model, particles, rng, resampler
         self.K, self.nx, self.ny = K, nx, ny = model.K, model.nx, model.ny
         self.graph = CovarianceGraph(model)
-        root = self.graph.add(model.Sigma0[None])[0]
+        root = self.graph.add(model.Sigma0[None])
+        self.reps = Representatives(self.graph, root)
         # One stacked map from a particle mean to every mode's predicted state and output, side by
         # side per mode: (mu @ self._map).reshape(n * K, nx + ny) holds [A_k mu, C_k A_k mu] per row.
         self._map = np.concatenate([model.A, model.C @ model.A], axis=1).reshape(K * (nx + ny), nx).T
@@ -48,7 +49,7 @@ class RaoBlackwellised:
         self.logw = np.log(model.p0[atoms])
         self.z = atoms
         self.mu = model.mu0[atoms]
-        self.node = np.full(len(atoms), root)
+        self.node = np.full(len(atoms), root[0])
         self.copies = np.ones(len(atoms), dtype=np.int64)
         self._pairs = {}  # particle count -> every (particle, mode) pair
         self._u = None  # the last input and its per-mode offsets (inputs rarely change)
@@ -85,7 +86,7 @@ class RaoBlackwellised:
         """Select the next particles from this step's candidates (candidate j: particle parent[j] into
         mode[j], weight q[j], filtered mean mu_f[j]; `pairs`: they are every (particle, mode) pair in
         order; `selected`: what `select` gives, if made already), the step's predictive and genealogy
-        kept; the ESS."""
+        kept; the ESS. (`advance_together` is this for many engines side by side.)"""
         n = len(self.z)
         self.predictive = Predictive(mode, log_prior, r, Linv, mask)
         chosen, logw, size = self.select(q, parent, mode) if selected is None else selected
@@ -95,10 +96,25 @@ class RaoBlackwellised:
         self.genealogy = Genealogy(parent, mode, q, chosen)
         self.z = mode[chosen]
         self.mu = mu_f[chosen]
-        self.node = self.graph.children(rows, self.node[parent[chosen]], self.z)
-        if self.graph.size > 4 * len(self.node) + self.spare_nodes:
-            self.node = self.graph.compact(self.node)
+        self.node = self.reps.pick(self.graph, self.graph.children(rows, self.node[parent[chosen]], self.z))
+        self.tidy()
         return size
+
+    def tidy(self):
+        """Keep the nodes in bounds after a step: forget the classes the particles left, as a graph of
+        the engine's own would, and compact a graph of its own (a shared one: `share`)."""
+        bound = 4 * len(self.node) + self.spare_nodes
+        if self.reps.held > bound:
+            self.reps.keep(self.graph, self.node)
+        if not self.graph.shared and self.graph.size > bound:
+            self.graph.compact([self])
+
+    def join(self, graph):
+        """Hold `graph` instead of the engine's own: the nodes and representatives move into it."""
+        moved = graph.add(self.graph.Sig)
+        self.node = moved[self.node]
+        self.reps.renumber(graph, moved)
+        self.graph = graph
 
     def step(self, y, mask, u, gate=OPEN) -> Estimate:
         model, K, nx, ny = self.model, self.K, self.nx, self.ny
@@ -142,11 +158,12 @@ def step_together(engines, y, mask, u, gates) -> list:
     Their arithmetic runs with a leading axis over the engines, each engine's the same operations on
     its own arrays as its own step's (a stack of matrix products is one product per matrix, and a
     row's sum is the sum of that row alone), so each gets, bit for bit, what it would get alone. Each
-    then takes the closer look of its own gate, and selects its particles with its own random numbers."""
+    then takes the closer look of its own gate, and selects its particles with its own random numbers.
+    The engines share one covariance graph (`share`)."""
     first = engines[0]
     model, K, nx, ny = first.model, first.K, first.nx, first.ny
     n = len(first.z)
-    rows = [e.graph.rows(mask) for e in engines]
+    rows = first.graph.rows(mask)
     candidates = [e.candidates() for e in engines]
     pairs = candidates[0][2] is None  # the candidates are every (particle, mode) pair, the same for all
 
@@ -155,22 +172,24 @@ def step_together(engines, y, mask, u, gates) -> list:
         views laid out as in each engine's own step (a matrix product's order of sums follows them)."""
         es, g = [engines[i] for i in chosen], len(chosen)
         z, mu, logw = (np.stack([getattr(e, name) for e in es]) for name in ("z", "mu", "logw"))
-        offsets = np.stack([e._offsets(u[i]) for i, e in zip(chosen, es)])
+        # units under the same inputs (the usual case) share their offsets, computed once
+        offsets = (first._offsets(u[0])[None] if (u == u[0]).all() else
+                   np.stack([e._offsets(u[i]) for i, e in zip(chosen, es)]))
         pred = (mu @ first._map).reshape(g, n, K, nx + ny) + offsets[:, None]
         if pairs:  # every (particle, mode) pair in order, and rows of every mode of each node
             cand = pred.reshape(g, n * K, nx + ny)
             parent, mode, _ = candidates[chosen[0]]
-            packed = np.stack([rows[i].packed.buffer[e.node] for i, e in zip(chosen, es)]).reshape(g, n * K, -1)
+            packed = rows.packed.buffer[np.stack([e.node for e in es])].reshape(g, n * K, -1)
             log_prior = (logw[..., None] + model.logP[z]).reshape(g, n * K)
             prior = np.exp(log_prior)  # sums to 1: logw is normalised
         else:  # each engine's own candidates
             parent, mode, log_prop = (np.stack([candidates[i][k] for i in chosen]) for k in range(3))
             each = np.arange(g)[:, None]
             cand = pred[each, parent, mode]
-            packed = np.stack([rows[i].packed.buffer[e.node[p], m] for i, e, p, m in zip(chosen, es, parent, mode)])
+            packed = rows.packed.buffer[np.stack([e.node for e in es])[each, parent], mode]
             log_prior = logw[each, parent] + model.logP[z[each, parent], mode] - log_prop
             prior, _ = normalize_rows(log_prior)
-        Linv, logdet, gain_t, Sig_f = rows[chosen[0]].unpack(packed)
+        Linv, logdet, gain_t, Sig_f = rows.unpack(packed)
         y_pred = cand[..., nx:]
         r = y[chosen][:, None, :] - y_pred if mask.all() else y[chosen][:, None, mask] - y_pred[..., mask]
         quad = kalman.quad_form((Linv @ r[..., None])[..., 0])
@@ -179,13 +198,11 @@ def step_together(engines, y, mask, u, gates) -> list:
     kept = list(range(len(engines)))
     parent, mode, prior, log_prior, quad, logdet, r, mu_p, y_pred, gain_t, Sig_f, Linv, pred = weighed(kept)
     estimates, flagged = [None] * len(engines), [None] * len(engines)
-    for i, gate in enumerate(gates):
-        if gate.closer_look(quad[i]):  # under every mode of every particle
-            e = engines[i]
-            Linv_every = Linv[i] if pairs else rows[i].at(e.node)[0]
-            every = pred.reshape(len(engines), n * K, nx + ny)[i]
-            estimates[i], flagged[i] = screen(e, y[i], mask, u[i], gate, y[i, mask] - every[:, nx:][:, mask],
-                                              kalman.standard_deviations(Linv_every))
+    for i in Gate.closer_looks(gates, quad):  # under every mode of every particle
+        Linv_every = Linv[i] if pairs else rows.at(engines[i].node)[0]
+        every = pred.reshape(len(engines), n * K, nx + ny)[i]
+        estimates[i], flagged[i] = screen(engines[i], y[i], mask, u[i], gates[i], y[i, mask] - every[:, nx:][:, mask],
+                                          kalman.standard_deviations(Linv_every))
     if any(est is not None for est in estimates):  # the engines whose step screening redid are done
         kept = [i for i, est in enumerate(estimates) if est is None]
         if not kept:
@@ -193,13 +210,69 @@ def step_together(engines, y, mask, u, gates) -> list:
         parent, mode, prior, log_prior, quad, logdet, r, mu_p, y_pred, gain_t, Sig_f, Linv, pred = weighed(kept)
     q, loglik, mu_f, mean, cov, posterior, yp = weigh(prior, log_prior, mode, K, quad, logdet, r, mu_p, y_pred, gain_t,
                                                       Sig_f)
-    selected = type(first).select_together([engines[i] for i in kept], q)
+    es = [engines[i] for i in kept]
+    sizes = advance_together(es, rows, parent, mode, pairs, log_prior, r, Linv, q, mu_f, mask,
+                             type(first).select_together(es, q))
     for j, i in enumerate(kept):
-        mine = (parent, mode) if pairs else (parent[j], mode[j])
-        size = engines[i].advance(rows[i], *mine, pairs, log_prior[j], r[j], Linv[j], q[j], mu_f[j], mask,
-                                  selected[j])
-        estimates[i] = Estimate(posterior[j], mean[j], cov[j], yp[j], float(loglik[j]), size, flagged=flagged[i])
+        estimates[i] = Estimate(posterior[j], mean[j], cov[j], yp[j], float(loglik[j]), sizes[j], flagged=flagged[i])
     return estimates
+
+
+def advance_together(engines, rows, parent, mode, pairs, log_prior, r, Linv, q, mu_f, mask, selected) -> list:
+    """`RaoBlackwellised.advance` of engines that share one graph and weighed as many candidates, side
+    by side: parent and mode (J,) when the candidates are every (particle, mode) pair (`pairs`), else
+    one row (g, J) per engine; log_prior, r, Linv, q and mu_f with a leading engine axis; `selected`
+    what each engine's `select` gives, or None where it is to select on its own. Their copies merge
+    and their children are found in one call each, every engine's the same operations on its own
+    numbers as alone; the ESS of each."""
+    first = engines[0]
+    graph, K, g, J, n = first.graph, first.K, len(engines), q.shape[-1], len(first.z)
+    picks = [e.select(q[j], *((parent, mode) if pairs else (parent[j], mode[j]))) if done is None else done
+             for j, (e, done) in enumerate(zip(engines, selected))]
+    chosen = np.concatenate([c for c, _, _ in picks])
+    lengths = np.array([len(c) for c, _, _ in picks])
+    parents, modes = (np.broadcast_to(a, (g, J)).reshape(-1) for a in (parent, mode))  # every candidate's
+    row = np.repeat(np.arange(g) * J, lengths) + chosen  # each chosen candidate's, among every candidate
+    key = chosen if pairs else parents[row] * K + modes[row]  # (parent, mode) as one number
+    resampled = np.array([e.resampler is not None and logw is e.resampler.uniform  # all weights 1 / N
+                          for e, (_, logw, _) in zip(engines, picks)])
+    kept, logw, copies, owner = merge_copies_together(key, chosen, np.concatenate([w for _, w, _ in picks]), n * K,
+                                                      resampled, lengths)
+    row = owner * J + kept
+    z, mu = modes[row], mu_f.reshape(g * J, -1)[row]
+    child = graph.children(rows, np.stack([e.node for e in engines]).reshape(-1)[owner * n + parents[row]], z)
+    node = Representatives.pick_together([e.reps for e in engines], graph, child, owner)
+    ends = np.cumsum(np.bincount(owner, minlength=g))
+    for j, e in enumerate(engines):
+        mine = slice(ends[j - 1] if j else 0, ends[j])
+        p, m = (parent, mode) if pairs else (parent[j], mode[j])
+        e.predictive = Predictive(m, log_prior[j], r[j], Linv[j], mask)
+        e.genealogy = Genealogy(p, m, q[j], kept[mine])
+        e.z, e.mu, e.logw, e.copies, e.node = z[mine], mu[mine], logw[mine], copies[mine], node[mine]
+        e.tidy()
+    return [size for _, _, size in picks]
+
+
+def share(engines):
+    """Let the engines of a fleet's units of one bank hold one covariance graph, so that a covariance
+    any of them meets is worked out once for all; called before each step with every unit's engine.
+    An engine joining moves its nodes and representatives in: its results stay bit for bit its own
+    (a node is its covariance exactly, and each engine keeps its own representatives). A shared graph
+    that has outgrown its engines' particles is compacted, every engine's nodes renumbered."""
+    banks = {}
+    for e in engines:
+        banks.setdefault(id(e.model), []).append(e)
+    for holders in banks.values():
+        graph = next((e.graph for e in holders if e.graph.shared), None)
+        if graph is None:
+            graph = CovarianceGraph(holders[0].model)
+            graph.shared = True
+        for e in holders:
+            if e.graph is not graph:
+                e.join(graph)
+        if graph.size > RaoBlackwellised.spare_nodes and graph.size > RaoBlackwellised.spare_nodes + 4 * sum(
+                len(e.node) for e in holders):
+            graph.compact(holders)
 
 
 def weigh(prior, log_prior, mode, K, quad, logdet, r, mu_p, y_pred, gain_t, Sig_f):
@@ -227,7 +300,7 @@ def merge_copies(key, chosen, logw, size, equal=False):
     """Chosen candidates with equal keys (same parent, same mode) are identical particles: keep one
     of each, in key order, with the summed weight. Keys lie in [0, size); `equal` says every logw
     is the same (as after resampling), so c copies weigh log c + logw[0].
-    Returns (chosen, log-weights, copy counts)."""
+    Returns (chosen, log-weights, copy counts). (`merge_copies_together`: many engines' at once.)"""
     counts = np.bincount(key, minlength=size)
     distinct = counts.nonzero()[0]
     if len(distinct) == len(key):
@@ -244,6 +317,38 @@ def merge_copies(key, chosen, logw, size, equal=False):
     top = logw.max()
     summed = np.bincount(key, weights=np.exp(logw - top), minlength=size)[distinct]
     return kept, np.log(summed, out=np.full(len(summed), -np.inf), where=summed > 0) + top, counts
+
+
+def merge_copies_together(key, chosen, logw, size, equal, lengths):
+    """`merge_copies` of engines side by side, their chosen candidates one after the other (`lengths`
+    (g,) of each, `equal` (g,) each one's `equal`), every engine's merged as alone.
+    Returns (chosen, log-weights, copy counts, the engine of each), one after the other."""
+    g = len(lengths)
+    owner = np.repeat(np.arange(g), lengths)
+    whole = owner * size + key  # keys of different engines apart
+    counts = np.bincount(whole, minlength=g * size)
+    distinct = counts.nonzero()[0]
+    if len(distinct) == len(key):
+        return chosen, logw, counts[whole], owner
+    first = np.empty(g * size, dtype=np.int64)
+    first[whole[::-1]] = chosen[::-1]  # the first chosen candidate with each key
+    kept, counts, merged_owner = first[distinct], counts[distinct], distinct // size
+    starts = np.cumsum(lengths) - lengths
+    if equal.all():
+        merged = np.log(counts) + logw[starts][merged_owner]
+    else:
+        top = np.maximum.reduceat(logw, starts)
+        summed = np.bincount(whole, weights=np.exp(logw - top[owner]), minlength=g * size)[distinct]
+        merged = np.log(summed, out=np.full(len(summed), -np.inf), where=summed > 0) + top[merged_owner]
+        if equal.any():
+            at = equal[merged_owner]
+            merged[at] = np.log(counts[at]) + logw[starts][merged_owner[at]]
+    found = np.bincount(merged_owner, minlength=g)
+    if (found == lengths).any():  # those engines keep their candidates in their order, their weights
+        at = (found == lengths)[merged_owner]
+        source = starts[merged_owner[at]] + np.flatnonzero(at) - (np.cumsum(found) - found)[merged_owner[at]]
+        kept[at], merged[at] = chosen[source], logw[source]
+    return kept, merged, counts, merged_owner
 
 
 class RBPF(RaoBlackwellised):

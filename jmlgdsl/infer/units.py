@@ -7,15 +7,17 @@ whole fleet. `imm` runs vectorised through the same arithmetic as `IMM` (jmlgdsl
 by matrix, and each unit's results are those of a `Filter` on its data alone, bit for bit (its
 mode posteriors, state moments, predictions, log-likelihoods and rejected readings).
 
-The particle filters and `exact` keep one engine per unit, each with its particles, its own
-Generator and (Rao-Blackwellised) its graph of Kalman covariances, because their banks are ragged:
-identical particles merge into copies and `exact` drops the histories whose weight underflows, so
-units differ in their particle counts from step to step. The units that measured the same outputs
-and hold as many particles step together (`rbpf.step_together`, `pf.step_together`): their
-predictions, Kalman pieces, weights and mixture moments in one call with a leading unit axis, and
-their systematic resampling (and la-rbpf's draw of modes) too, each unit with the numbers its own
-Generator gives; each unit then merges its copies and grows its own graph. Every unit gets, bit for
-bit, what a Filter with the same seed gets alone.
+The particle filters and `exact` keep one engine per unit, each with its particles and its own
+Generator, because their banks are ragged: identical particles merge into copies and `exact` drops
+the histories whose weight underflows, so units differ in their particle counts from step to step.
+The Rao-Blackwellised units of one bank share one graph of Kalman covariances (`rbpf.share`), each
+keeping its own representative of every class of nearly equal covariances it met. The units that
+measured the same outputs and hold as many particles step together (`rbpf.step_together`,
+`pf.step_together`): their predictions, Kalman pieces, weights and mixture moments in one call with
+a leading unit axis, and their systematic resampling (and la-rbpf's draw of modes) too, each unit
+with the numbers its own Generator gives; then their copies merge and their covariances' children
+are found in one pass (`rbpf.advance_together`). Every unit gets, bit for bit, what a Filter with
+the same seed gets alone.
 
 Units of one design need not share their numbers: `models=` gives each unit its own bank (its fitted
 spec: its own gain, settled temperature, sensor offsets). Banks of one shape (`stackable`) still step
@@ -410,10 +412,13 @@ class Units:
         """The units through their own Filters: the engines of the units that measured the same outputs
         and hold as many particles stepped together (their algorithm's `step_together`), each other one
         on its own."""
+        spec = ALGORITHMS[self.algorithm]
+        if spec.share is not None:
+            spec.share([f.engine for f in self._filters])
         filters = [self._filters[unit] for unit in np.arange(self.count)[index]]
         estimates = [None] * len(filters)
         groups = {}
-        together = ALGORITHMS[self.algorithm].step_together
+        together = spec.step_together
         if together is not None:
             for i, f in enumerate(filters):  # units of one bank that measured the same and hold as many particles
                 groups.setdefault((id(f.model), mask[i].tobytes(), len(f.engine.z)), []).append(i)
