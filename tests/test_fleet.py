@@ -92,3 +92,28 @@ def test_a_diagnosis_stepped_from_outside_holds_each_row_until_its_record_comes_
     assert [d.row for d in done] == rows and [d.step.t for d in done] == list(range(1, len(rows) + 1))
     assert [d.evidence for d in done] == [f"evidence of row {t}" for t in range(1, len(rows) + 1)]
     assert unit.summary.T == len(rows)
+
+
+def test_checking_many_files_tables_looks_at_each_path_once(tmp_path, monkeypatch):
+    """`run` on a fleet's files checks, before any work, that no table would be one of the files: each
+    path is looked at on the file system a few times, not once for every other file (200 files took
+    over a second, as long as diagnosing them)."""
+    import os
+
+    from jmlgdsl.diagnosis.fleet import check_tables
+    from jmlgdsl.errors import JmlgError
+
+    count = 200
+    paths = [tmp_path / f"u{k:03d}.csv" for k in range(count)]
+    for path in paths:
+        path.write_text("time,temp\n0,50\n")
+    looks = [0]
+    for name in ("stat", "lstat"):
+        def counted(*args, _real=getattr(os, name), **kwargs):
+            looks[0] += 1
+            return _real(*args, **kwargs)
+        monkeypatch.setattr(os, name, counted)
+    check_tables(str(tmp_path / "tables"), [str(p) for p in paths], inputs=["spec.jmlg"])
+    assert looks[0] < 50 * count
+    with pytest.raises(JmlgError, match="tables/u007.csv is also an input"):
+        check_tables(str(tmp_path / "tables"), [str(p) for p in paths], inputs=[str(tmp_path / "tables/u007.csv")])
