@@ -26,27 +26,32 @@ def test_the_evidence_of_every_unit_is_its_own_bit_for_bit(spec):
              else random_model(np.random.default_rng(8), K=3, nx=3, ny=6, stay=0.98))
     ys, us = fleet_data(model, 6, 150)
     records = [rows_of(y, u) for y, u in zip(ys, us)]
-    fleet = Fleet(model, len(records), Options(explain=True), scored=False)
+    options = Options(explain=True, threshold=0.4, persistence=2)  # alarms rise and clear on both plants
+    fleet = Fleet(model, len(records), options, scored=False)
     assert fleet.filter is not None  # one filter for every unit
     kept = [[] for _ in records]
     for unit, found in zip(fleet.units, kept):
         unit.sinks.append(type("Sink", (), {"collect": lambda self, done, found=found: found.append(done)})())
     fleet.run(records)
-    screened = 0
-    for rows, found in zip(records, kept):
+    screened = alarms = 0
+    for rows, found, unit in zip(records, kept, fleet.units):
         alone = []
-        Diagnosis(model, Options(explain=True), scored=False,
-                  sinks=[type("Sink", (), {"collect": lambda self, done: alone.append(done)})()]).run(rows)
+        single = Diagnosis(model, options, scored=False,
+                           sinks=[type("Sink", (), {"collect": lambda self, done: alone.append(done)})()]).run(rows)
         assert len(found) == len(alone) == len(rows)
+        assert (unit.alarms.raised, unit.summary.segments) == (single.alarms.raised, single.summary.segments)
         for a, b in zip(found, alone):
             screened += b.step.rejected is not None
+            alarms += b.alarm
+            np.testing.assert_equal((a.alarm, a.step.t, a.step.loglik, a.step.ess, a.step.rejected),
+                                    (b.alarm, b.step.t, b.step.loglik, b.step.ess, b.step.rejected))
             assert (a.evidence is None) == (b.evidence is None)
             if a.evidence is not None:
                 assert (a.evidence.mode, a.evidence.healthy, a.evidence.total) == \
                        (b.evidence.mode, b.evidence.healthy, b.evidence.total)
                 np.testing.assert_array_equal(a.evidence.terms, b.evidence.terms)
             np.testing.assert_array_equal(a.step.mode_posterior, b.step.mode_posterior)
-    assert screened  # the gate left readings out somewhere, and those rows' evidence is the redone step's
+    assert alarms and screened  # the gate left readings out somewhere, and those rows' evidence is the redone step's
 
 
 def test_a_fleet_filter_saved_unit_by_unit_goes_on_bit_for_bit():
