@@ -3,6 +3,7 @@
 
     python benchmarks/bench_shards.py                          # 40 dryers, 2,000 rows each
     python benchmarks/bench_shards.py --units 200 --rows 500 --shards 1 2
+    python benchmarks/bench_shards.py --units 1000 --rows 200 --shards --key fleet/monitor/1000   # one process only
 
 Every unit's record is simulated from the dryer bank (its own seed) and written to UNIT.csv in a
 temporary folder; `jmlgdsl monitor SPEC --units u001..uNNN --source DIR/{unit}.csv --no-follow`
@@ -16,7 +17,7 @@ own (a Fleet fed the same rows in this process, its units in one vectorised filt
 evidence, as the monitor keeps them). The memory a unit holds is what tracemalloc sees a monitor
 of 2,000 units hold beyond one of 200 (its diagnosis, alarm rule, its share of the filter), per unit.
 
-The figures go into the results ledger (benchmarks/ledger.json) as `fleet/monitor`, with the
+The figures go into the results ledger (benchmarks/ledger.json) as `fleet/monitor` (or --key), with the
 sizing table of docs/fleet.md ("How much machine a fleet needs") worked out from them: rows a
 second per shard, store bytes per row and memory per unit, for plants of 200 to 100,000 units.
 """
@@ -134,10 +135,11 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--units", type=int, default=40)
     parser.add_argument("--rows", type=int, default=2000, help="rows per unit")
-    parser.add_argument("--shards", type=int, nargs="+", default=[1, 2])
+    parser.add_argument("--shards", type=int, nargs="*", default=[1, 2], help="none: the one process only")
+    parser.add_argument("--key", default="fleet/monitor", help="the ledger entry")
     ledger_argument(parser)
     args = parser.parse_args()
-    units = [f"u{k:03d}" for k in range(1, args.units + 1)]
+    units = [f"u{k:0{max(3, len(str(args.units)))}d}" for k in range(1, args.units + 1)]
     found = {}
     with tempfile.TemporaryDirectory() as name:
         folder, short = Path(name) / "records", Path(name) / "one-row"
@@ -166,7 +168,7 @@ def main():
     if {"ray1_rows_per_s", "ray2_rows_per_s"} <= set(found):
         found["two_shards_over_one"] = round(found["ray2_rows_per_s"] / found["ray1_rows_per_s"], 2)
     print("\n" + found["sizing"])
-    record("fleet/monitor", found, "python benchmarks/bench_shards.py " + " ".join(sys.argv[1:]), path=args.ledger)
+    record(args.key, found, "python benchmarks/bench_shards.py " + " ".join(sys.argv[1:]), path=args.ledger)
 
 
 if __name__ == "__main__":

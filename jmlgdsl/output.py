@@ -23,12 +23,15 @@ FIGURE = (".png", ".pdf", ".svg", ".eps", ".ps")
 MODEL = (".json", ".npz", ".mat")
 
 
-def _same(a: Path, b: Path) -> bool:
-    """Whether two paths name one file (the same inode when both exist, else the same resolved path)."""
+def _identities(path: Path) -> set:
+    """What names the file at `path`: its resolved path, and its device and inode where it exists (so
+    two hard links to one file are one file). Two paths name one file when these meet."""
+    found = {path.resolve()}
     try:
-        return os.path.samefile(a, b)
+        status = os.stat(path)
     except OSError:
-        return a.resolve() == b.resolve()
+        return found
+    return found | {(status.st_dev, status.st_ino)}
 
 
 def _followed(path: Path) -> tuple[Path, bool]:
@@ -83,11 +86,18 @@ def _writable_folder(folder: Path, path):
     os.unlink(probe)
 
 
-def _not_an_input(path: Path, inputs, what: str):
-    """Refuse an output that is one of the inputs: writing it would destroy the data it is made from."""
-    for given in inputs:
-        if given is not None and str(given) != "-" and _same(path, Path(given)):
-            raise JmlgError(f"{what}: {path} is also an input ({given}); writing it would destroy it, "
+def _not_an_input(paths, inputs, what: str):
+    """Refuse outputs that are one of the inputs: writing one would destroy the data it is made from.
+    Each path is looked at once, however many outputs and inputs (a fleet's hundreds of files) there are."""
+    given = {}
+    for name in inputs:
+        if name is not None and str(name) != "-":
+            for identity in _identities(Path(name)):
+                given.setdefault(identity, name)
+    for path in paths:
+        found = next((given[identity] for identity in _identities(path) if identity in given), None)
+        if found is not None:
+            raise JmlgError(f"{what}: {path} is also an input ({found}); writing it would destroy it, "
                             "so choose another file")
 
 
@@ -108,7 +118,7 @@ def check_file(path, inputs=(), suffixes=None, option="-o") -> None:
         _writable_folder(target.parent, path)
     if target.exists() and not os.access(target, os.W_OK):
         raise JmlgError(f"cannot write {path}: {os.strerror(errno.EACCES)} (the file is read-only)")
-    _not_an_input(path, inputs, what)
+    _not_an_input([path], inputs, what)
 
 
 def check_folder(path, names=(), inputs=(), option="-o") -> None:
@@ -118,8 +128,7 @@ def check_folder(path, names=(), inputs=(), option="-o") -> None:
     if path.exists() and not path.is_dir():
         raise JmlgError(f"{what}: {path} is a file, not a folder")
     _writable_folder(next(p for p in (path, *path.absolute().parents) if p.exists()), path)
-    for name in names:
-        _not_an_input(path / name, inputs, what)
+    _not_an_input([path / name for name in names], inputs, what)
 
 
 def is_folder(path) -> bool:

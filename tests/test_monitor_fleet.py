@@ -540,3 +540,46 @@ def test_the_page_shows_a_unit_and_switches_to_another(fleet, tmp_path):
     finally:
         process.terminate()
         process.wait(WAIT)
+
+
+def test_a_large_fleets_commit_holds_many_rows_of_each_unit(tmp_path):
+    """A unit's part of a commit (its saved state) costs as much as many of its rows, so while input keeps
+    coming a fleet's commit waits for ROUNDS rows of each unit, however many units: 100 units handing
+    over ROUNDS rows each (more than BATCH in all) are committed once each with all their rows."""
+    import jmlgdsl
+    from jmlgdsl.data import Row
+    from jmlgdsl.monitor import Monitor, MonitorOptions, Store
+    from jmlgdsl.monitor.live import BATCH, ROUNDS
+    from jmlgdsl.monitor.sources.contract import End, WholeRow
+
+    units = [f"u{k:03d}" for k in range(100)]
+    assert ROUNDS * len(units) > BATCH
+
+    class Rows:
+        """Every unit's ROUNDS rows, round after round, handed over before the monitor takes any."""
+        name, rows = "rows", True
+
+        def start(self, put, positions):
+            for t in range(1, ROUNDS + 1):
+                for i in range(len(units)):
+                    put((i, WholeRow(Row(t, float(t), np.array([50.5]), np.array([15.0]), None), {"t": t})))
+            put((None, End()))
+
+        def acknowledge(self, tokens):
+            pass
+
+        def stop(self):
+            pass
+
+    held = []  # the rows of each unit's part of each commit
+
+    class Counted(Store):
+        def save(self, commits, marks=()):
+            held.extend(len(commit.results) for commit in commits)
+            super().save(commits, marks)
+
+    with Counted(str(tmp_path / "fleet.db")) as store:
+        stopped = Monitor(jmlgdsl.load(SPEC), store, Rows(), spec=SPEC, options=MonitorOptions(), tags={},
+                          units=units).run()
+    assert stopped.ended and stopped.stored == ROUNDS * len(units)
+    assert sorted(set(held) - {0}) == [ROUNDS] and held.count(ROUNDS) == len(units)

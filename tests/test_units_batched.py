@@ -235,7 +235,7 @@ def test_units_left_out_of_a_step_stay_where_they_are(dryer):
     first = fleet.step(sim.y[:3], sim.u[:3])
     alone = jmlgdsl.filter(dryer, sim.y[1:2], sim.u[1:2], algorithm="imm")
     assert np.array_equal(first.mode_posterior[1], alone.mode_posterior[0])
-    assert first.record(1).t == 1 and first.record(0).t == 21
+    assert first.records()[1].t == 1 and first.records()[0].t == 21
     assert fleet.loglik[1] == alone.loglik
 
 

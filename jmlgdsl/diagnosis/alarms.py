@@ -76,9 +76,13 @@ class AlarmStream:
         self.run = 0  # consecutive steps so far with P(not healthy) above the threshold
         self.raised = 0  # alarms raised so far
 
-    def step(self, posterior_row) -> int:
-        """The alarm (0/1) for the newest step, given its (K,) mode posterior."""
-        above = _fault_probability(posterior_row, self.faulty) > self.rule.threshold
+    def step(self, posterior_row, fault: float | None = None) -> int:
+        """The alarm (0/1) for the newest step, given its (K,) mode posterior; `fault` is its posterior
+        mass of the faulty modes where that is known already (a fleet sums every unit's in one call,
+        `AlarmRule.fault_probability`: the same sums)."""
+        if fault is None:
+            fault = _fault_probability(posterior_row, self.faulty)
+        above = fault > self.rule.threshold
         self.run = self.run + 1 if above else 0
         self.raised += self.run == self.rule.persistence
         return int(self.run >= self.rule.persistence)

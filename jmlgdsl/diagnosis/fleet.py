@@ -94,8 +94,10 @@ class Fleet:
             for positions, predictive in self.filter.predictives:
                 for j, evidence in zip(positions, Evidence.of_units(predictive, faulty)):
                     self.units[on[j]].heard(evidence)
-        for j, i in enumerate(on):
-            self.units[i].finished(steps.record(j))
+        # the alarm rule's sums of every unit at once (their rules are the one of `options`)
+        faults = self.units[0].rule.fault_probability(steps.mode_posterior, self.model.modes).tolist()
+        for i, step, fault in zip(on, steps.records(), faults):
+            self.units[i].finished(step, fault)
 
     def finish(self):
         """The end of the data of every unit."""

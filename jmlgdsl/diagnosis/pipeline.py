@@ -116,11 +116,12 @@ class Diagnosis:
         self.finish()
         return self
 
-    def finished(self, step: Step) -> Diagnosed:
+    def finished(self, step: Step, fault: float | None = None) -> Diagnosed:
         """The filter's record of the oldest row held: its alarm, counted in the summary and scores,
-        handed to the sinks."""
+        handed to the sinks. `fault`: the step's posterior mass of the faulty modes, where a fleet has
+        summed it already (for every unit in one call)."""
         row = self._held.popleft()
-        alarm = self.alarms.step(step.mode_posterior)
+        alarm = self.alarms.step(step.mode_posterior, fault)
         self.summary.add(step, row.mode)
         if self.truth is not None:
             self.truth.add(row, alarm, step.t)

@@ -50,7 +50,7 @@ class Step:
     @property
     def map_mode(self) -> int:
         """Index of the most probable mode."""
-        return int(np.argmax(self.mode_posterior))
+        return int(self.mode_posterior.argmax())
 
 
 @dataclass(frozen=True)

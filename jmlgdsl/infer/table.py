@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..data import CsvWriter, open_source, open_target
+from ..data import CsvWriter, format_numbers, open_source, open_target
 from ..errors import DataError
 from ..model import Model
 from ..names import plural
@@ -52,16 +52,16 @@ class TableWriter:
     def write(self, step: Step, time: float | None = None, alarm: int | None = None, evidence=None):
         """One row: a filter step and, when the table has those columns, the data row's time, the alarm
         and the evidence (a jmlgdsl.diagnosis.evidence.Evidence, or None)."""
+        numbers = np.concatenate([step.mode_posterior, step.state_mean, step.y_pred, step.residual, [step.ess]])
         self._writer.write([step.t] + ([time] if self.with_time else []) + [self.model.modes[step.map_mode]]
-                           + list(step.mode_posterior) + list(step.state_mean) + list(step.y_pred)
-                           + list(step.residual) + [step.ess] + ([alarm] if self.with_alarm else [])
+                           + format_numbers(numbers) + ([alarm] if self.with_alarm else [])
                            + (self._evidence(evidence) if self.explain else []))
 
     def _evidence(self, evidence) -> list:
         """The evidence cells: the mode's name and each output's evidence (all empty without evidence)."""
         if evidence is None:
-            return [""] + [np.nan] * self.model.ny
-        return [self.model.modes[evidence.mode]] + list(evidence.terms)
+            return [""] * (1 + self.model.ny)
+        return [self.model.modes[evidence.mode]] + format_numbers(evidence.terms)
 
 
 def write_result(path, result: Result, time=None, alarm=None):

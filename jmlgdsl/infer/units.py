@@ -298,11 +298,13 @@ class UnitSteps(NamedTuple):
         """(n,) each unit's most probable mode."""
         return self.mode_posterior.argmax(axis=1)
 
-    def record(self, i) -> Step:
-        """The i-th unit's step, as a Filter would give it."""
-        rejected = self.rejected[i] if self.rejected[i].any() else None
-        return Step(int(self.t[i]), self.mode_posterior[i], self.state_mean[i], self.state_cov[i], self.y_pred[i],
-                    self.residuals[i], float(self.loglik_steps[i]), float(self.ess[i]), rejected)
+    def records(self) -> list[Step]:
+        """Each unit's step, as a Filter would give it, made in one pass over the units."""
+        rejected = self.rejected.any(axis=1).tolist()
+        return [Step(t, self.mode_posterior[i], self.state_mean[i], self.state_cov[i], self.y_pred[i],
+                     self.residuals[i], loglik, ess, self.rejected[i] if rejected[i] else None)
+                for i, (t, loglik, ess) in enumerate(zip(self.t.tolist(), self.loglik_steps.tolist(),
+                                                         self.ess.tolist()))]
 
 
 class Units:
@@ -471,7 +473,7 @@ def filter_units(model: Model, ys, us=None, **options) -> list[Result]:
         steps = fleet.step(np.array([data[i][0][t] for i in on]).reshape(len(on), model.ny),
                            np.array([data[i][1][t] for i in on]).reshape(len(on), model.nu),
                            None if len(on) == len(data) else on)
-        for j, i in enumerate(on):
-            kept[i].append(steps.record(j))
+        for i, step in zip(on, steps.records()):
+            kept[i].append(step)
     share = fleet.seconds / max(len(data), 1)
     return [Result.from_steps(model, fleet.algorithm, fleet.particles, steps, share) for steps in kept]

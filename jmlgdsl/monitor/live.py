@@ -32,6 +32,10 @@ from ..version import VERSION
 IDLE = 0.1  # seconds without input before the monitor commits and moves the wall clock on
 QUEUE = 10_000  # items a source may hand over ahead of the diagnosis
 BATCH = 1_000  # rows (or acknowledgements held back) before a commit even while input keeps coming
+# Rows of each unit of a fleet a commit holds at least while input keeps coming: a unit's part of a
+# commit (its state, sealed, and its own statements) costs as much as tens of its rows, so a commit of
+# a 1,000-unit fleet every BATCH rows would save every unit's state for about one row of each.
+ROUNDS = 16
 # Seconds a handled reading or event may wait for the commit that acknowledges it while no finished
 # row waits: a row is committed as soon as the input pauses, the readings between rows in groups.
 GROUP = 0.05
@@ -124,6 +128,7 @@ class Monitor:
         self.tokens = []
         self.late_unlogged = None  # late events since the first one logged in this batch (None: none logged)
         self.finished = 0  # rows finished since the last commit
+        self.batch = max(BATCH, ROUNDS * len(self.units)) if self.named else BATCH  # rows before a commit
         self.committed = clock.monotonic()
         self.counts = {}
         self.started_rows = self.stored
@@ -210,7 +215,7 @@ class Monitor:
                 elif self.ready and clock.monotonic() - self.waited >= GATHER:
                     self.step(max(1, self.ready // 2))  # rounds of many units; the rows of the others wait on
                     self.waited = clock.monotonic()
-                if self.finished >= BATCH or len(self.tokens) >= BATCH or items.empty() and (
+                if self.finished >= self.batch or len(self.tokens) >= BATCH or items.empty() and (
                         self.finished or clock.monotonic() - self.committed >= GROUP):
                     self.commit()
             if ended:
