@@ -244,3 +244,46 @@ def test_mqtts_broker_is_trusted_through_its_certificate_authority(broker, tmp_p
     finally:
         process.kill()
     assert exported(tmp_path, store) == expected_table(tmp_path)
+
+
+def test_a_message_of_an_earlier_connection_is_left_for_its_copy_on_this_one(monkeypatch):
+    """A packet id names a message on its connection only: once the broker has it acknowledged, it
+    gives the id to the next message. A commit that holds a message which came before a reconnection
+    must not acknowledge that id on the new connection (it could be another message, not yet
+    committed); the broker sends the message again on the new connection, and that copy's token is
+    the one acknowledged."""
+    import types
+
+    import jmlgdsl
+    from jmlgdsl.monitor.sources import mqtt as source_module
+
+    class Client:  # paho's side of the connection, played by hand
+        def __init__(self):
+            self.acked = []
+
+        def __getattr__(self, name):  # connect_async, loop_start, subscribe, manual_ack_set, ...
+            return lambda *args, **kwargs: None
+
+        def ack(self, mid, qos):
+            self.acked.append(mid)
+
+    client = Client()
+    monkeypatch.setattr(source_module, "paho_client", lambda *args, **kwargs: client)
+    source = source_module.MqttSource("mqtt://127.0.0.1:1883/dryer", jmlgdsl.load(SPEC), {}, client_id="test")
+    items = []
+    source.start(items.append, None)
+    up = types.SimpleNamespace(is_failure=False)
+    resumed = types.SimpleNamespace(session_present=True)
+
+    def message(mid):
+        return types.SimpleNamespace(mid=mid, qos=1, topic="dryer/temp", payload=b"50.1")
+
+    client.on_connect(client, None, resumed, up, None)
+    client.on_message(client, None, message(7))
+    client.on_connect(client, None, resumed, up, None)  # the connection dropped and came back
+    client.on_message(client, None, message(7))  # the broker's copy, on the new connection
+    first, copy = [item.token for item in items if hasattr(item, "token")]
+    source.acknowledge([first])
+    assert client.acked == []
+    source.acknowledge([copy])
+    assert client.acked == [7]

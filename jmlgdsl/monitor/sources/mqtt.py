@@ -14,6 +14,7 @@ trust, stops the monitor with a message that says so.
 from __future__ import annotations
 
 import sys
+import threading
 import time
 
 import paho.mqtt.client as mqtt
@@ -63,6 +64,10 @@ class MqttSource:
         self.client = None
 
     def start(self, put, position):
+        # A message's packet id means that message only on the connection it came on: the broker gives
+        # the id to another message once the first is acknowledged. So a token names its connection
+        # (a count of them), and the connection may not change between that check and the ack.
+        self.connection, self.acking = 0, threading.Lock()
         client = paho_client(self.client_id, self.credentials, self.ca_file, clean_session=not self.persistent,
                              tls=self.tls)
         client.manual_ack_set(self.persistent)
@@ -82,6 +87,8 @@ class MqttSource:
                     hand(bus.unreachable(where, f"it refused the connection: {reason}", waits.next()))
                 return
             waits.connected()
+            with self.acking:
+                self.connection += 1
             self.connected(client, flags, hand)
 
         def on_connect_fail(client, userdata):
@@ -101,7 +108,7 @@ class MqttSource:
                 self.received(message, hand)
             except Exception as exc:  # what no reading should raise: reported as the message's fault, not fatal
                 hand(Unreadable(f"topic {_topic(message)}: cannot read the message ({type(exc).__name__}: {exc})",
-                                (message.mid, message.qos)))
+                                self.token(message)))
 
         client.on_connect, client.on_connect_fail = on_connect, on_connect_fail
         client.on_disconnect, client.on_message = on_disconnect, on_message
@@ -122,7 +129,7 @@ class MqttSource:
 
     def received(self, message, hand):
         """A message from the broker as readings (or malformed), acknowledged after their commit."""
-        token, topic = (message.mid, message.qos), _topic(message)
+        token, topic = self.token(message), _topic(message)
         unit, name = self.topics.get(topic, (None, None))
         try:
             if topic not in self.topics:  # a subscription left in the session by an earlier run
@@ -132,9 +139,19 @@ class MqttSource:
             item = Unreadable(f"topic {topic}: {exc}", token)
         hand(item, unit)
 
+    def token(self, message):
+        """What acknowledges `message` after its commit: its connection, packet id and QoS."""
+        return self.connection, message.mid, message.qos
+
     def acknowledge(self, tokens):
-        for mid, qos in tokens:
-            self.client.ack(mid, qos)
+        """Acknowledge the messages of the connection that is up. One that came on an earlier
+        connection is left: the broker sends it again on this one (the session is persistent), and
+        that copy is acknowledged after its own commit; acknowledging its old packet id here could
+        acknowledge another message, not yet committed, that the broker has since given the id."""
+        with self.acking:
+            for connection, mid, qos in tokens:
+                if connection == self.connection:
+                    self.client.ack(mid, qos)
 
     def stop(self):
         client, self.client = self.client, None
