@@ -326,10 +326,12 @@ def test_imm_keeps_settled_kalman_pieces_without_changing_the_result(monkeypatch
 def wandering_bank(n=16, seed=0):
     """Many sensors, each reading its state, in units 10^6 apart, with nearly one shared noise and
     dynamics whose products cancel: the Kalman covariances reach their fixed point only to rounding,
-    1e-12 relative from step to step, never to kalman.SETTLED. Two modes, healthy and a bias."""
+    1e-12 relative from step to step, and to kalman.SETTLED late if ever. Two modes, healthy and a
+    bias. (*) Eigenvectors conditioned near 1e3: at 1e4 the rounding of V^-1 grows the filter's
+    transient past float range on some BLAS kernels."""
     rng = np.random.default_rng(seed)
     s = 10.0 ** np.linspace(-3, 3, n)
-    V = rng.normal(size=(n, n)) @ np.diag(10.0 ** np.linspace(0, -4, n)) @ rng.normal(size=(n, n))
+    V = rng.normal(size=(n, n)) @ np.diag(10.0 ** np.linspace(0, -3, n)) @ rng.normal(size=(n, n))  # (*)
     A = (V @ np.diag(rng.uniform(-0.9, 0.9, n)) @ np.linalg.inv(V)) * s[:, None] / s[None, :]
     B = np.linalg.cholesky((1 - 1e-6) * np.ones((n, n)) + 1e-6 * np.eye(n)) * s[:, None]
     return Model.from_arrays(A=np.stack([A, A]), B=np.stack([B, B]), C=np.eye(n), D=1e-6 * np.diag(s),
@@ -353,7 +355,7 @@ def test_imm_keeps_kalman_pieces_that_settle_only_to_their_rounding(monkeypatch)
     monkeypatch.setattr(kalman, "covariance_step", lambda *a: calls.append(len(a[0])) or step(*a))
     kept = jmlgdsl.filter(model, sim.y, algorithm="imm")
     assert (kept.mode_posterior[20:, 0] > 1 - 1e-12).all()
-    assert sum(calls) < 0.2 * 2 * len(sim.y)  # most steps computed no mode's pieces
+    assert sum(calls) < 0.05 * 2 * len(sim.y)  # few steps computed a mode's pieces (SETTLED alone: 38 of 400)
     monkeypatch.setattr(imm, "SURE", -1.0)
     calls.clear()
     fresh = jmlgdsl.filter(model, sim.y, algorithm="imm")
