@@ -507,6 +507,9 @@ def test_the_page_shows_a_unit_and_switches_to_another(fleet, tmp_path):
         assert tab.input_value("#unit") == unit and tab.is_visible("#unit")
         assert tab.locator("#unit option").all_text_contents() == UNITS
         listed = tab.locator("#alarmlist tr")
+        # the list comes by its own fetch, which may land after the status line
+        sync_api.expect(listed).to_have_count(len(alarms), timeout=WAIT * 1000)
+        sync_api.expect(listed.first).to_have_attribute("data-alarm", str(alarms[0][0]), timeout=WAIT * 1000)
         assert [(int(listed.nth(i).get_attribute("data-alarm")),
                  listed.nth(i).locator("td").nth(1).text_content(), listed.nth(i).locator("td").nth(2).text_content())
                 for i in range(listed.count())] == [
