@@ -19,6 +19,7 @@ from .payload import MAX_PAYLOAD, Malformed, decode
 from .urls import address
 
 POLL = 0.05  # seconds between looks at the stop flag while no datagram comes
+RECEIVE_BUFFER = 4 << 20  # bytes of datagrams the kernel may hold for the source
 
 
 def open_source(connection, model, tags, units=None):
@@ -51,6 +52,9 @@ class UdpSource:
             listener.close()
             raise JmlgError(f"--source {self.name}: cannot listen there ({exc.strerror})") from None
         listener.settimeout(POLL)
+        # A burst waits in the kernel while a commit runs; what overflows the buffer is lost, so ask for
+        # a large one (the kernel caps it at net.core.rmem_max).
+        listener.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, RECEIVE_BUFFER)
         put(Event("connect", None, f"listening on {self.host}:{self.port}"))
         self._thread = threading.Thread(target=self._read, args=(listener, put), name="udp source", daemon=True)
         self._thread.start()
