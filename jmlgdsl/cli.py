@@ -29,13 +29,16 @@ from .errors import JmlgError, SpecError, SpecWarning
 ORDER = ("check", "compile", "simulate", "run", "monitor", "dashboard", "export", "plot", "bench", "prbs", "learn", "fit")
 
 
-def _command_modules():
+def _command_modules(only=None):
+    """The command modules, in ORDER; with `only` a command's name, that module alone (a command pays
+    for importing its own dependencies, not every command's: a second of start-up for `run`)."""
     found = {m.name for m in pkgutil.iter_modules(commands.__path__) if not m.name.startswith("_")}
-    names = [n for n in ORDER if n in found] + sorted(found - set(ORDER))
+    names = [only] if only in found else [n for n in ORDER if n in found] + sorted(found - set(ORDER))
     return [importlib.import_module(f"{commands.__name__}.{n}") for n in names]
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(command=None) -> argparse.ArgumentParser:
+    """The command line's parser: every command's, or only `command`'s when that names one."""
     parser = argparse.ArgumentParser(
         prog="jmlgdsl",
         description="Fault diagnosis with jump Markov linear Gaussian models: write a plant in the "
@@ -44,7 +47,7 @@ def build_parser() -> argparse.ArgumentParser:
         epilog="Run 'jmlgdsl COMMAND --help' for the options of one command.")
     parser.add_argument("--version", action="version", version=f"jmlgdsl {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    for module in _command_modules():
+    for module in _command_modules(command):
         module.register(sub)
     return parser
 
@@ -74,8 +77,8 @@ def _blas_threads():
 
 
 def main(argv=None) -> int:
-    parser = build_parser()
     argv = sys.argv[1:] if argv is None else list(argv)
+    parser = build_parser(argv[0] if argv else None)
     if not argv:  # no command: the list of commands, as a usage error (nothing was done)
         parser.print_help(sys.stderr)
         return 2

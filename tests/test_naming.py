@@ -130,3 +130,41 @@ def test_cli_learn_relative_and_run_detect(tmp_path, capsys, banks):
     assert share > 60  # of every faulty row, the ones before the alarm included
     with pytest.raises(SystemExit):
         cli(["learn", "--output", header, *args, "--catch-all", "anomaly=0.5"])
+
+
+def test_the_namer_follows_the_rows_around_alarms_only_and_starts_from_the_rows_before(banks):
+    """Normal rows, a bias, normal rows long enough for the namer to rest, the bias again: the namer
+    steps only from WARM_UP rows before each alarm to WARM_UP rows after it, and each alarmed row is
+    named as a namer started from its prior at the first of those rows names it, bit for bit."""
+    from jmlgdsl.diagnosis.alarms import WARM_UP
+
+    model = banks[1].model
+    y = recording(np.random.default_rng(7), 360)
+    y[100:130, 1] += 4.0
+    y[280:310, 1] += 4.0
+    options = jmlgdsl.diagnosis.Options(healthy=("normal",), threshold=0.9, persistence=2)
+    naming = DetectThenName(model, None, ["bias", "stuck", "noisy"], options)
+    rows = [jmlgdsl.data.Row(i + 1, None, y[i], np.empty(0), None) for i in range(len(y))]
+    diagnosis = jmlgdsl.diagnosis.Diagnosis(naming.detector, options, sinks=[naming])
+    alarm = []
+    diagnosis.sinks.append(type("Alarms", (), {"collect": lambda self, done: alarm.append(done.alarm)})())
+    diagnosis.run(naming.rows(rows))
+    alarm = np.array(alarm, dtype=bool)
+    spans, start = [], None  # the rows the namer follows: WARM_UP before an alarm to WARM_UP after it
+    for t in range(len(y)):
+        if alarm[t] and start is None:
+            start = max(t - WARM_UP + 1, 0)
+        if start is not None and not alarm[max(t - WARM_UP + 1, 0):t + 1].any():
+            spans.append((start, t + 1))
+            start = None
+    if start is not None:
+        spans.append((start, len(y)))
+    assert [a <= 100 < b for a, b in spans] == [True, False] and spans[1][0] <= 280 < spans[1][1]  # one per bias
+    assert naming.steps == sum(b - a for a, b in spans) < len(y) // 2
+    expected = np.full(len(y), -1)
+    namer = naming.namer
+    for a, b in spans:
+        alone = jmlgdsl.filter(namer, y[a:b], np.empty((b - a, 0))).mode_posterior.argmax(axis=1)
+        expected[a:b] = np.where(alarm[a:b], alone, -1)
+    assert naming.named == expected.tolist()
+    assert (expected[alarm] == namer.modes.index("bias")).mean() > 0.9

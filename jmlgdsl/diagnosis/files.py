@@ -17,6 +17,7 @@ from dataclasses import dataclass
 from ..data import iter_rows, open_source, open_target
 from ..errors import DataError, JmlgError
 from ..model import Model
+from ..names import plural
 from .progress import Progress
 from .alarms import DetectThenName, catch_alls
 from .options import Options
@@ -47,6 +48,9 @@ class Ran:
                          f"its catch-all), the fault named by {', '.join(naming.namer.modes)}; --detect with every "
                          "mode gives the whole bank's alarm")
         lines.append(self.diagnosis.report())
+        if naming is not None:
+            lines.append(f"namer: {plural(naming.steps, 'step')} around the alarms"
+                         + (f", {1e3 * naming.seconds / naming.steps:.3f} ms per step" if naming.steps else ""))
         counts = None if naming is None else naming.counts()
         if counts is not None:
             lines.append("\n".join(naming_report(naming.namer.modes, counts)))
