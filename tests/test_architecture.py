@@ -351,3 +351,22 @@ def test_the_checker_entry_points_have_names_of_their_own():
     functions = public_definitions(ast.FunctionDef)
     assert CHECKER_ENTRIES <= {name for name, where in functions.items() if "jmlgdsl.lang.check" in where}
     assert {name: functions[name] for name in CHECKER_ENTRIES if len(functions[name]) > 1} == {}
+
+
+def test_a_spec_of_matrices_runs_without_importing_sympy_or_other_commands(tmp_path):
+    """Start-up is paid per command: `run` on a spec of matrices and blocks imports neither sympy
+    (equations only) nor the modules of the other commands; a spec of equations still gets sympy."""
+    import subprocess
+    import sys
+
+    root = PACKAGE.parent
+    probe = ("import sys; from jmlgdsl.cli import main; main(sys.argv[1:]); "
+             "print(sorted(m for m in ('sympy.core', 'jmlgdsl.commands.monitor', 'jmlgdsl.commands.learn') "
+             "if m in sys.modules))")
+    ran = subprocess.run([sys.executable, "-c", probe, "run", str(root / "specs" / "dryer.jmlg"),
+                          str(root / "examples" / "dryer_seq1.csv"), "-o", str(tmp_path / "out.csv")],
+                         capture_output=True, text=True, check=True)
+    assert ran.stdout.splitlines()[-1] == "[]"
+    ran = subprocess.run([sys.executable, "-c", probe, "check", str(root / "specs" / "cstr4.jmlg")],
+                         capture_output=True, text=True, check=True)
+    assert ran.stdout.splitlines()[-1] == "['sympy.core']"

@@ -6,13 +6,13 @@ compiler differentiates and linearises them (jmlgdsl.compile.ode)."""
 from __future__ import annotations
 
 import numpy as np
-import sympy as sp
 
 from ..names import suggest
 from . import syntax as S
 from .evaluate import NOT_FINITE, EvalError, LetExpander, UnknownName, evaluate_number, finite_real, symbolic
 from .plant import Equations
 from .report import Report
+from .symbolic import sp
 from .durations import time_in_seconds
 
 

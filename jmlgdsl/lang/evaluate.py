@@ -4,11 +4,11 @@ linear-coefficient extraction and ODE Jacobians."""
 from __future__ import annotations
 
 import numpy as np
-import sympy as sp
 
 from ..names import suggest
 from .limits import MAX_EXPONENT, MAX_LET_CHAIN, MAX_SIZE
 from .report import Report
+from .symbolic import sp
 from .syntax import Expr, NumberRows
 
 
@@ -24,15 +24,15 @@ class UnknownName(EvalError):
     """A name the spec does not declare: `pi` and `e` then stand for their constants."""
 
 
-CONSTANTS = {"pi": (np.pi, sp.pi), "e": (np.e, sp.E)}  # (numeric, symbolic); a declared name wins
+CONSTANTS = {"pi": (np.pi, "pi"), "e": (np.e, "E")}  # (numeric, sympy's name); a declared name wins
 BINARY = ("add", "sub", "mul", "div")  # left-associative: a run of them is folded without recursion
 
 
 SCALAR_FUNCTIONS = {
-    "exp": (np.exp, sp.exp), "log": (np.log, sp.log), "sqrt": (np.sqrt, sp.sqrt),
-    "sin": (np.sin, sp.sin), "cos": (np.cos, sp.cos), "tan": (np.tan, sp.tan),
-    "tanh": (np.tanh, sp.tanh), "abs": (np.abs, sp.Abs), "min": (np.minimum, sp.Min),
-    "max": (np.maximum, sp.Max), "pow": (np.power, sp.Pow),
+    "exp": (np.exp, "exp"), "log": (np.log, "log"), "sqrt": (np.sqrt, "sqrt"),
+    "sin": (np.sin, "sin"), "cos": (np.cos, "cos"), "tan": (np.tan, "tan"),
+    "tanh": (np.tanh, "tanh"), "abs": (np.abs, "Abs"), "min": (np.minimum, "Min"),
+    "max": (np.maximum, "Max"), "pow": (np.power, "Pow"),
 }
 ARITY = {"min": (2, 2), "max": (2, 2), "pow": (2, 2)}
 
@@ -68,7 +68,8 @@ def _name_value(node: Expr, lookup, kind: int):
         return lookup(node)
     except UnknownName:
         if node.op == "var" and node.args[0] in CONSTANTS:
-            return CONSTANTS[node.args[0]][kind]
+            numeric, symbolic = CONSTANTS[node.args[0]]
+            return getattr(sp, symbolic) if kind else numeric
         raise
 
 
@@ -184,7 +185,7 @@ def symbolic(node: Expr, lookup) -> sp.Expr:
         if all(v.is_Number for v in values):
             with np.errstate(all="ignore"):
                 return _finite(sp.Float(SCALAR_FUNCTIONS[name][0](*map(float, values))), node)
-        return SCALAR_FUNCTIONS[name][1](*values)
+        return getattr(sp, SCALAR_FUNCTIONS[name][1])(*values)
     vals = [symbolic(a, lookup) for a in args]
     if op == "neg":
         return -vals[0]

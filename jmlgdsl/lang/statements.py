@@ -8,7 +8,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-import sympy as sp
 
 from ..names import suggest
 from .evaluate import NOT_FINITE, EvalError, LetExpander, UnknownName, finite_numeric, finite_real, symbolic
@@ -16,6 +15,7 @@ from .limits import MAX_DELAY_SAMPLES, MAX_ORDER, check_sd
 from .plant import (MATRIX_NAMES, Arx, Equation, Fopdt, Initial, Layout, Matrix, history_name, part_name,
                     register_name, show)
 from .report import Report
+from .symbolic import sp
 from .syntax import Dist, Expr, Name, Statement
 from .durations import time_in_seconds
 
