@@ -150,7 +150,7 @@ def test_every_command_module_is_short_parse_call_print():
 
 
 CHECKED_PLANT = "jmlgdsl.lang.plant"  # the checked plant's types: names, numbers, arrays, ODEs
-REPORT = "jmlgdsl.lang.report"  # source positions and the report of located diagnostics
+REPORT = "jmlgdsl.lang.diagnostics"  # source positions and the report of located diagnostics
 CHECKER_ENTRIES = {"check_spec_file", "check_text", "check_ode_file"}  # lang.check: a spec file or text to a plant
 
 
@@ -174,7 +174,7 @@ def language_imports(name, path):
 
 def test_the_compiler_reads_the_checked_plant_and_evaluates_nothing():
     """compile/ takes from the language only the checked plant's types (lang.plant), the positions and
-    report its diagnostics go to (lang.report) and the checker's entry points that turn a spec file or
+    report its diagnostics go to (lang.diagnostics) and the checker's entry points that turn a spec file or
     text into a checked plant: never the evaluator, the parser, the syntax tree, durations or limits. What
     the user wrote is evaluated once, by the checker."""
     compiler = {name: path for name, path in modules().items() if layer(name) == "compile"}
@@ -317,7 +317,7 @@ def test_the_pin_sees_a_driver_sql_and_the_connection(tmp_path):
 
 
 def test_the_report_is_below_the_syntax_tree_and_the_checked_plant():
-    """Positions and diagnostics (lang.report) are the language's floor: the syntax tree, the checked
+    """Positions and diagnostics (lang.diagnostics) are the language's floor: the syntax tree, the checked
     plant and every checking step import them, and they import nothing of the language but its limits,
     so loading a spec never runs up and down between the plant's types and the checking steps."""
     edges = graph()

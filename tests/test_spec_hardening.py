@@ -12,7 +12,7 @@ from jmlgdsl.compile.lower import compile_text
 from jmlgdsl.lang.limits import (MAX_ERRORS, MAX_LET_CHAIN, MAX_MODES, MAX_NESTING, MAX_ORDER, MAX_SIZE,
                                 MAX_TIME_INDEX, MAX_VARIABLES)
 from jmlgdsl.lang.parse import parse_file
-from jmlgdsl.lang.report import Report
+from jmlgdsl.lang.diagnostics import Report
 from jmlgdsl.lang.syntax import Pos
 
 PATH = "plant.jmlg"

@@ -8,7 +8,7 @@ import hashlib
 import numpy as np
 
 from ..lang.plant import MATRIX_NAMES, MAX_MAGNITUDE, Plant
-from ..lang.report import Report
+from ..lang.diagnostics import Report
 from ..model import Model
 from .blocks import ModeArrays
 

@@ -7,7 +7,7 @@ import numpy as np
 
 from ..lang.check import check_spec_file, check_text
 from ..lang.plant import Layout, Plant
-from ..lang.report import Report
+from ..lang.diagnostics import Report
 from ..model import Model
 from .assemble import shift_inputs, stack, steady_mean, steady_state
 from .blocks import Lowering, ModeArrays

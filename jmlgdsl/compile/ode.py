@@ -20,7 +20,7 @@ from scipy.optimize import root
 
 from ..lang.check import check_ode_file
 from ..lang.plant import Plant, show
-from ..lang.report import Pos, Report
+from ..lang.diagnostics import Pos, Report
 from ..model import Model
 from .assemble import shift_inputs, stack, steady_mean
 from .blocks import ModeArrays

@@ -9,7 +9,7 @@ from . import syntax as S
 from .declarations import declare
 from .parse import parse_file, parse_text
 from .plant import Equations, Plant
-from .report import Report
+from .diagnostics import Report
 from .values import evaluate
 
 

@@ -15,7 +15,7 @@ from . import syntax as S
 from .evaluate import evaluate_number
 from .limits import MAX_MODES, MAX_VARIABLES, check_sd
 from .probabilities import initial_distribution, transition_matrix
-from .report import Report
+from .diagnostics import Report
 from .durations import time_in_seconds
 from .unknowns import Unknown, resolve
 

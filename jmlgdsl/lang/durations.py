@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from ..names import suggest
-from .report import Report
+from .diagnostics import Report
 from .syntax import Name
 
 SECONDS = {"s": 1.0, "sec": 1.0, "min": 60.0, "h": 3600.0, "hr": 3600.0}

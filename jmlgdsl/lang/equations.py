@@ -11,7 +11,7 @@ from ..names import suggest
 from . import syntax as S
 from .evaluate import NOT_FINITE, EvalError, LetExpander, UnknownName, evaluate_number, finite_real, symbolic
 from .plant import Equations
-from .report import Report
+from .diagnostics import Report
 from .symbolic import sp
 from .durations import time_in_seconds
 

@@ -7,7 +7,7 @@ import numpy as np
 
 from ..names import suggest
 from .limits import MAX_EXPONENT, MAX_LET_CHAIN, MAX_SIZE
-from .report import Report
+from .diagnostics import Report
 from .symbolic import sp
 from .syntax import Expr, NumberRows
 

@@ -1,7 +1,7 @@
 """The checked plant: what the checker (jmlgdsl.lang.check) hands to the compiler (jmlgdsl.compile).
 It holds values, not syntax: names, numbers, numpy arrays and, for a plant written as ODEs, sympy
 expressions, with the source positions of what the compiler may still have to report (a mode, an
-operating point). Besides these types, the positions and report of lang.report and the checker's
+operating point). Besides these types, the positions and report of lang.diagnostics and the checker's
 entry points (lang.check: a spec file or text to a checked plant), the compiler imports nothing else
 of the language."""
 
@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .limits import MAX_MAGNITUDE  # noqa: F401  (MAX_MAGNITUDE bounds what the compiler makes)
-from .report import Pos
+from .diagnostics import Pos
 
 
 @dataclass

@@ -8,7 +8,7 @@ import numpy as np
 from ..names import suggest
 from . import syntax as S
 from .evaluate import EvalError, UnknownName, evaluate_number, finite_numeric
-from .report import Report
+from .diagnostics import Report
 
 ROW_TOLERANCE = 1e-3  # a row further than this from summing to 1 is an error; nearer, it is renormalised
 

@@ -14,7 +14,7 @@ from .evaluate import NOT_FINITE, EvalError, LetExpander, UnknownName, finite_nu
 from .limits import MAX_DELAY_SAMPLES, MAX_ORDER, check_sd
 from .plant import (MATRIX_NAMES, Arx, Equation, Fopdt, Initial, Layout, Matrix, history_name, part_name,
                     register_name, show)
-from .report import Report
+from .diagnostics import Report
 from .symbolic import sp
 from .syntax import Dist, Expr, Name, Statement
 from .durations import time_in_seconds

@@ -6,7 +6,7 @@ import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
-from .report import Pos
+from .diagnostics import Pos
 
 
 @dataclass(frozen=True)

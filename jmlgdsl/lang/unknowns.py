@@ -18,7 +18,7 @@ from ..names import suggest
 from .priors import FAMILIES, Prior, PriorError
 from . import syntax as S
 from .evaluate import evaluate_number
-from .report import Report
+from .diagnostics import Report
 
 
 @dataclass(frozen=True)

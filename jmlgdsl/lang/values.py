@@ -16,7 +16,7 @@ from .equations import check_divisors, equations, given_point
 from .evaluate import evaluate_number
 from .limits import MAX_STACKED, MAX_VARIABLES, check_sd
 from .plant import Equations, Layout, Linearization, Mode, Plant
-from .report import Report
+from .diagnostics import Report
 from .statements import Statements
 
 
