@@ -33,6 +33,45 @@ class Estimate(NamedTuple):
     flagged: np.ndarray | None = None  # (ny,) readings beyond the gate, not absurd (screen); None when none were
 
 
+class Estimates(NamedTuple):
+    """The Estimates of many engines stepped together (the units of a fleet), as arrays with a leading
+    engine axis: row i is engine i's Estimate, its `rejected` and `flagged` rows all False where the
+    Estimate has None (`screen` gives None for no reading, never an array all False)."""
+
+    mode_posterior: np.ndarray  # (g, K)
+    state_mean: np.ndarray  # (g, nx)
+    state_cov: np.ndarray  # (g, nx, nx)
+    y_pred: np.ndarray  # (g, ny)
+    loglik: np.ndarray  # (g,)
+    ess: np.ndarray  # (g,)
+    rejected: np.ndarray  # (g, ny) bool
+    flagged: np.ndarray  # (g, ny) bool
+
+    @classmethod
+    def empty(cls, g: int, K: int, nx: int, ny: int) -> "Estimates":
+        """Room for g engines' Estimates, nothing rejected or flagged."""
+        return cls(np.empty((g, K)), np.empty((g, nx)), np.empty((g, nx, nx)), np.empty((g, ny)), np.empty(g),
+                   np.empty(g), np.zeros((g, ny), dtype=bool), np.zeros((g, ny), dtype=bool))
+
+    def put(self, rows, other: "Estimates"):
+        """Write other's engines into rows (an index array) of these."""
+        for mine, theirs in zip(self, other):
+            mine[rows] = theirs
+
+    def put_one(self, i: int, est: Estimate):
+        """Write one engine's Estimate into row i."""
+        for mine, theirs in zip(self, est):
+            if theirs is not None:
+                mine[i] = theirs
+
+    def one(self, i: int) -> Estimate:
+        """Row i as one engine's Estimate."""
+        rejected, flagged = self.rejected[i], self.flagged[i]
+        return Estimate(self.mode_posterior[i], self.state_mean[i], self.state_cov[i], self.y_pred[i],
+                        float(self.loglik[i]), float(self.ess[i]), rejected if rejected.any() else None,
+                        flagged if flagged.any() else None)
+
+
 class Genealogy(NamedTuple):
     """How a particle engine's last step went from its particles to the next ones, for smoothing:
     candidate j descends from particle parent[j] with mode[j] at this step and weight q[j], and the
@@ -153,6 +192,12 @@ def mixture_moments(w, means, weighted_cov):
     mean = (w[..., None, :] @ means)[..., 0, :]
     d = means - mean[..., None, :]
     return mean, kalman.symmetrize(weighted_cov + (np.swapaxes(d, -1, -2) * w[..., None, :]) @ d)
+
+
+def joined(arrays) -> np.ndarray:
+    """np.stack of equally long 1-d arrays (one per engine), or of (n, nx) arrays flattened to (g, n * nx):
+    one concatenation, without np.stack's steps per array (the most of its time at thousands of units)."""
+    return np.concatenate(arrays).reshape(len(arrays), -1)
 
 
 def sample_rows(probs, rng):
