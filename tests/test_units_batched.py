@@ -330,7 +330,7 @@ def test_a_step_of_many_units_names_its_fields_as_a_result_does(dryer, algorithm
     assert any(result.rejected[:40].any() for result in results)  # the rows a gate left out are compared too
 
 
-@pytest.mark.parametrize("algorithm, particles", [("la-rbpf", 5), ("rbpf", 10), ("pf", 30)])
+@pytest.mark.parametrize("algorithm, particles", [("la-rbpf", 5), ("rbpf", 10), ("pf", 30), ("pf", 40)])
 def test_engines_stepped_together_give_their_estimates_as_rows_each_as_alone(dryer, algorithm, particles):
     """`step_together` gives its engines' Estimates as rows of arrays with a leading engine axis (a
     fleet makes its records from them, without a Step each): row i is, bit for bit, what engine i

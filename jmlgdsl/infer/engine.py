@@ -7,6 +7,7 @@ into records. Algorithms are registered by name in algorithms.py.
 
 from __future__ import annotations
 
+import functools
 from typing import NamedTuple, Protocol
 
 import numpy as np
@@ -209,10 +210,21 @@ def sample_rows(probs, rng):
 def rows_drawn(probs, uniforms):
     """`sample_rows` with its uniforms on [0, 1) given, one per row of probs (..., M, K): the same
     draws row by row over any leading axes (many units' particles, each with its own numbers)."""
-    cdf = probs.cumsum(axis=-1)
+    return cdf_drawn(probs.cumsum(axis=-1), uniforms)
+
+
+def cdf_drawn(cdf, uniforms):
+    """`rows_drawn` of the rows whose cumulated sums are cdf (..., M, K) (written to): a table's rows
+    cumulated once serve every draw from them, bit for bit as each row cumulated."""
     u = uniforms * cdf[..., -1]
     cdf[..., -1] = np.inf  # at most K - 1, even where u rounds up to the total
-    return (cdf > u[..., None]).argmax(axis=-1)
+    above = cdf > u[..., None]
+    K = cdf.shape[-1]
+    if K > 8:
+        return above.argmax(axis=-1)
+    # argmax over a short axis, one call per column over every row (numpy's reduction loops row by row)
+    return functools.reduce(lambda first, k: np.where(above[..., k], k, first), range(K - 1, -1, -1),
+                            np.zeros(u.shape, np.int64))
 
 
 def systematic_rows(w, n, offsets):
@@ -221,7 +233,11 @@ def systematic_rows(w, n, offsets):
     cdf = w.cumsum(axis=-1)
     cdf[..., -1] = 1.0  # as resample._inverse_cdf
     points = systematic_points(n) + offsets[..., None] / n
-    return (cdf[..., :, None] <= points[..., None, :]).sum(axis=-2)  # searchsorted(points, side="right")
+    if cdf.shape[-1] * n <= 1024:  # a few particles: every comparison at once
+        return (cdf[..., :, None] <= points[..., None, :]).sum(axis=-2)  # searchsorted(points, side="right")
+    # many (pf's 200: 40,000 comparisons a row): a search a row, the scheme's own
+    flat = (cdf.reshape(-1, cdf.shape[-1]), points.reshape(-1, n))
+    return np.array([c.searchsorted(p, side="right") for c, p in zip(*flat)]).reshape(points.shape)
 
 
 class Resampler:

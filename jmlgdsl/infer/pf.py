@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..gaussian import psd_sqrt
-from .engine import (OPEN, Estimate, Estimates, Gate, Genealogy, Resampler, joined, mixture_moments, offsets,
-                     rows_drawn, sample_rows, screen, systematic_rows)
+from .engine import (OPEN, Estimate, Estimates, Gate, Genealogy, Resampler, cdf_drawn, joined, mixture_moments,
+                     offsets, sample_rows, screen, systematic_rows)
 from .kalman import inverse_cholesky, log_density, quad_form
 from .resample import normalize_rows, row_extreme, systematic
 from .result import Predictive
@@ -105,12 +105,16 @@ def step_together(engines, y, mask, u, gates) -> Estimates:
     arrays as its own step's, so each gets, bit for bit, what it would get alone."""
     model, g = engines[0].model, len(engines)
     N, nx, nw = len(engines[0].z), model.nx, model.B.shape[2]
-    b, c = (np.stack(a) for a in zip(*(offsets(model, x) for x in u)))
+    if (u == u[0]).all():  # units under the same inputs (the usual case) share their offsets, computed once
+        b, c = (np.broadcast_to(a, (g,) + a.shape) for a in offsets(model, u[0]))
+    else:
+        b, c = (np.stack(a) for a in zip(*(offsets(model, x) for x in u)))
     uniforms, w = np.empty((g, N)), np.empty((g, N, nw))
     for e, drawn, noise in zip(engines, uniforms, w):  # sample_rows' numbers, then the process noise's, as alone
         e.rng.random(out=drawn)
         e.rng.standard_normal(out=noise)
-    z = rows_drawn(model.P[joined([e.z for e in engines])], uniforms)
+    z = joined([e.z for e in engines])
+    z = cdf_drawn(model.P.cumsum(axis=-1)[z], uniforms)  # each particle's row of P, cumulated
     each = np.arange(g)[:, None]
     x, y_pred = propagate(model, joined([e.x for e in engines]).reshape(g, N, nx), z, w, b[each, z], c[each, z])
     Linv, logdet = engines[0]._measurement_noise(mask)
@@ -135,12 +139,27 @@ def step_together(engines, y, mask, u, gates) -> Estimates:
     es = [engines[i] for i in kept.tolist()]
     q, loglik, mean, cov, posterior, yp = weigh(model, joined([e.logw for e in es]), z, x, y_pred, quad, logdet,
                                                 r.shape[-1])
-    resampled = systematic_together(es, q)
-    sizes = [e.advance(mask, zj, xj, rj, Lj, qj, done or e.resampler(qj))
-             for e, zj, xj, rj, Lj, qj, done in zip(es, z, x, r, Linv, q, resampled)]
+    resampled = [done or e.resampler(qj) for e, qj, done in zip(es, q, systematic_together(es, q))]
+    sizes = advance_together(es, mask, z, x, r, Linv, q, resampled)
     out.put(kept, Estimates(posterior, mean, cov, yp, loglik, np.array(sizes, dtype=float), False, False))
     out.flagged[:] = flagged
     return out
+
+
+def advance_together(engines, mask, z, x, r, Linv, q, resampled) -> list:
+    """`BootstrapPF.advance` of engines side by side, each step's arrays with a leading engine axis and
+    `resampled` what each one's resampler gave: their particles taken in one call, each engine's as
+    alone; the ESS of each."""
+    ancestors, logws, sizes = zip(*resampled)
+    each = np.arange(len(engines))[:, None]
+    ancestors = np.stack(ancestors)
+    zs, xs = z[each, ancestors], x[each, ancestors]
+    candidates = np.arange(z.shape[-1])
+    for e, a, zj, xj, new_z, new_x, logw, rj, Lj, qj in zip(engines, ancestors, z, x, zs, xs, logws, r, Linv, q):
+        e.predictive = Predictive(zj, e.logw, rj, Lj, mask)
+        e.genealogy = Genealogy(candidates, zj, qj, a)
+        e.z, e.x, e.logw = new_z, new_x, logw
+    return list(sizes)
 
 
 def systematic_together(engines, q) -> list:
