@@ -263,15 +263,20 @@ def advance_together(engines, rows, nodes, parent, mode, pairs, log_prior, r, Li
     z, mu = modes[row], mu_f.reshape(g * J, -1)[row]
     child = graph.children(rows, nodes.reshape(-1)[owner * n + parents[row]], z)
     node = Representatives.pick_together([e.reps for e in engines], graph, child, owner)
-    ends = np.cumsum(np.bincount(owner, minlength=g)).tolist()
+    held = np.bincount(owner, minlength=g)  # the particles each engine keeps
+    ends = np.cumsum(held).tolist()
     # `tidy` is called only where it may act (an engine's classes, or a graph of its own, past its bound)
-    bound = 4 * int(np.diff(ends, prepend=0).min()) + first.spare_nodes
+    bound = 4 * int(held.min()) + first.spare_nodes
     tidy = max(e.reps.held for e in engines) > bound or (not graph.shared and graph.size > bound)
     ps, ms = (repeat(parent), repeat(mode)) if pairs else (parent, mode)
-    for e, a, b, p, m, lp, rj, Lj, qj in zip(engines, [0] + ends[:-1], ends, ps, ms, log_prior, r, Linv, q):
+    if (held == held[0]).all():  # as many kept by each (the usual step): rows of (g, ...) arrays
+        each = zip(*(a.reshape((g, -1) + a.shape[1:]) for a in (kept, z, mu, logw, copies, node)))
+    else:
+        each = ((kept[a:b], z[a:b], mu[a:b], logw[a:b], copies[a:b], node[a:b]) for a, b in zip([0] + ends[:-1], ends))
+    for e, mine, p, m, lp, rj, Lj, qj in zip(engines, each, ps, ms, log_prior, r, Linv, q):
         e.predictive = Predictive(m, lp, rj, Lj, mask)
-        e.genealogy = Genealogy(p, m, qj, kept[a:b])
-        e.z, e.mu, e.logw, e.copies, e.node = z[a:b], mu[a:b], logw[a:b], copies[a:b], node[a:b]
+        e.genealogy = Genealogy(p, m, qj, mine[0])
+        e.z, e.mu, e.logw, e.copies, e.node = mine[1:]
         if tidy:
             e.tidy()
     return list(sizes)

@@ -456,6 +456,8 @@ def _together(filters, mask) -> tuple[list, np.ndarray]:
     count = np.fromiter((len(f.engine.z) for f in filters), np.int64, n)
     _, which = _groups(mask)
     key = (bank * (int(which.max()) + 1) + which) * (int(count.max()) + 1) + count
+    if n > 1 and (key == key[0]).all():  # the usual step: every unit in one group
+        return [np.arange(n)], []
     _, first, inverse, sizes = np.unique(key, return_index=True, return_inverse=True, return_counts=True)
     members = np.split(np.argsort(inverse, kind="stable"), np.cumsum(sizes)[:-1])
     groups = [members[k] for k in np.argsort(first) if sizes[k] > 1]
