@@ -131,13 +131,13 @@ def test_systematic_rows_resample_each_row_as_the_scheme_alone(rows, J, n):
     assert np.array_equal(systematic_rows(w, n, offsets), np.array(alone))
 
 
-@pytest.mark.parametrize("K", [4, 12])  # a short row column by column; a long one by argmax
-def test_draws_from_rows_cumulated_once_are_those_of_each_row(K):
+@pytest.mark.parametrize("K, rows", [(4, 2000), (4, 50), (12, 2000)])  # many short rows column by column
+def test_draws_from_rows_cumulated_once_are_those_of_each_row(K, rows):
     rng = np.random.default_rng(K)
     P = rng.random((K, K)) ** 4
     P[:, 1] = 0.0
-    z = rng.integers(0, K, (3, 50))
-    uniforms = rng.random((3, 50))
+    z = rng.integers(0, K, (2, rows))
+    uniforms = rng.random((2, rows))
     drawn = cdf_drawn(P.cumsum(axis=-1)[z], uniforms)
     assert np.array_equal(drawn, rows_drawn(P[z], uniforms))
     assert np.array_equal(drawn, (P[z].cumsum(axis=-1) > (uniforms * P[z].sum(axis=-1))[..., None]).argmax(axis=-1))

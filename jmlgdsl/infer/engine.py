@@ -220,9 +220,9 @@ def cdf_drawn(cdf, uniforms):
     cdf[..., -1] = np.inf  # at most K - 1, even where u rounds up to the total
     above = cdf > u[..., None]
     K = cdf.shape[-1]
-    if K > 8:
+    if K > 8 or u.size < 1000:
         return above.argmax(axis=-1)
-    # argmax over a short axis, one call per column over every row (numpy's reduction loops row by row)
+    # argmax over a short axis of many rows, one call per column (numpy's reduction loops row by row)
     return functools.reduce(lambda first, k: np.where(above[..., k], k, first), range(K - 1, -1, -1),
                             np.zeros(u.shape, np.int64))
 

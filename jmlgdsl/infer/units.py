@@ -447,21 +447,15 @@ class Units:
                          est.ess, est.rejected)
 
 
-def _together(filters, mask) -> tuple[list, np.ndarray]:
+def _together(filters, mask) -> tuple[list, list]:
     """(the positions of each group of two or more units that step together: one bank, one mask (n, ny)
     row, as many particles; in the order of their first units), and the positions of the others."""
-    n = len(filters)
-    banks = {}
-    bank = np.fromiter((banks.setdefault(id(f.model), len(banks)) for f in filters), np.int64, n)
-    count = np.fromiter((len(f.engine.z) for f in filters), np.int64, n)
     _, which = _groups(mask)
-    key = (bank * (int(which.max()) + 1) + which) * (int(count.max()) + 1) + count
-    if n > 1 and (key == key[0]).all():  # the usual step: every unit in one group
-        return [np.arange(n)], []
-    _, first, inverse, sizes = np.unique(key, return_index=True, return_inverse=True, return_counts=True)
-    members = np.split(np.argsort(inverse, kind="stable"), np.cumsum(sizes)[:-1])
-    groups = [members[k] for k in np.argsort(first) if sizes[k] > 1]
-    return groups, np.flatnonzero(sizes[inverse] == 1)
+    groups = {}
+    for i, key in enumerate(zip([id(f.model) for f in filters], which.tolist(), [len(f.engine.z) for f in filters])):
+        groups.setdefault(key, []).append(i)
+    return ([np.array(members) for members in groups.values() if len(members) > 1],
+            sorted(members[0] for members in groups.values() if len(members) == 1))
 
 
 def _unit_error(index, i, exc):
