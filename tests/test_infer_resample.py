@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from jmlgdsl.infer import FilterError
-from jmlgdsl.infer.engine import Resampler, sample_rows
+from jmlgdsl.infer.engine import Resampler, cdf_drawn, rows_drawn, sample_rows, systematic_rows
 from jmlgdsl.infer.resample import SCHEMES, ess, fearnhead_clifford, normalize
 
 W = np.array([0.005, 0.3, 0.0, 0.12, 0.375, 0.2])
@@ -113,3 +113,32 @@ def test_sample_rows_never_draws_a_zero_probability_category():
     # Binomial standard error of the frequency of category 1 (probability 1/4).
     assert abs(np.mean(draws == 1) - 0.25) <= 4.5 * np.sqrt(0.25 * 0.75 / REPEATS)
     assert set(draws) == {1, 3}
+
+
+@pytest.mark.parametrize("rows, J, n", [(6, 10, 10), (5, 200, 200)])  # every comparison at once; a search a row
+def test_systematic_rows_resample_each_row_as_the_scheme_alone(rows, J, n):
+    rng = np.random.default_rng(J)
+    w = rng.random((rows, J)) ** 6
+    w[:, ::3] = 0.0
+    w /= w.sum(axis=1, keepdims=True)
+    offsets = rng.random(rows)
+
+    class Drawn:  # gives the scheme its one number, as each row's Generator would
+        def __init__(self, offset):
+            self.random = lambda: offset
+
+    alone = [SCHEMES["systematic"](row, n, Drawn(offset)) for row, offset in zip(w, offsets)]
+    assert np.array_equal(systematic_rows(w, n, offsets), np.array(alone))
+
+
+@pytest.mark.parametrize("K, rows", [(4, 2000), (4, 50), (12, 2000)])  # many short rows column by column
+def test_draws_from_rows_cumulated_once_are_those_of_each_row(K, rows):
+    rng = np.random.default_rng(K)
+    P = rng.random((K, K)) ** 4
+    P[:, 1] = 0.0
+    z = rng.integers(0, K, (2, rows))
+    uniforms = rng.random((2, rows))
+    drawn = cdf_drawn(P.cumsum(axis=-1)[z], uniforms)
+    assert np.array_equal(drawn, rows_drawn(P[z], uniforms))
+    assert np.array_equal(drawn, (P[z].cumsum(axis=-1) > (uniforms * P[z].sum(axis=-1))[..., None]).argmax(axis=-1))
+    assert not (drawn == 1).any()

@@ -328,3 +328,43 @@ def test_a_step_of_many_units_names_its_fields_as_a_result_does(dryer, algorithm
         for field in FIELDS:
             assert np.array_equal(getattr(steps, field)[i], getattr(result, field)[39], equal_nan=True), field
     assert any(result.rejected[:40].any() for result in results)  # the rows a gate left out are compared too
+
+
+@pytest.mark.parametrize("algorithm, particles", [("la-rbpf", 5), ("rbpf", 10), ("pf", 30), ("pf", 40)])
+def test_engines_stepped_together_give_their_estimates_as_rows_each_as_alone(dryer, algorithm, particles):
+    """`step_together` gives its engines' Estimates as rows of arrays with a leading engine axis (a
+    fleet makes its records from them, without a Step each): row i is, bit for bit, what engine i
+    gets stepped alone, through missing readings and a gross error its gate leaves out (that engine's
+    step redone alone, the others' together), and each engine goes on as alone."""
+    ys, us = fleet_data(dryer, 4, 40, seed=5)
+    together = [Filter(dryer, algorithm, particles, seed=s).engine for s in range(4)]
+    alone = [Filter(dryer, algorithm, particles, seed=s).engine for s in range(4)]
+    spec = ALGORITHMS[algorithm]
+    gates = [Filter(dryer).gate] * 4
+    screened = 0
+    for t in range(40):
+        y = np.array([y[t] for y in ys])
+        u = np.array([u[t] for u in us])
+        mask = np.abs(y) < 1e100
+        mask[:] = mask[0]  # the group's one mask; the others' readings at those times left out
+        y = np.where(mask, y, np.nan)
+        if spec.share is not None:
+            spec.share(together)
+        groups = {}
+        for i, e in enumerate(together):
+            groups.setdefault(len(e.z), []).append(i)
+        for members in groups.values():
+            rows = spec.step_together([together[i] for i in members], y[members], mask[0], u[members],
+                                      [gates[i] for i in members])
+            for j, i in enumerate(members):
+                est = alone[i].step(y[i], mask[0], u[i], gates[i])
+                for field in ("mode_posterior", "state_mean", "state_cov", "y_pred", "loglik", "ess"):
+                    assert np.array_equal(getattr(rows, field)[j], getattr(est, field), equal_nan=True), (t, i, field)
+                for field in ("rejected", "flagged"):
+                    expected = getattr(est, field)
+                    assert np.array_equal(getattr(rows, field)[j], np.zeros(1, bool) if expected is None else expected)
+                screened += est.rejected is not None
+        for a, b in zip(together, alone):
+            assert np.array_equal(a.z, b.z) and np.array_equal(a.logw, b.logw)
+            assert a.rng.bit_generator.state == b.rng.bit_generator.state
+    assert screened > 0

@@ -208,7 +208,8 @@ class Representatives:
     def pick_together(each, graph, nodes, owner) -> np.ndarray:
         """`pick` of several engines' Representatives `each` side by side: node i is owner[i]'s."""
         classes = graph.classes.buffer[nodes]
-        rep = (each[0].table(graph)[None] if len(each) == 1 else np.stack([r.table(graph) for r in each]))[owner, classes]
+        tables = [r.table(graph) for r in each]
+        rep = np.concatenate(tables).reshape(len(each), -1)[owner, classes]  # np.stack, without its steps per table
         missing = rep < 0
         if missing.any():  # new classes, taken in order: (engine, class) pairs, first occurrences
             pair = owner[missing] * graph.classes.size + classes[missing]

@@ -7,6 +7,7 @@ into records. Algorithms are registered by name in algorithms.py.
 
 from __future__ import annotations
 
+import functools
 from typing import NamedTuple, Protocol
 
 import numpy as np
@@ -31,6 +32,45 @@ class Estimate(NamedTuple):
     ess: float  # effective sample size of the particle weights (NaN for deterministic filters)
     rejected: np.ndarray | None = None  # (ny,) readings left out as gross errors, None when none were
     flagged: np.ndarray | None = None  # (ny,) readings beyond the gate, not absurd (screen); None when none were
+
+
+class Estimates(NamedTuple):
+    """The Estimates of many engines stepped together (the units of a fleet), as arrays with a leading
+    engine axis: row i is engine i's Estimate, its `rejected` and `flagged` rows all False where the
+    Estimate has None (`screen` gives None for no reading, never an array all False)."""
+
+    mode_posterior: np.ndarray  # (g, K)
+    state_mean: np.ndarray  # (g, nx)
+    state_cov: np.ndarray  # (g, nx, nx)
+    y_pred: np.ndarray  # (g, ny)
+    loglik: np.ndarray  # (g,)
+    ess: np.ndarray  # (g,)
+    rejected: np.ndarray  # (g, ny) bool
+    flagged: np.ndarray  # (g, ny) bool
+
+    @classmethod
+    def empty(cls, g: int, K: int, nx: int, ny: int) -> "Estimates":
+        """Room for g engines' Estimates, nothing rejected or flagged."""
+        return cls(np.empty((g, K)), np.empty((g, nx)), np.empty((g, nx, nx)), np.empty((g, ny)), np.empty(g),
+                   np.empty(g), np.zeros((g, ny), dtype=bool), np.zeros((g, ny), dtype=bool))
+
+    def put(self, rows, other: "Estimates"):
+        """Write other's engines into rows (an index array) of these."""
+        for mine, theirs in zip(self, other):
+            mine[rows] = theirs
+
+    def put_one(self, i: int, est: Estimate):
+        """Write one engine's Estimate into row i."""
+        for mine, theirs in zip(self, est):
+            if theirs is not None:
+                mine[i] = theirs
+
+    def one(self, i: int) -> Estimate:
+        """Row i as one engine's Estimate."""
+        rejected, flagged = self.rejected[i], self.flagged[i]
+        return Estimate(self.mode_posterior[i], self.state_mean[i], self.state_cov[i], self.y_pred[i],
+                        float(self.loglik[i]), float(self.ess[i]), rejected if rejected.any() else None,
+                        flagged if flagged.any() else None)
 
 
 class Genealogy(NamedTuple):
@@ -155,6 +195,12 @@ def mixture_moments(w, means, weighted_cov):
     return mean, kalman.symmetrize(weighted_cov + (np.swapaxes(d, -1, -2) * w[..., None, :]) @ d)
 
 
+def joined(arrays) -> np.ndarray:
+    """np.stack of equally long 1-d arrays (one per engine), or of (n, nx) arrays flattened to (g, n * nx):
+    one concatenation, without np.stack's steps per array (the most of its time at thousands of units)."""
+    return np.concatenate(arrays).reshape(len(arrays), -1)
+
+
 def sample_rows(probs, rng):
     """One categorical draw per row of non-negative (unnormalised) probabilities (M, K): the first k
     with cdf_k > u for u uniform on [0, total), so a zero-probability category is never drawn."""
@@ -164,10 +210,21 @@ def sample_rows(probs, rng):
 def rows_drawn(probs, uniforms):
     """`sample_rows` with its uniforms on [0, 1) given, one per row of probs (..., M, K): the same
     draws row by row over any leading axes (many units' particles, each with its own numbers)."""
-    cdf = probs.cumsum(axis=-1)
+    return cdf_drawn(probs.cumsum(axis=-1), uniforms)
+
+
+def cdf_drawn(cdf, uniforms):
+    """`rows_drawn` of the rows whose cumulated sums are cdf (..., M, K) (written to): a table's rows
+    cumulated once serve every draw from them, bit for bit as each row cumulated."""
     u = uniforms * cdf[..., -1]
     cdf[..., -1] = np.inf  # at most K - 1, even where u rounds up to the total
-    return (cdf > u[..., None]).argmax(axis=-1)
+    above = cdf > u[..., None]
+    K = cdf.shape[-1]
+    if K > 8 or u.size < 1000:
+        return above.argmax(axis=-1)
+    # argmax over a short axis of many rows, one call per column (numpy's reduction loops row by row)
+    return functools.reduce(lambda first, k: np.where(above[..., k], k, first), range(K - 1, -1, -1),
+                            np.zeros(u.shape, np.int64))
 
 
 def systematic_rows(w, n, offsets):
@@ -176,7 +233,11 @@ def systematic_rows(w, n, offsets):
     cdf = w.cumsum(axis=-1)
     cdf[..., -1] = 1.0  # as resample._inverse_cdf
     points = systematic_points(n) + offsets[..., None] / n
-    return (cdf[..., :, None] <= points[..., None, :]).sum(axis=-2)  # searchsorted(points, side="right")
+    if cdf.shape[-1] * n <= 1024:  # a few particles: every comparison at once
+        return (cdf[..., :, None] <= points[..., None, :]).sum(axis=-2)  # searchsorted(points, side="right")
+    # many (pf's 200: 40,000 comparisons a row): a search a row, the scheme's own
+    flat = (cdf.reshape(-1, cdf.shape[-1]), points.reshape(-1, n))
+    return np.array([c.searchsorted(p, side="right") for c, p in zip(*flat)]).reshape(points.shape)
 
 
 class Resampler:

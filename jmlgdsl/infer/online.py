@@ -19,7 +19,7 @@ from ..model import Model
 from ..seeds import generator
 from . import covariances
 from .algorithms import ALGORITHMS, DEFAULT_ALGORITHM, algorithm_named
-from .engine import FilterError, Gate, Genealogy, Resampler
+from .engine import Estimates, FilterError, Gate, Genealogy, Resampler
 from .resample import SCHEMES
 from .result import Result, Step
 
@@ -120,6 +120,19 @@ class Filter:
         record = Step(t, est.mode_posterior, est.state_mean, est.state_cov, est.y_pred, y - est.y_pred,
                       est.loglik, est.ess, est.rejected)
         return record if self._smoother is None else self._hold(record, u)
+
+    @staticmethod
+    def accept_together(filters, est: Estimates):
+        """`accept` of many filters without a lag (the units of a fleet, jmlgdsl.infer.units), their
+        steps' estimates the rows of `est`, none overflowed: each counted in its filter's clock,
+        log-likelihood and gate counts as `accept` counts it. Their records are the caller's to make
+        (as arrays, without a Step each)."""
+        flagged = est.flagged.any(axis=1).tolist()
+        for f, loglik, found, row in zip(filters, est.loglik.tolist(), flagged, est.flagged):
+            if found or f._watching:
+                f._count_flagged(row if found else None)
+            f.t += 1
+            f.loglik += loglik
 
     def _hold(self, record, u):
         """Keep the new record back; give out the oldest one, smoothed, once `lag` rows follow it."""

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..gaussian import psd_sqrt
-from .engine import (OPEN, Estimate, Gate, Genealogy, Resampler, mixture_moments, offsets, rows_drawn, sample_rows, screen,
-                     systematic_rows)
+from .engine import (OPEN, Estimate, Estimates, Gate, Genealogy, Resampler, cdf_drawn, joined, mixture_moments,
+                     offsets, sample_rows, screen, systematic_rows)
 from .kalman import inverse_cholesky, log_density, quad_form
 from .resample import normalize_rows, row_extreme, systematic
 from .result import Predictive
@@ -97,41 +97,69 @@ def weigh(model, log_prior, z, x, y_pred, quad, logdet, m):
     return q, loglik, mean, cov, posterior, (prior[..., None, :] @ y_pred)[..., 0, :] / prior.sum(axis=-1)[..., None]
 
 
-def step_together(engines, y, mask, u, gates) -> list:
+def step_together(engines, y, mask, u, gates) -> Estimates:
     """`BootstrapPF.step` of several engines of one model with as many particles (units of a fleet):
-    readings y (g, ny) measured where mask (ny,) is True, inputs u (g, nu), a gate each; an Estimate
-    each. Each draws from its own Generator what it would alone, and their arithmetic runs with a
-    leading axis over the engines, each engine's the same operations on its own arrays as its own
-    step's, so each gets, bit for bit, what it would get alone."""
+    readings y (g, ny) measured where mask (ny,) is True, inputs u (g, nu), a gate each; their
+    Estimates, row i engine i's. Each draws from its own Generator what it would alone, and their
+    arithmetic runs with a leading axis over the engines, each engine's the same operations on its own
+    arrays as its own step's, so each gets, bit for bit, what it would get alone."""
     model, g = engines[0].model, len(engines)
-    b, c = (np.stack(a) for a in zip(*(offsets(model, x) for x in u)))
-    uniforms, w = [], []
-    for e in engines:  # sample_rows' numbers, then the process noise's, as a step alone draws them
-        uniforms.append(e.rng.random(len(e.z)))
-        w.append(e.rng.standard_normal((len(e.z), model.B.shape[2])))
-    z = rows_drawn(model.P[np.stack([e.z for e in engines])], np.stack(uniforms))
+    N, nx, nw = len(engines[0].z), model.nx, model.B.shape[2]
+    if (u == u[0]).all():  # units under the same inputs (the usual case) share their offsets, computed once
+        b, c = (np.broadcast_to(a, (g,) + a.shape) for a in offsets(model, u[0]))
+    else:
+        b, c = (np.stack(a) for a in zip(*(offsets(model, x) for x in u)))
+    uniforms, w = np.empty((g, N)), np.empty((g, N, nw))
+    for e, drawn, noise in zip(engines, uniforms, w):  # sample_rows' numbers, then the process noise's, as alone
+        e.rng.random(out=drawn)
+        e.rng.standard_normal(out=noise)
+    z = joined([e.z for e in engines])
+    z = cdf_drawn(model.P.cumsum(axis=-1)[z], uniforms)  # each particle's row of P, cumulated
     each = np.arange(g)[:, None]
-    x, y_pred = propagate(model, np.stack([e.x for e in engines]), z, np.stack(w), b[each, z], c[each, z])
+    x, y_pred = propagate(model, joined([e.x for e in engines]).reshape(g, N, nx), z, w, b[each, z], c[each, z])
     Linv, logdet = engines[0]._measurement_noise(mask)
     Linv, logdet = Linv[z], logdet[z]
     r, quad = whitened(y, mask, y_pred, Linv)
-    estimates, flagged = [None] * g, [None] * g
+    out = Estimates.empty(g, model.K, nx, model.ny)
+    screened, flagged = [], np.zeros_like(out.flagged)
     for i in Gate.closer_looks(gates, quad):
         e = engines[i]
-        estimates[i], flagged[i] = screen(e, y[i], mask, u[i], gates[i], *e._every_mode(y[i], mask, b[i], c[i]))
-    kept = [i for i, est in enumerate(estimates) if est is None]
-    if not kept:
-        return estimates
-    if len(kept) < g:  # the engines whose step screening redid are done (every array here is its own)
+        est, found = screen(e, y[i], mask, u[i], gates[i], *e._every_mode(y[i], mask, b[i], c[i]))
+        if found is not None:
+            flagged[i] = found
+        if est is not None:
+            out.put_one(i, est)
+            screened.append(i)
+    kept = np.setdiff1d(np.arange(g), screened) if screened else np.arange(g)
+    if not len(kept):
+        out.flagged[:] = flagged
+        return out
+    if screened:  # the engines whose step screening redid are done (every array here is its own)
         z, x, y_pred, r, quad, Linv, logdet = (a[kept] for a in (z, x, y_pred, r, quad, Linv, logdet))
-    log_prior = np.stack([engines[i].logw for i in kept])
-    q, loglik, mean, cov, posterior, yp = weigh(model, log_prior, z, x, y_pred, quad, logdet, r.shape[-1])
-    resampled = systematic_together([engines[i] for i in kept], q)
-    for j, i in enumerate(kept):
-        e = engines[i]
-        size = e.advance(mask, z[j], x[j], r[j], Linv[j], q[j], resampled[j] or e.resampler(q[j]))
-        estimates[i] = Estimate(posterior[j], mean[j], cov[j], yp[j], float(loglik[j]), size, flagged=flagged[i])
-    return estimates
+    es = [engines[i] for i in kept.tolist()]
+    q, loglik, mean, cov, posterior, yp = weigh(model, joined([e.logw for e in es]), z, x, y_pred, quad, logdet,
+                                                r.shape[-1])
+    resampled = [done or e.resampler(qj) for e, qj, done in zip(es, q, systematic_together(es, q))]
+    sizes = advance_together(es, mask, z, x, r, Linv, q, resampled)
+    out.put(kept, Estimates(posterior, mean, cov, yp, loglik, np.array(sizes, dtype=float), False, False))
+    out.flagged[:] = flagged
+    return out
+
+
+def advance_together(engines, mask, z, x, r, Linv, q, resampled) -> list:
+    """`BootstrapPF.advance` of engines side by side, each step's arrays with a leading engine axis and
+    `resampled` what each one's resampler gave: their particles taken in one call, each engine's as
+    alone; the ESS of each."""
+    ancestors, logws, sizes = zip(*resampled)
+    each = np.arange(len(engines))[:, None]
+    ancestors = np.stack(ancestors)
+    zs, xs = z[each, ancestors], x[each, ancestors]
+    candidates = np.arange(z.shape[-1])
+    for e, a, zj, xj, new_z, new_x, logw, rj, Lj, qj in zip(engines, ancestors, z, x, zs, xs, logws, r, Linv, q):
+        e.predictive = Predictive(zj, e.logw, rj, Lj, mask)
+        e.genealogy = Genealogy(candidates, zj, qj, a)
+        e.z, e.x, e.logw = new_z, new_x, logw
+    return list(sizes)
 
 
 def systematic_together(engines, q) -> list:

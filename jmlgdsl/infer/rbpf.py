@@ -17,12 +17,14 @@ mode histories, not with N.
 
 from __future__ import annotations
 
+from itertools import repeat
+
 import numpy as np
 
 from .covariances import CovarianceGraph, Representatives
 from . import kalman
-from .engine import (OPEN, Estimate, FilterError, Gate, Genealogy, Resampler, mixture_moments, offsets, rows_drawn, sample_rows,
-                     screen, systematic_rows)
+from .engine import (OPEN, Estimate, Estimates, FilterError, Gate, Genealogy, Resampler, joined, mixture_moments,
+                     offsets, rows_drawn, sample_rows, screen, systematic_rows)
 from .resample import ess, fearnhead_clifford, normalize, normalize_rows, systematic
 from .result import Predictive
 
@@ -70,6 +72,13 @@ class RaoBlackwellised:
         if n not in self._pairs:
             self._pairs[n] = np.repeat(np.arange(n), K), np.tile(np.arange(K), n)
         return (*self._pairs[n], None)
+
+    @staticmethod
+    def candidates_together(engines):
+        """`candidates` of engines of this algorithm holding as many particles, side by side: the
+        candidates of one, every (particle, mode) pair in order, serve them all (log share None);
+        each (parent, mode, log share) a row (g, J) where each engine draws its own."""
+        return engines[0].candidates()
 
     def select(self, q, parent, mode):
         """(chosen candidate indices, their log-weights, ESS) from normalised candidate weights q.
@@ -150,10 +159,10 @@ class RaoBlackwellised:
         return Estimate(posterior, mean, cov, yp, float(loglik), size, flagged=flagged)
 
 
-def step_together(engines, y, mask, u, gates) -> list:
+def step_together(engines, y, mask, u, gates) -> Estimates:
     """`RaoBlackwellised.step` of several engines of one model and algorithm that hold as many particles
     and weigh as many candidates (units of a fleet): readings y (g, ny) measured where mask (ny,) is
-    True, inputs u (g, nu), a gate each; an Estimate each.
+    True, inputs u (g, nu), a gate each; their Estimates, row i engine i's.
 
     Their arithmetic runs with a leading axis over the engines, each engine's the same operations on
     its own arrays as its own step's (a stack of matrix products is one product per matrix, and a
@@ -162,95 +171,115 @@ def step_together(engines, y, mask, u, gates) -> list:
     The engines share one covariance graph (`share`)."""
     first = engines[0]
     model, K, nx, ny = first.model, first.K, first.nx, first.ny
-    n = len(first.z)
+    n, g = len(first.z), len(engines)
     rows = first.graph.rows(mask)
-    candidates = [e.candidates() for e in engines]
-    pairs = candidates[0][2] is None  # the candidates are every (particle, mode) pair, the same for all
+    parent_all, mode_all, log_prop_all = type(first).candidates_together(engines)
+    pairs = log_prop_all is None  # the candidates are every (particle, mode) pair, the same for all
 
     def weighed(chosen):
         """The prior, predictions and Kalman pieces of the candidates of the engines at `chosen`, as
         views laid out as in each engine's own step (a matrix product's order of sums follows them)."""
         es, g = [engines[i] for i in chosen], len(chosen)
-        z, mu, logw = (np.stack([getattr(e, name) for e in es]) for name in ("z", "mu", "logw"))
+        z, logw, node = (joined([getattr(e, name) for e in es]) for name in ("z", "logw", "node"))
+        mu = joined([e.mu for e in es]).reshape(g, n, nx)
         # units under the same inputs (the usual case) share their offsets, computed once
         offsets = (first._offsets(u[0])[None] if (u == u[0]).all() else
                    np.stack([e._offsets(u[i]) for i, e in zip(chosen, es)]))
         pred = (mu @ first._map).reshape(g, n, K, nx + ny) + offsets[:, None]
         if pairs:  # every (particle, mode) pair in order, and rows of every mode of each node
             cand = pred.reshape(g, n * K, nx + ny)
-            parent, mode, _ = candidates[chosen[0]]
-            packed = rows.packed.buffer[np.stack([e.node for e in es])].reshape(g, n * K, -1)
+            parent, mode = parent_all, mode_all
+            packed = rows.packed.buffer[node].reshape(g, n * K, -1)
             log_prior = (logw[..., None] + model.logP[z]).reshape(g, n * K)
             prior = np.exp(log_prior)  # sums to 1: logw is normalised
         else:  # each engine's own candidates
-            parent, mode, log_prop = (np.stack([candidates[i][k] for i in chosen]) for k in range(3))
+            parent, mode, log_prop = (a[chosen] for a in (parent_all, mode_all, log_prop_all))
             each = np.arange(g)[:, None]
             cand = pred[each, parent, mode]
-            packed = rows.packed.buffer[np.stack([e.node for e in es])[each, parent], mode]
+            packed = rows.packed.buffer[node[each, parent], mode]
             log_prior = logw[each, parent] + model.logP[z[each, parent], mode] - log_prop
             prior, _ = normalize_rows(log_prior)
         Linv, logdet, gain_t, Sig_f = rows.unpack(packed)
         y_pred = cand[..., nx:]
         r = y[chosen][:, None, :] - y_pred if mask.all() else y[chosen][:, None, mask] - y_pred[..., mask]
         quad = kalman.quad_form((Linv @ r[..., None])[..., 0])
-        return parent, mode, prior, log_prior, quad, logdet, r, cand[..., :nx], y_pred, gain_t, Sig_f, Linv, pred
+        return parent, mode, prior, log_prior, quad, logdet, r, cand[..., :nx], y_pred, gain_t, Sig_f, Linv, pred, node
 
-    kept = list(range(len(engines)))
-    parent, mode, prior, log_prior, quad, logdet, r, mu_p, y_pred, gain_t, Sig_f, Linv, pred = weighed(kept)
-    estimates, flagged = [None] * len(engines), [None] * len(engines)
+    kept = np.arange(g)
+    parent, mode, prior, log_prior, quad, logdet, r, mu_p, y_pred, gain_t, Sig_f, Linv, pred, node = weighed(kept)
+    screened, flagged = {}, np.zeros((g, ny), dtype=bool)
     for i in Gate.closer_looks(gates, quad):  # under every mode of every particle
         Linv_every = Linv[i] if pairs else rows.at(engines[i].node)[0]
-        every = pred.reshape(len(engines), n * K, nx + ny)[i]
-        estimates[i], flagged[i] = screen(engines[i], y[i], mask, u[i], gates[i], y[i, mask] - every[:, nx:][:, mask],
-                                          kalman.standard_deviations(Linv_every))
-    if any(est is not None for est in estimates):  # the engines whose step screening redid are done
-        kept = [i for i, est in enumerate(estimates) if est is None]
-        if not kept:
-            return estimates
-        parent, mode, prior, log_prior, quad, logdet, r, mu_p, y_pred, gain_t, Sig_f, Linv, pred = weighed(kept)
-    q, loglik, mu_f, mean, cov, posterior, yp = weigh(prior, log_prior, mode, K, quad, logdet, r, mu_p, y_pred, gain_t,
-                                                      Sig_f)
-    es = [engines[i] for i in kept]
-    sizes = advance_together(es, rows, parent, mode, pairs, log_prior, r, Linv, q, mu_f, mask,
-                             type(first).select_together(es, q))
-    for j, i in enumerate(kept):
-        estimates[i] = Estimate(posterior[j], mean[j], cov[j], yp[j], float(loglik[j]), sizes[j], flagged=flagged[i])
-    return estimates
+        every = pred.reshape(g, n * K, nx + ny)[i]
+        est, found = screen(engines[i], y[i], mask, u[i], gates[i], y[i, mask] - every[:, nx:][:, mask],
+                            kalman.standard_deviations(Linv_every))
+        if found is not None:
+            flagged[i] = found
+        if est is not None:
+            screened[i] = est
+    if screened:  # the engines whose step screening redid are done
+        kept = np.array([i for i in range(g) if i not in screened], dtype=np.int64)
+        if len(kept):
+            (parent, mode, prior, log_prior, quad, logdet, r, mu_p, y_pred, gain_t, Sig_f, Linv, pred,
+             node) = weighed(kept)
+    out = Estimates.empty(g, K, nx, ny)
+    if len(kept):
+        q, loglik, mu_f, mean, cov, posterior, yp = weigh(prior, log_prior, mode, K, quad, logdet, r, mu_p, y_pred,
+                                                          gain_t, Sig_f)
+        es = [engines[i] for i in kept.tolist()]
+        sizes = advance_together(es, rows, node, parent, mode, pairs, log_prior, r, Linv, q, mu_f, mask,
+                                 type(first).select_together(es, q))
+        if not screened:
+            return Estimates(posterior, mean, cov, yp, loglik, np.array(sizes, dtype=float), out.rejected, flagged)
+        out.put(kept, Estimates(posterior, mean, cov, yp, loglik, np.array(sizes, dtype=float), False, False))
+    for i, est in screened.items():
+        out.put_one(i, est)
+    out.flagged[:] = flagged
+    return out
 
 
-def advance_together(engines, rows, parent, mode, pairs, log_prior, r, Linv, q, mu_f, mask, selected) -> list:
+def advance_together(engines, rows, nodes, parent, mode, pairs, log_prior, r, Linv, q, mu_f, mask, selected) -> list:
     """`RaoBlackwellised.advance` of engines that share one graph and weighed as many candidates, side
     by side: parent and mode (J,) when the candidates are every (particle, mode) pair (`pairs`), else
     one row (g, J) per engine; log_prior, r, Linv, q and mu_f with a leading engine axis; `selected`
-    what each engine's `select` gives, or None where it is to select on its own. Their copies merge
+    what each engine's `select` gives, or None where it is to select on its own; nodes (g, n) their
+    particles' nodes. Their copies merge
     and their children are found in one call each, every engine's the same operations on its own
     numbers as alone; the ESS of each."""
     first = engines[0]
     graph, K, g, J, n = first.graph, first.K, len(engines), q.shape[-1], len(first.z)
     picks = [e.select(q[j], *((parent, mode) if pairs else (parent[j], mode[j]))) if done is None else done
              for j, (e, done) in enumerate(zip(engines, selected))]
-    chosen = np.concatenate([c for c, _, _ in picks])
-    lengths = np.array([len(c) for c, _, _ in picks])
+    chosen, logws, sizes = zip(*picks)
+    lengths = np.fromiter(map(len, chosen), np.int64, g)
+    chosen = np.concatenate(chosen)
     parents, modes = (np.broadcast_to(a, (g, J)).reshape(-1) for a in (parent, mode))  # every candidate's
     row = np.repeat(np.arange(g) * J, lengths) + chosen  # each chosen candidate's, among every candidate
     key = chosen if pairs else parents[row] * K + modes[row]  # (parent, mode) as one number
     resampled = np.array([e.resampler is not None and logw is e.resampler.uniform  # all weights 1 / N
-                          for e, (_, logw, _) in zip(engines, picks)])
-    kept, logw, copies, owner = merge_copies_together(key, chosen, np.concatenate([w for _, w, _ in picks]), n * K,
-                                                      resampled, lengths)
+                          for e, logw in zip(engines, logws)])
+    kept, logw, copies, owner = merge_copies_together(key, chosen, np.concatenate(logws), n * K, resampled, lengths)
     row = owner * J + kept
     z, mu = modes[row], mu_f.reshape(g * J, -1)[row]
-    child = graph.children(rows, np.stack([e.node for e in engines]).reshape(-1)[owner * n + parents[row]], z)
+    child = graph.children(rows, nodes.reshape(-1)[owner * n + parents[row]], z)
     node = Representatives.pick_together([e.reps for e in engines], graph, child, owner)
-    ends = np.cumsum(np.bincount(owner, minlength=g))
-    for j, e in enumerate(engines):
-        mine = slice(ends[j - 1] if j else 0, ends[j])
-        p, m = (parent, mode) if pairs else (parent[j], mode[j])
-        e.predictive = Predictive(m, log_prior[j], r[j], Linv[j], mask)
-        e.genealogy = Genealogy(p, m, q[j], kept[mine])
-        e.z, e.mu, e.logw, e.copies, e.node = z[mine], mu[mine], logw[mine], copies[mine], node[mine]
-        e.tidy()
-    return [size for _, _, size in picks]
+    held = np.bincount(owner, minlength=g)  # the particles each engine keeps
+    ends = np.cumsum(held).tolist()
+    # `tidy` is called only where it may act (an engine's classes, or a graph of its own, past its bound)
+    bound = 4 * int(held.min()) + first.spare_nodes
+    tidy = max(e.reps.held for e in engines) > bound or (not graph.shared and graph.size > bound)
+    ps, ms = (repeat(parent), repeat(mode)) if pairs else (parent, mode)
+    if (held == held[0]).all():  # as many kept by each (the usual step): rows of (g, ...) arrays
+        each = zip(*(a.reshape((g, -1) + a.shape[1:]) for a in (kept, z, mu, logw, copies, node)))
+    else:
+        each = ((kept[a:b], z[a:b], mu[a:b], logw[a:b], copies[a:b], node[a:b]) for a, b in zip([0] + ends[:-1], ends))
+    for e, mine, p, m, lp, rj, Lj, qj in zip(engines, each, ps, ms, log_prior, r, Linv, q):
+        e.predictive = Predictive(m, lp, rj, Lj, mask)
+        e.genealogy = Genealogy(p, m, qj, mine[0])
+        e.z, e.mu, e.logw, e.copies, e.node = mine[1:]
+        if tidy:
+            e.tidy()
+    return list(sizes)
 
 
 def share(engines):
@@ -259,10 +288,15 @@ def share(engines):
     An engine joining moves its nodes and representatives in: its results stay bit for bit its own
     (a node is its covariance exactly, and each engine keeps its own representatives). A shared graph
     that has outgrown its engines' particles is compacted, every engine's nodes renumbered."""
-    banks = {}
-    for e in engines:
-        banks.setdefault(id(e.model), []).append(e)
-    for holders in banks.values():
+    graph = engines[0].graph
+    if graph.shared and all(e.graph is graph for e in engines):  # as at the last step: one bank, one graph
+        groups = [engines]
+    else:
+        banks = {}
+        for e in engines:
+            banks.setdefault(id(e.model), []).append(e)
+        groups = banks.values()
+    for holders in groups:
         graph = next((e.graph for e in holders if e.graph.shared), None)
         if graph is None:
             graph = CovarianceGraph(holders[0].model)
@@ -368,6 +402,10 @@ class RBPF(RaoBlackwellised):
         mode = sample_rows(self.model.P[self.z[parent]], self.rng)
         return parent, mode, self.model.logP[self.z[parent], mode] + np.log(self.copies[parent])
 
+    @staticmethod
+    def candidates_together(engines):
+        return tuple(np.stack(a) for a in zip(*(e.candidates() for e in engines)))  # each from its own Generator
+
     def select(self, q, parent, mode):
         return self.resampler(q)
 
@@ -389,19 +427,21 @@ class LookAheadRBPF(RaoBlackwellised):
         K, g = engines[0].K, len(engines)
         q = q.reshape(g, -1, K)
         w = q.sum(axis=-1)
-        copies = np.stack([e.copies for e in engines])
+        copies = joined([e.copies for e in engines])
         size = 1.0 / (w[:, None, :] @ (w / copies)[:, :, None])[:, 0, 0]  # ess(w, copies), row by row
         out = [None] * g
-        going = [i for i, e in enumerate(engines) if e.resampler.scheme is systematic and e.resampler.resamples(
-            size[i], copies[i])]
+        going = [i for i, (e, s, c) in enumerate(zip(engines, size.tolist(), copies))
+                 if e.resampler.scheme is systematic and e.resampler.resamples(s, c)]
         if not going:
             return out
         n = engines[going[0]].resampler.n
-        draws = np.stack([engines[i].rng.random(n + 1) for i in going])  # the scheme's, then sample_rows'
+        draws = np.empty((len(going), n + 1))  # the scheme's, then sample_rows'
+        for i, row in zip(going, draws):
+            engines[i].rng.random(out=row)
         ancestors = systematic_rows(w[going], n, draws[:, 0])
         chosen = ancestors * K + rows_drawn(q[going][np.arange(len(going))[:, None], ancestors], draws[:, 1:])
-        for j, i in enumerate(going):
-            out[i] = chosen[j], engines[i].resampler.uniform, size[i]
+        for i, c in zip(going, chosen):
+            out[i] = c, engines[i].resampler.uniform, size[i]
         return out
 
 

@@ -16,8 +16,10 @@ measured the same outputs and hold as many particles step together (`rbpf.step_t
 `pf.step_together`): their predictions, Kalman pieces, weights and mixture moments in one call with
 a leading unit axis, and their systematic resampling (and la-rbpf's draw of modes) too, each unit
 with the numbers its own Generator gives; then their copies merge and their covariances' children
-are found in one pass (`rbpf.advance_together`). Every unit gets, bit for bit, what a Filter with
-the same seed gets alone.
+are found in one pass (`rbpf.advance_together`). Their Estimates come back as arrays with a unit
+axis (`engine.Estimates`), from which the step's UnitSteps are made, each unit counted in its Filter
+without a Step of its own (`Filter.accept_together`). Every unit gets, bit for bit, what a Filter
+with the same seed gets alone.
 
 Units of one design need not share their numbers: `models=` gives each unit its own bank (its fitted
 spec: its own gain, settled temperature, sensor offsets). Banks of one shape (`stackable`) still step
@@ -45,11 +47,11 @@ from ..errors import DataError
 from ..model import Model
 from . import kalman
 from .algorithms import ALGORITHMS, DEFAULT_ALGORITHM, algorithm_named
-from .engine import Estimate, FilterError, Gate, screen
+from .engine import Estimate, Estimates, FilterError, Gate, screen
 from .imm import SURE, mix, moments, predict, refresh, whitened
 from .online import MAX_REJECTIONS, Filter, _arrays, _inputs, _overflow, _readings
 from .resample import normalize_rows, row_extreme
-from .result import Predictive, Result, Step, stacked
+from .result import Predictive, Result, Step
 
 ALL = slice(None)  # every unit, as an index that takes views, not copies
 
@@ -411,38 +413,49 @@ class Units:
                          b.rejected)
 
     def _each(self, index, t, y, mask, u) -> UnitSteps:
-        """The units through their own Filters: the engines of the units that measured the same outputs
-        and hold as many particles stepped together (their algorithm's `step_together`), each other one
-        on its own."""
+        """The units through their own Filters: the engines of the units of one bank that measured the
+        same outputs and hold as many particles stepped together (their algorithm's `step_together`),
+        each other one on its own; every unit's Estimate a row of arrays with a unit axis, counted in
+        its Filter (`Filter.accept_together`) without a record of its own."""
         spec = ALGORITHMS[self.algorithm]
         if spec.share is not None:
             spec.share([f.engine for f in self._filters])
-        filters = [self._filters[unit] for unit in np.arange(self.count)[index]]
-        estimates = [None] * len(filters)
-        groups = {}
-        together = spec.step_together
-        if together is not None:
-            for i, f in enumerate(filters):  # units of one bank that measured the same and hold as many particles
-                groups.setdefault((id(f.model), mask[i].tobytes(), len(f.engine.z)), []).append(i)
-        for members in groups.values():
-            if len(members) > 1:
-                try:
-                    done = together([filters[i].engine for i in members], y[members], mask[members[0]],
-                                    u[members], [filters[i].gate for i in members])
-                except FilterError as exc:  # refused before any engine moved (exact's bank, as large for all)
-                    done = [exc] * len(members)
-                for i, est in zip(members, done):
-                    estimates[i] = est
-        records = []
-        for i, f in enumerate(filters):
+        filters = self._filters if index is ALL else [self._filters[i] for i in index.tolist()]
+        n, model = len(filters), self.model
+        est = Estimates.empty(n, model.K, model.nx, model.ny)
+        failed = {}  # position -> the FilterError its step raised
+        groups, alone = _together(filters, mask) if spec.step_together is not None else ([], range(n))
+        for members in groups:
             try:
-                est = f.engine.step(y[i], mask[i], u[i], f.gate) if estimates[i] is None else estimates[i]
-                if isinstance(est, FilterError):
-                    raise est
-                records.append(f.accept(est, y[i], u[i]))
-            except FilterError as exc:  # named in the order the units would fail one after the other
-                raise _unit_error(index, i, exc) from None
-        return UnitSteps(t, **stacked(records, self.model))
+                est.put(members, spec.step_together([filters[i].engine for i in members], y[members],
+                                                    mask[members[0]], u[members], [filters[i].gate for i in members]))
+            except FilterError as exc:  # refused before any engine moved (exact's bank, as large for all)
+                failed.update(dict.fromkeys(members.tolist(), exc))
+        for i in alone:
+            f = filters[i]
+            try:
+                est.put_one(i, f.engine.step(y[i], mask[i], u[i], f.gate))
+            except FilterError as exc:
+                failed[i] = exc
+        ok = np.isfinite(est.loglik) & np.isfinite(est.state_cov).all(axis=(1, 2))
+        ok[list(failed)] = False
+        stop = n if ok.all() else int(np.flatnonzero(~ok)[0])  # the units after one that failed stay uncounted
+        Filter.accept_together(filters[:stop], Estimates(*(a[:stop] for a in est)))
+        if stop < n:  # named in the order the units would fail one after the other
+            raise _unit_error(index, stop, failed.get(stop) or _overflow(int(t[stop]), est.one(stop)))
+        return UnitSteps(t, est.mode_posterior, est.state_mean, est.state_cov, est.y_pred, y - est.y_pred, est.loglik,
+                         est.ess, est.rejected)
+
+
+def _together(filters, mask) -> tuple[list, list]:
+    """(the positions of each group of two or more units that step together: one bank, one mask (n, ny)
+    row, as many particles; in the order of their first units), and the positions of the others."""
+    _, which = _groups(mask)
+    groups = {}
+    for i, key in enumerate(zip([id(f.model) for f in filters], which.tolist(), [len(f.engine.z) for f in filters])):
+        groups.setdefault(key, []).append(i)
+    return ([np.array(members) for members in groups.values() if len(members) > 1],
+            sorted(members[0] for members in groups.values() if len(members) == 1))
 
 
 def _unit_error(index, i, exc):
