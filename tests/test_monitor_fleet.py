@@ -12,7 +12,10 @@
 - Following growing files, the monitor killed with SIGKILL mid-file and started again with the same
   command loses and repeats no row of any unit: each run's rows are t = 1..N once each, and each
   unit's table is the uninterrupted `jmlgdsl run` table (--lag 0: nothing held back).
-- Stopped while each unit's file holds more rows than its queue, the monitor returns, every unit's
+- A fleet's files are read in one thread, not one a unit; a bad line in one unit's file is that
+  unit's malformed event naming its file and line, and its rows after it are read on; started again
+  from saved positions, each unit reads on at its offset with the same line numbers.
+- Stopped while each unit's file holds more rows than its queue, the monitor returns, the units'
   reader thread ends, and started again it diagnoses every unit's rows once each.
 - Over MQTT (a mosquitto started here on 127.0.0.1), topics PREFIX/UNIT/NAME and JSON objects of
   several names on PREFIX/UNIT land in each unit's run; killed mid-stream, the persistent session
@@ -318,9 +321,66 @@ def readings(unit, lines, kind):
     return messages
 
 
+def test_a_fleets_files_are_read_in_one_thread_a_bad_line_is_its_units_event_and_a_restart_reads_on(tmp_path):
+    """50 units' files are read by one thread, not a thread a unit. A bad line in one unit's file is a
+    malformed event of that unit naming its file and line, and the unit's rows after it are read on.
+    Started again from the positions saved with each unit's 5th row (the bad line is after it), each
+    unit reads on from its 6th row with the same line numbers, and the same event names the same line."""
+    import jmlgdsl
+    from jmlgdsl.monitor.sources import Connection, open_source
+    from jmlgdsl.monitor.sources.contract import End, Event, WholeRow
+
+    units, bad, rows = [f"u{k:02d}" for k in range(50)], "u07", 20
+    folder = tmp_path / "units"
+    folder.mkdir()
+    for unit in units:
+        lines = [f"{t},15,50.5\n" if unit != bad or t != 9 else "9,15,hot\n" for t in range(1, rows + 1)]
+        (folder / f"{unit}.csv").write_text("# a logger's comment\ntime,current,temp\n" + "".join(lines))
+    model = jmlgdsl.load(SPEC)
+
+    def read(positions):
+        """Each unit's items, in order, and the threads the source started."""
+        source = open_source(Connection(str(folder / "{unit}.csv"), follow=False), model, {}, units)
+        items, ended, before = {unit: [] for unit in units}, threading.Event(), threading.active_count()
+        counted = threading.Event()  # the readers wait with their first items until their threads are counted
+
+        def put(item):
+            assert counted.wait(WAIT)
+            if item[0] is None:
+                assert isinstance(item[1], End)
+                ended.set()
+            else:
+                items[units[item[0]]].append(item[1])
+
+        source.start(put, positions)
+        started = threading.active_count() - before
+        counted.set()
+        assert ended.wait(WAIT)
+        source.stop()
+        return items, started
+
+    items, started = read([None] * len(units))
+    assert started <= 1
+    for unit in units:
+        whole = [item for item in items[unit] if isinstance(item, WholeRow)]
+        kept = [t for t in range(1, rows + 1) if unit != bad or t != 9]
+        assert [row.row.time for row in whole] == kept and [row.row.line for row in whole] == [t + 2 for t in kept]
+        events = [item for item in items[unit] if isinstance(item, Event)]
+        assert [(e.kind, e.detail.split(": ")[0]) for e in events] == (
+            [("malformed", f"{folder / bad}.csv:11")] if unit == bad else [])
+    saved = [next(item for item in items[unit] if isinstance(item, WholeRow) and item.row.time == 5).position
+             for unit in units]
+    again, _ = read(saved)
+    for unit in units:
+        whole = [item for item in again[unit] if isinstance(item, WholeRow)]
+        assert whole[0].row.time == 6 and whole[0].row.line == 8 and len(whole) == rows - 5 - (unit == bad)
+        assert [e.detail for e in again[unit] if isinstance(e, Event)] == [
+            e.detail for e in items[unit] if isinstance(e, Event)]
+
+
 def test_stopped_while_its_files_run_far_ahead_it_lets_their_readers_go_and_resumes(tmp_path):
     """Stopped while each unit's file holds far more rows than the monitor's queue, the monitor
-    returns, every unit's reader thread ends (none left waiting to hand over rows no one takes), and
+    returns, the units' reader thread ends (not left waiting to hand over rows no one takes), and
     the same monitor started again diagnoses every unit's rows t = 1..N once each."""
     import jmlgdsl
     from jmlgdsl.monitor import Monitor, MonitorOptions, Store
@@ -345,9 +405,8 @@ def test_stopped_while_its_files_run_far_ahead_it_lets_their_readers_go_and_resu
     threading.Timer(1.0, stop.set).start()
     stopped, source = monitor(stop)
     assert not stopped.ended and 0 < stopped.rows < len(UNITS) * rows
-    for reader in source.sources:
-        reader._thread.join(WAIT)
-        assert not reader._thread.is_alive()
+    source._thread.join(WAIT)
+    assert not source._thread.is_alive()
     stopped, _ = monitor()
     assert stopped.ended and stopped.stored == len(UNITS) * rows
     with sqlite3.connect(tmp_path / "fleet.db") as db:
