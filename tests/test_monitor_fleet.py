@@ -604,6 +604,69 @@ def test_the_page_shows_a_unit_and_switches_to_another(fleet, tmp_path):
         process.wait(WAIT)
 
 
+class Rounds:
+    """A source of `units` units' rows t = 1..`rounds`, round after round, handed over before the
+    monitor takes any, then the data end."""
+
+    name, rows = "rows", True
+
+    def __init__(self, units, rounds):
+        self.units, self.rounds = units, rounds
+
+    def start(self, put, positions):
+        from jmlgdsl.data import Row
+        from jmlgdsl.monitor.sources.contract import End, WholeRow
+        for t in range(1, self.rounds + 1):
+            for i in range(len(self.units)):
+                put((i, WholeRow(Row(t, float(t), np.array([50.5 + 20 * (t > 8)]), np.array([15.0]), None),
+                                 {"t": t})))
+        put((None, End()))
+
+    def acknowledge(self, tokens):
+        pass
+
+    def stop(self):
+        pass
+
+
+def test_a_fleets_commit_writes_every_units_rows_with_a_statement_a_table(tmp_path):
+    """A fleet's commit writes its units' samples, results, events and states with one statement a
+    table and looks at the open alarms once, however many units it holds: beside a statement for each
+    alarm raised (every unit raises one here) and the run's record read and its time format written
+    (once a run), a commit of 100 units' rows makes no more statements than one of 2 units'."""
+    import jmlgdsl
+    from jmlgdsl.monitor import Monitor, MonitorOptions, Store
+
+    def statements(count):
+        units = [f"u{k:03d}" for k in range(count)]
+        said = []  # the statements of each commit
+
+        class Counted(Store):
+            def save(self, commits, marks=()):
+                made = []
+                for name in ("execute", "executemany", "insert"):  # the store's calls to its database
+                    def call(*args, method=getattr(self.db, name)):
+                        if not args[0].startswith(("INSERT INTO alarm", "UPDATE run")) and "FROM run" not in args[0]:
+                            made.append(args[0])
+                        return method(*args)
+                    setattr(self.db, name, call)
+                super().save(commits, marks)
+                for name in ("execute", "executemany", "insert"):
+                    delattr(self.db, name)
+                said.append((sum(len(c.results) for c in commits), len(made)))
+
+        with Counted(str(tmp_path / f"fleet{count}.db")) as store:
+            stopped = Monitor(jmlgdsl.load(SPEC), store, Rounds(units, 12), spec=SPEC, options=MonitorOptions(),
+                              tags={}, units=units).run()
+        assert stopped.ended and stopped.stored == 12 * count
+        with sqlite3.connect(tmp_path / f"fleet{count}.db") as db:
+            assert db.execute("SELECT count(DISTINCT run) FROM alarm").fetchone()[0] == count
+            assert db.execute("SELECT count(*) FROM state WHERE rows = 12").fetchone()[0] == count
+        return max(made for rows, made in said if rows == 12 * count)
+
+    assert statements(100) <= statements(2)
+
+
 def test_a_large_fleets_commit_holds_many_rows_of_each_unit(tmp_path):
     """A unit's part of a commit (its saved state) costs as much as many of its rows, so while input keeps
     coming a fleet's commit waits for ROUNDS rows of each unit, however many units: 100 units handing
