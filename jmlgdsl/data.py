@@ -33,6 +33,7 @@ from .names import plural, suggest
 from .output import check_file, writing
 
 MISSING = {"", "na", "nan", "n/a"}
+PLAIN = re.compile(r"[0-9.eE+\-,\n]*")  # lines of plain numbers (RowParser.numbers)
 DECIMAL_COMMA = re.compile(r"[-+]?\d+,\d+")
 
 
@@ -467,7 +468,8 @@ class RowParser:
         self.time_col = self.stamp_col if self.t_col is None else self.t_col  # with both, `time` is the time axis
         self.check_time = (None if self.time_col is None else  # time stamps are kept to the microsecond
                            _TimeCheck(names[self.time_col], model.dt, 1e-6 if self.t_col is None else 0.0))
-        self.measured = np.zeros(model.ny, bool)
+        self.measured = np.zeros(model.ny, bool)  # the outputs with a value in a row read so far
+        self.all_measured = False  # whether every output has: `numbered` looks no further
 
     def row(self, line: int, cells: list) -> Row:
         """The row of CSV line `line`, its cells split; a DataError naming the file, line and column
@@ -479,20 +481,75 @@ class RowParser:
             raise DataError(f"{where}: {plural(len(cells), 'cell')}, but the header has "
                             f"{plural(len(names), 'column')}{hint}")
         y = np.array([_number(cells, c, n, where) for c, n in zip(self.y_cols, model.outputs)])
-        u = np.array([_number(cells, c, n, where) for c, n in zip(self.u_cols, model.inputs)])
+        u = self._inputs(np.array([_number(cells, c, n, where) for c, n in zip(self.u_cols, model.inputs)]), where)
+        time = _timestamp(cells, self.stamp_col, where) if t_col is None else _number(cells, t_col, "time", where)
+        self._timed(time, None if self.time_col is None else cells[self.time_col],
+                    None if t_col is not None or self.stamp_col is None else cells[self.stamp_col], where)
+        self.measured |= ~np.isnan(y)
+        return Row(line, time, y, u, _mode(cells, self.mode_col, model.modes, where),
+                   _label(cells, self.anomaly_col, "anomaly", where), _label(cells, self.change_col, "changepoint", where))
+
+    def _inputs(self, u, where):
+        """Inputs as read with their defaults where missing; a DataError for one missing without a default."""
+        model = self.model
         u = with_defaults(u, model.input_defaults)
         lacking = np.isnan(u)
         if lacking.any():
             name = model.inputs[int(np.argmax(lacking))]
             raise DataError(f"{where}: column {name!r}: missing value and the input has no default")
-        time = _timestamp(cells, self.stamp_col, where) if t_col is None else _number(cells, t_col, "time", where)
+        return u
+
+    def _timed(self, time, time_cell, stamp, where):
+        """A row's time: how the file writes its times, from the first row with one (`stamp`: its time
+        stamp cell, None for seconds), and the time axis checked."""
         if self.times is None and time is not None and time == time:
-            self.times = TimeFormat() if t_col is not None else TimeFormat.of_stamp(cells[self.stamp_col])
+            self.times = TimeFormat() if stamp is None else TimeFormat.of_stamp(stamp)
         if self.check_time is not None:
-            self.check_time(time, cells[self.time_col], where)
-        self.measured |= ~np.isnan(y)
-        return Row(line, time, y, u, _mode(cells, self.mode_col, model.modes, where),
-                   _label(cells, self.anomaly_col, "anomaly", where), _label(cells, self.change_col, "changepoint", where))
+            self.check_time(time, time_cell, where)
+
+    def numbers(self, text: str, delimiter: str) -> "Numbers | None":
+        """Whole lines of a file (`text`, each line ending in a line end) read in one pass, for rows
+        of them one at a time by `numbered`. None where the lines need reading one at a time as `row`
+        reads them: a file with time stamps, labels or a column of an output missing, or lines with
+        anything but plain numbers (ASCII digits, point, sign, exponent) and commas: a comment, a
+        blank line, spaces, a missing-value word, a line with another number of cells than the
+        header, a number too large for a float."""
+        count = len(self.names)
+        if (delimiter != "," or None in self.y_cols or self.stamp_col is not None or self.mode_col is not None
+                or self.anomaly_col is not None or self.change_col is not None or not PLAIN.fullmatch(text)):
+            return None
+        lines = text.split("\n")
+        lines.pop()  # after the last line end
+        if any(line.count(",") != count - 1 for line in lines):
+            return None
+        cells = ",".join(lines).split(",")
+        try:
+            values = np.array([cell or "0" for cell in cells], dtype=float).reshape(len(lines), count)
+        except ValueError:
+            return None
+        if np.isinf(values).any():
+            return None
+        values[np.array([not cell for cell in cells]).reshape(values.shape)] = math.nan  # empty: missing
+        values = np.hstack([values, np.full((len(lines), 1), math.nan)])  # the column of an absent input
+        last = len(self.names)
+        u = with_defaults(values[:, [last if c is None else c for c in self.u_cols]], self.model.input_defaults)
+        return Numbers(values[:, self.y_cols], u, np.isnan(u).any(axis=1).tolist(),
+                       None if self.t_col is None else values[:, self.t_col].tolist(),
+                       None if self.t_col is None else cells[self.t_col::count])
+
+    def numbered(self, line: int, numbers: "Numbers", i: int) -> Row:
+        """The row of CSV line `line` from the `i`th line of `numbers`; a DataError as `row` gives one
+        where it is not a valid row."""
+        where = f"{self.source}:{line}"
+        y, u = numbers.y[i], numbers.u[i]
+        if numbers.lacking[i]:
+            self._inputs(u, where)
+        time = None if numbers.time is None else numbers.time[i]
+        self._timed(time, None if time is None else numbers.time_cells[i], None, where)
+        if not self.all_measured:
+            self.measured |= ~np.isnan(y)
+            self.all_measured = bool(self.measured.all())
+        return Row(line, time, y, u, None)
 
     def finish(self):
         """At the file's end: warn of an input column absent and of an output never measured (as from
@@ -504,6 +561,18 @@ class RowParser:
         for name, col, seen in zip(model.outputs, self.y_cols, self.measured):
             if col is not None and not seen:
                 _warn(f"{self.source}: column {name!r} has no values: output {name} was never measured", 4)
+
+
+@dataclass(frozen=True)
+class Numbers:
+    """Lines of plain numbers as RowParser.numbers reads them: each line's outputs and inputs (their
+    defaults where missing), whether an input lacks a value with no default, its time and time cell."""
+
+    y: np.ndarray  # (lines, ny)
+    u: np.ndarray  # (lines, nu)
+    lacking: list
+    time: list | None
+    time_cells: list | None
 
 
 def _mode(cells, col, modes, where):

@@ -378,6 +378,71 @@ def test_a_fleets_files_are_read_in_one_thread_a_bad_line_is_its_units_event_and
             e.detail for e in items[unit] if isinstance(e, Event)]
 
 
+@pytest.mark.filterwarnings("ignore::jmlgdsl.data.DataWarning")  # a time that repeats, on purpose
+def test_a_fleets_reader_reads_plain_lines_in_one_pass_and_gives_the_rows_a_files_reader_gives(tmp_path):
+    """A unit's lines of plain numbers are read a block at a time in one pass (no line split as CSV on
+    its own but the header; a block with any other line is read line by line), and every unit's items are, bit for bit, those a CsvSource of its file
+    alone gives: files over several blocks, with missing readings, a file without the current column
+    (its default), a bad line, a time that goes backwards and a time that repeats among plain lines,
+    CR LF line ends, comments, blank lines and a last line without its line end."""
+    import jmlgdsl
+    from jmlgdsl.monitor.sources import Connection, files, open_source
+    from jmlgdsl.monitor.sources.contract import End, Event, WholeRow
+
+    def lines(n, bad=()):
+        return [bad[t] if t in bad else f"{t},{15 + t % 3},{50.5 + 0.001 * t!r}\n" if t % 7 else f"{t},15,\n"
+                for t in range(1, n + 1)]
+
+    texts = {"plain": "time,current,temp\n" + "".join(lines(2000)),
+             "bad": "time,current,temp\n" + "".join(lines(1500, {500: "500,15,hot\n", 900: "100,15,50\n",
+                                                                    1200: "1199,15,50\n"})),
+             "default": "time,temp\n" + "".join(f"{t},{50 + t % 5}\n" for t in range(1, 800)),
+             "mixed": "# logger 7\r\ntime,current,temp\r\n" + "".join(line.replace("\n", "\r\n") for line in lines(300))
+                      + "\n# restarted\n" + "".join(lines(400)[300:]) + "401,15,50.5"}
+    folder = tmp_path / "units"
+    folder.mkdir()
+    for unit, text in texts.items():
+        (folder / f"{unit}.csv").write_text(text, newline="")
+    model = jmlgdsl.load(SPEC)
+
+    def read(source, fleet):
+        got, ended = [], threading.Event()
+
+        def put(item):
+            unit, item = item if fleet else (0, item)
+            if isinstance(item, End):
+                ended.set()
+            else:
+                got.append((unit, item))
+
+        source.start(put, [None] * len(texts) if fleet else None)
+        assert ended.wait(WAIT)
+        source.stop()
+        return got
+
+    def plain(item):
+        if isinstance(item, WholeRow):
+            row = item.row
+            return (row.line, repr(row.time), type(row.time), row.y.tobytes(), row.u.tobytes(), row.mode,
+                    row.anomaly, row.changepoint, item.position)
+        return item
+
+    split = []
+    cells_of = files.cells_of
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(files, "cells_of", lambda line, delimiter, where: split.append(where.rsplit(":", 1)[0])
+                      or cells_of(line, delimiter, where))
+        fleet = read(open_source(Connection(str(folder / "{unit}.csv"), follow=False), model, {}, list(texts)), True)
+    for i, unit in enumerate(texts):
+        alone = read(files.CsvSource(str(folder / f"{unit}.csv"), model, follow=False), False)
+        assert [plain(item) for k, item in fleet if k == i] == [plain(item) for _, item in alone], unit
+    assert sum(isinstance(item, WholeRow) for _, item in fleet) == 2000 + 1500 - 2 + 799 + 401
+    assert [item.detail.split(": ")[0] for _, item in fleet if isinstance(item, Event)] == [
+        f"{folder / 'bad.csv'}:{line}" for line in (501, 901)]
+    for unit in ("plain", "default"):  # their headers only: a block with a bad line, or CR LF, is read line by line
+        assert split.count(str(folder / f"{unit}.csv")) == 1
+
+
 def test_stopped_while_its_files_run_far_ahead_it_lets_their_readers_go_and_resumes(tmp_path):
     """Stopped while each unit's file holds far more rows than the monitor's queue, the monitor
     returns, the units' reader thread ends (not left waiting to hand over rows no one takes), and

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import sys
 import threading
+from dataclasses import dataclass
 
 from ...data import RowParser, cells_of, delimiter_of, is_record, iter_rows
 from ...errors import DataError
@@ -237,6 +238,7 @@ class UnitFile:
         self.header = self.parser = self.delimiter = None  # header: (text, line number)
         self.told = self.ended = False  # told: Times put
         self.lines, self.rest = [], b""  # whole lines read and not yet handled (reversed); a line being written
+        self.block, self.fresh = None, False  # lines read in one pass (_Block); whether `lines` are newly read
         self.saved = self.offset > 0
 
     def items(self, rows: int, follow: bool) -> list:
@@ -255,12 +257,11 @@ class UnitFile:
                 self.ended = True
                 return [Event("malformed", None, str(exc)), Fatal(str(exc))]
         items = []
-        while rows and (self.lines or self._more(follow)):
-            raw = self.lines.pop()
-            self.offset += len(raw)
-            self.line += 1
+        while rows and (self.block or self.lines or self._more(follow)):
+            if self.fresh and self.parser is not None and not self.block:
+                self._numbers()
             try:
-                row = self._row(raw)
+                row = self._next()
             except DataError as exc:
                 items.append(Event("malformed", None, str(exc)))
                 if self.header is None:  # the header is at fault: no row can be read
@@ -275,15 +276,35 @@ class UnitFile:
                 items.append(Times(self.parser.times))
             items.append(WholeRow(row, {"offset": self.offset, "line": self.line}))
             rows -= 1
-        if self.ended and not self.lines:
+        if self.ended and not self.lines and not self.block:
             if self.header is None:
                 message = f"{self.name}: no header line (expected columns {', '.join(self.model.outputs)})"
                 return items + [Event("malformed", None, message), Fatal(message)]
             self.parser.finish()
         return items
 
-    def _row(self, raw: bytes):
-        """The row of a line (None: a blank line, a comment, the header)."""
+    def _numbers(self):
+        """Read the whole lines not yet handled in one pass into `block` where they are plain numbers
+        (RowParser.numbers), their rows then made one at a time."""
+        self.fresh = False
+        raw = b"".join(reversed(self.lines))
+        read = raw.isascii() and self.parser.numbers(raw.decode("ascii"), self.delimiter)
+        if read:
+            self.block = _Block(read, [len(line) for line in reversed(self.lines)])
+            self.lines = []
+
+    def _next(self):
+        """The row of the next line (None: a blank line, a comment, the header)."""
+        block = self.block
+        if block:
+            i = block.next
+            block.next += 1
+            self.offset += block.lengths[i]
+            self.line += 1
+            return self.parser.numbered(self.line, block.numbers, i)
+        raw = self.lines.pop()
+        self.offset += len(raw)
+        self.line += 1
         try:
             text = raw.decode("utf-8")
         except UnicodeDecodeError:
@@ -292,6 +313,7 @@ class UnitFile:
             return None
         if self.header is None:
             self._begin(text, self.line)
+            self.fresh = True  # the lines after the header may be read in one pass
             return None
         return self.parser.row(self.line, cells_of(text, self.delimiter, f"{self.name}:{self.line}"))
 
@@ -324,5 +346,18 @@ class UnitFile:
             return True
         lines = (self.rest + block).split(b"\n")
         self.rest = lines.pop()
-        self.lines = [line + b"\n" for line in reversed(lines)]
+        self.lines, self.fresh = [line + b"\n" for line in reversed(lines)], True
         return bool(self.lines) or self._more(follow)
+
+
+@dataclass
+class _Block:
+    """Lines of a file read in one pass: their numbers (jmlgdsl.data.Numbers), their lengths in
+    bytes, and the index of the next line to make a row of."""
+
+    numbers: object
+    lengths: list
+    next: int = 0
+
+    def __bool__(self):
+        return self.next < len(self.lengths)
