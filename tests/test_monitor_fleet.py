@@ -344,13 +344,14 @@ def test_a_fleets_files_are_read_in_one_thread_a_bad_line_is_its_units_event_and
         items, ended, before = {unit: [] for unit in units}, threading.Event(), threading.active_count()
         counted = threading.Event()  # the readers wait with their first items until their threads are counted
 
-        def put(item):
+        def put(handed):
             assert counted.wait(WAIT)
-            if item[0] is None:
-                assert isinstance(item[1], End)
-                ended.set()
-            else:
-                items[units[item[0]]].append(item[1])
+            for unit, item in handed if isinstance(handed, list) else [handed]:  # a round of items, or one
+                if unit is None:
+                    assert isinstance(item, End)
+                    ended.set()
+                else:
+                    items[units[unit]].append(item)
 
         source.start(put, positions)
         started = threading.active_count() - before
@@ -408,12 +409,12 @@ def test_a_fleets_reader_reads_plain_lines_in_one_pass_and_gives_the_rows_a_file
     def read(source, fleet):
         got, ended = [], threading.Event()
 
-        def put(item):
-            unit, item = item if fleet else (0, item)
-            if isinstance(item, End):
-                ended.set()
-            else:
-                got.append((unit, item))
+        def put(handed):
+            for unit, item in handed if isinstance(handed, list) else [handed if fleet else (0, handed)]:
+                if isinstance(item, End):
+                    ended.set()
+                else:
+                    got.append((unit, item))
 
         source.start(put, [None] * len(texts) if fleet else None)
         assert ended.wait(WAIT)
@@ -678,13 +679,18 @@ class Rounds:
     def __init__(self, units, rounds):
         self.units, self.rounds = units, rounds
 
-    def start(self, put, positions):
+    def round(self, t):
+        """Every unit's row t, as (unit index, WholeRow) pairs."""
         from jmlgdsl.data import Row
-        from jmlgdsl.monitor.sources.contract import End, WholeRow
+        from jmlgdsl.monitor.sources.contract import WholeRow
+        return [(i, WholeRow(Row(t, float(t), np.array([50.5 + 20 * (t > 8)]), np.array([15.0]), None), {"t": t}))
+                for i in range(len(self.units))]
+
+    def start(self, put, positions):
+        from jmlgdsl.monitor.sources.contract import End
         for t in range(1, self.rounds + 1):
-            for i in range(len(self.units)):
-                put((i, WholeRow(Row(t, float(t), np.array([50.5 + 20 * (t > 8)]), np.array([15.0]), None),
-                                 {"t": t})))
+            for pair in self.round(t):
+                put(pair)
         put((None, End()))
 
     def acknowledge(self, tokens):
@@ -730,6 +736,41 @@ def test_a_fleets_commit_writes_every_units_rows_with_a_statement_a_table(tmp_pa
         return max(made for rows, made in said if rows == 12 * count)
 
     assert statements(100) <= statements(2)
+
+
+def test_a_fleets_source_hands_over_a_round_of_its_units_items_at_once_and_waits_for_the_monitor(tmp_path):
+    """A source of 100 units that hands over each round of their rows as one list: every row is
+    diagnosed once, and the source's hand-over waits while ROUNDS_AHEAD rounds are not yet taken."""
+    import jmlgdsl
+    from jmlgdsl.monitor import Monitor, MonitorOptions, Store, live
+    from jmlgdsl.monitor.sources.contract import End
+
+    units, handed, ahead = [f"u{k:03d}" for k in range(100)], [0], []
+
+    class Lists(Rounds):
+        def start(self, put, positions):
+            def hand():
+                for t in range(1, self.rounds + 1):
+                    put(self.round(t))
+                    handed[0] += 1
+                put((None, End()))
+            threading.Thread(target=hand, daemon=True).start()
+
+    class Watched(Monitor):
+        def _handle(self, unit, item):
+            if unit == 0:  # the first item of a round: rounds handed over beyond those taken
+                ahead.append(handed[0] - self.units[0].rows)
+            return super()._handle(unit, item)
+
+    stop = threading.Event()
+    threading.Timer(WAIT, stop.set).start()
+    with Store(str(tmp_path / "fleet.db")) as store:
+        stopped = Watched(jmlgdsl.load(SPEC), store, Lists(units, 40), spec=SPEC, options=MonitorOptions(), tags={},
+                          units=units).run(stop)
+    stop.set()
+    assert stopped.ended and stopped.stored == 40 * len(units)
+    assert per_run(tmp_path / "fleet.db", "result") == {unit: counted(40) for unit in units}
+    assert len(ahead) == 40 and max(ahead) <= live.ROUNDS_AHEAD + 1  # the queue's and the one being taken
 
 
 def test_a_large_fleets_commit_holds_many_rows_of_each_unit(tmp_path):

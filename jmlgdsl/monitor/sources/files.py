@@ -169,8 +169,9 @@ class CsvSource:
 class UnitFiles:
     """A fleet's CSV files, one a unit (followed as they grow unless follow=False), read in one
     thread: a block of bytes of a unit's file at a time, its whole lines read as CsvSource reads
-    them, and the units' rows handed on in rounds, a few of each unit a round (as (unit index, item);
-    the data end, once every unit's file has ended, as (None, End())). One thread, not one a unit:
+    them, and the units' rows handed on in rounds, a few of each unit a round, each round at once
+    (a list of (unit index, item) pairs; the data end, once every unit's file has ended, as
+    (None, End())). One thread, not one a unit:
     a thousand threads woken each for its unit's next rows cost ten times the reading. A unit's
     position is its file's, as CsvSource's; `positions` the list of them."""
 
@@ -197,17 +198,13 @@ class UnitFiles:
         try:
             live = list(enumerate(files))
             while live and not self._stop.is_set():
-                moved = False
-                for i, file in live:
-                    for item in file.items(ROUND, self.follow):
-                        put((i, item))
-                        moved = True
-                        if isinstance(item, Fatal):
-                            return
-                    if self._stop.is_set():
-                        return
+                handed = [(i, item) for i, file in live for item in file.items(ROUND, self.follow)]
+                if handed:
+                    put(handed)
+                if any(isinstance(item, Fatal) for _, item in handed):
+                    return
                 live = [(i, file) for i, file in live if not file.ended]
-                if not moved and live:
+                if not handed and live:
                     self._stop.wait(POLL)
             if not self._stop.is_set():
                 put((None, End()))
