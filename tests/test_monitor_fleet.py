@@ -444,6 +444,30 @@ def test_a_fleets_reader_reads_plain_lines_in_one_pass_and_gives_the_rows_a_file
         assert split.count(str(folder / f"{unit}.csv")) == 1
 
 
+def test_a_fleets_reader_reads_a_line_longer_than_many_blocks(tmp_path, monkeypatch):
+    """A line far longer than the reader's block (here a comment of 6,000 blocks) is read whole and
+    skipped, and the rows around it are read."""
+    import jmlgdsl
+    from jmlgdsl.monitor.sources import Connection, files, open_source
+    from jmlgdsl.monitor.sources.contract import End, WholeRow
+
+    monkeypatch.setattr(files, "BLOCK", 16)
+    (tmp_path / "a.csv").write_text("time,current,temp\n1,15,50.5\n# " + "x" * 96_000 + "\n2,15,50.6\n")
+    source = open_source(Connection(str(tmp_path / "{unit}.csv"), follow=False), jmlgdsl.load(SPEC), {}, ["a"])
+    got, ended = [], threading.Event()
+
+    def put(handed):
+        for _, item in handed if isinstance(handed, list) else [handed]:
+            if isinstance(item, End):
+                ended.set()
+            else:
+                got.append(item)
+
+    source.start(put, [None])
+    assert ended.wait(WAIT)
+    assert [(item.row.line, item.row.time) for item in got if isinstance(item, WholeRow)] == [(2, 1.0), (4, 2.0)]
+
+
 def test_stopped_while_its_files_run_far_ahead_it_lets_their_readers_go_and_resumes(tmp_path):
     """Stopped while each unit's file holds far more rows than the monitor's queue, the monitor
     returns, the units' reader thread ends (not left waiting to hand over rows no one takes), and

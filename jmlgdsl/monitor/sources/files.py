@@ -332,19 +332,24 @@ class UnitFile:
     def _more(self, follow: bool) -> bool:
         """Read a block: whether it brought a whole line (or, at the end of an unfollowed file, a last
         line without a line end); at that end, `ended`."""
-        block = self.stream.read(BLOCK)
-        if not block:
-            if follow or self.ended:
-                return False
-            self.ended = True
-            if not self.rest:
-                return False
-            self.lines, self.rest = [self.rest], b""
-            return True
-        lines = (self.rest + block).split(b"\n")
-        self.rest = lines.pop()
-        self.lines, self.fresh = [line + b"\n" for line in reversed(lines)], True
-        return bool(self.lines) or self._more(follow)
+        pieces = [self.rest]  # of a line longer than a block, joined once its end is read
+        while True:
+            block = self.stream.read(BLOCK)
+            if not block:
+                self.rest = b"".join(pieces)
+                if follow or self.ended:
+                    return False
+                self.ended = True
+                if not self.rest:
+                    return False
+                self.lines, self.rest = [self.rest], b""
+                return True
+            pieces.append(block)
+            if b"\n" in block:
+                lines = b"".join(pieces).split(b"\n")
+                self.rest = lines.pop()
+                self.lines, self.fresh = [line + b"\n" for line in reversed(lines)], True
+                return True
 
 
 @dataclass
