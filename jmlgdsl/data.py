@@ -33,6 +33,7 @@ from .names import plural, suggest
 from .output import check_file, writing
 
 MISSING = {"", "na", "nan", "n/a"}
+PLAIN = re.compile(r"[0-9.eE+\-,\n]*")  # lines of plain numbers (RowParser.numbers)
 DECIMAL_COMMA = re.compile(r"[-+]?\d+,\d+")
 
 
@@ -275,16 +276,31 @@ def _records(stream, source):
     numbered = hasattr(stream, "number")
     for count, line in enumerate(iter(stream.readline, ""), start=1):
         number = stream.number if numbered else count
-        if line.strip() and not line.lstrip().startswith("#"):
+        if is_record(line):
             if delimiter is None:
-                delimiter = ";" if ";" in line and "," not in line else ","
-            try:
-                yield number, next(csv.reader([line], delimiter=delimiter))
-            except csv.Error as exc:
-                limit = csv.field_size_limit()
-                reason = (f"a cell longer than {limit:,} characters" if "field limit" in str(exc)
-                          else f"not CSV ({exc})")
-                raise DataError(f"{source}:{number}: {reason}") from None
+                delimiter = delimiter_of(line)
+            yield number, cells_of(line, delimiter, f"{source}:{number}")
+
+
+def is_record(line: str) -> bool:
+    """Whether a line holds cells: it is neither blank nor a # comment."""
+    return bool(line.strip()) and not line.lstrip().startswith("#")
+
+
+def delimiter_of(header: str) -> str:
+    """The cells' separator of a file whose header line is `header`: a semicolon where it has
+    semicolons and no commas (as many loggers write), else a comma."""
+    return ";" if ";" in header and "," not in header else ","
+
+
+def cells_of(line: str, delimiter: str, where: str) -> list:
+    """The cells of a CSV line; a DataError naming `where` (file:line) where it is not CSV."""
+    try:
+        return next(csv.reader([line], delimiter=delimiter))
+    except csv.Error as exc:
+        limit = csv.field_size_limit()
+        reason = f"a cell longer than {limit:,} characters" if "field limit" in str(exc) else f"not CSV ({exc})"
+        raise DataError(f"{where}: {reason}") from None
 
 
 def _timestamp(cells, col, where):
@@ -333,8 +349,10 @@ def _number(cells, col, name, where):
     return value
 
 
-def _warn(message):
-    warnings.warn(message, DataWarning, stacklevel=3)
+def _warn(message, stacklevel=3):
+    """A DataWarning, from where warnings.warn's `stacklevel` counted from here says (the default:
+    the caller's caller)."""
+    warnings.warn(message, DataWarning, stacklevel=stacklevel)
 
 
 class _TimeCheck:
@@ -408,6 +426,23 @@ class RowReader:
         _, header = next(records, (0, None))
         if header is None:
             raise DataError(f"{source}: no header line (expected columns {', '.join(model.outputs)})")
+        parser = RowParser(header, model, source, outputs)
+        for line, cells in records:
+            row = parser.row(line, cells)
+            self.times = parser.times
+            yield row
+        parser.finish()
+
+
+class RowParser:
+    """Rows from the cells of a CSV file's lines, given one at a time after its header's cells: what
+    iter_rows does with each line, for a reader that gets its lines its own way (a fleet's files read
+    in one thread, jmlgdsl.monitor.sources.files). `times` is how the file writes its times (a
+    TimeFormat once a row with a time has been read)."""
+
+    def __init__(self, header, model, source: str, outputs: bool = True):
+        model = Columns.of(model)
+        self.model, self.source, self.times = model, source, None
         names = [name.strip().lstrip("\ufeff") for name in header]  # spreadsheets may add a BOM
         index = {name: i for i, name in enumerate(names)}
 
@@ -425,43 +460,119 @@ class RowReader:
                                 f"{suggest(name, header)}")
             return None
 
-        y_cols = [column(n, outputs) for n in model.outputs]
-        u_cols = [column(n, math.isnan(d)) for n, d in zip(model.inputs, model.input_defaults)]
-        t_col, stamp_col, mode_col = column("time", False), column("datetime", False), column("mode", False)
-        anomaly_col, change_col = column("anomaly", False), column("changepoint", False)
-        defaults = model.input_defaults
-        time_col = stamp_col if t_col is None else t_col  # with both, `time` is the time axis
-        check_time = (None if time_col is None else  # time stamps are kept to the microsecond
-                      _TimeCheck(names[time_col], model.dt, 1e-6 if t_col is None else 0.0))
-        measured = np.zeros(model.ny, bool)
+        self.names = names
+        self.y_cols = [column(n, outputs) for n in model.outputs]
+        self.u_cols = [column(n, math.isnan(d)) for n, d in zip(model.inputs, model.input_defaults)]
+        self.t_col, self.stamp_col, self.mode_col = column("time", False), column("datetime", False), column("mode", False)
+        self.anomaly_col, self.change_col = column("anomaly", False), column("changepoint", False)
+        self.time_col = self.stamp_col if self.t_col is None else self.t_col  # with both, `time` is the time axis
+        self.check_time = (None if self.time_col is None else  # time stamps are kept to the microsecond
+                           _TimeCheck(names[self.time_col], model.dt, 1e-6 if self.t_col is None else 0.0))
+        self.measured = np.zeros(model.ny, bool)  # the outputs with a value in a row read so far
+        self.all_measured = False  # whether every output has: `numbered` looks no further
 
-        for line, cells in records:
-            where = f"{source}:{line}"
-            if len(cells) < len(names) or any(c.strip() for c in cells[len(names):]):
-                hint = "; decimal commas (1,5) split numbers in two: write 1.5" if len(cells) > len(names) else ""
-                raise DataError(f"{where}: {plural(len(cells), 'cell')}, but the header has "
-                                f"{plural(len(names), 'column')}{hint}")
-            y = np.array([_number(cells, c, n, where) for c, n in zip(y_cols, model.outputs)])
-            u = np.array([_number(cells, c, n, where) for c, n in zip(u_cols, model.inputs)])
-            u = with_defaults(u, defaults)
-            lacking = np.isnan(u)
-            if lacking.any():
-                name = model.inputs[int(np.argmax(lacking))]
-                raise DataError(f"{where}: column {name!r}: missing value and the input has no default")
-            time = _timestamp(cells, stamp_col, where) if t_col is None else _number(cells, t_col, "time", where)
-            if self.times is None and time is not None and time == time:
-                self.times = TimeFormat() if t_col is not None else TimeFormat.of_stamp(cells[stamp_col])
-            if check_time is not None:
-                check_time(time, cells[time_col], where)
-            measured |= ~np.isnan(y)
-            yield Row(line, time, y, u, _mode(cells, mode_col, model.modes, where),
-                      _label(cells, anomaly_col, "anomaly", where), _label(cells, change_col, "changepoint", where))
-        for name, col, default in zip(model.inputs, u_cols, defaults):
+    def row(self, line: int, cells: list) -> Row:
+        """The row of CSV line `line`, its cells split; a DataError naming the file, line and column
+        where it is not a valid row."""
+        model, names, t_col = self.model, self.names, self.t_col
+        where = f"{self.source}:{line}"
+        if len(cells) < len(names) or any(c.strip() for c in cells[len(names):]):
+            hint = "; decimal commas (1,5) split numbers in two: write 1.5" if len(cells) > len(names) else ""
+            raise DataError(f"{where}: {plural(len(cells), 'cell')}, but the header has "
+                            f"{plural(len(names), 'column')}{hint}")
+        y = np.array([_number(cells, c, n, where) for c, n in zip(self.y_cols, model.outputs)])
+        u = self._inputs(np.array([_number(cells, c, n, where) for c, n in zip(self.u_cols, model.inputs)]), where)
+        time = _timestamp(cells, self.stamp_col, where) if t_col is None else _number(cells, t_col, "time", where)
+        self._timed(time, None if self.time_col is None else cells[self.time_col],
+                    None if t_col is not None or self.stamp_col is None else cells[self.stamp_col], where)
+        self.measured |= ~np.isnan(y)
+        return Row(line, time, y, u, _mode(cells, self.mode_col, model.modes, where),
+                   _label(cells, self.anomaly_col, "anomaly", where), _label(cells, self.change_col, "changepoint", where))
+
+    def _inputs(self, u, where):
+        """Inputs as read with their defaults where missing; a DataError for one missing without a default."""
+        model = self.model
+        u = with_defaults(u, model.input_defaults)
+        lacking = np.isnan(u)
+        if lacking.any():
+            name = model.inputs[int(np.argmax(lacking))]
+            raise DataError(f"{where}: column {name!r}: missing value and the input has no default")
+        return u
+
+    def _timed(self, time, time_cell, stamp, where):
+        """A row's time: how the file writes its times, from the first row with one (`stamp`: its time
+        stamp cell, None for seconds), and the time axis checked."""
+        if self.times is None and time is not None and time == time:
+            self.times = TimeFormat() if stamp is None else TimeFormat.of_stamp(stamp)
+        if self.check_time is not None:
+            self.check_time(time, time_cell, where)
+
+    def numbers(self, text: str, delimiter: str) -> "Numbers | None":
+        """Whole lines of a file (`text`, each line ending in a line end) read in one pass, for rows
+        of them one at a time by `numbered`. None where the lines need reading one at a time as `row`
+        reads them: a file with time stamps, labels or a column of an output missing, or lines with
+        anything but plain numbers (ASCII digits, point, sign, exponent) and commas: a comment, a
+        blank line, spaces, a missing-value word, a line with another number of cells than the
+        header, a number too large for a float."""
+        count = len(self.names)
+        if (delimiter != "," or None in self.y_cols or self.stamp_col is not None or self.mode_col is not None
+                or self.anomaly_col is not None or self.change_col is not None or not PLAIN.fullmatch(text)):
+            return None
+        lines = text.split("\n")
+        lines.pop()  # after the last line end
+        if any(line.count(",") != count - 1 for line in lines):
+            return None
+        cells = ",".join(lines).split(",")
+        try:
+            values = np.array([cell or "0" for cell in cells], dtype=float).reshape(len(lines), count)
+        except ValueError:
+            return None
+        if np.isinf(values).any():
+            return None
+        values[np.array([not cell for cell in cells]).reshape(values.shape)] = math.nan  # empty: missing
+        values = np.hstack([values, np.full((len(lines), 1), math.nan)])  # the column of an absent input
+        last = len(self.names)
+        u = with_defaults(values[:, [last if c is None else c for c in self.u_cols]], self.model.input_defaults)
+        return Numbers(values[:, self.y_cols], u, np.isnan(u).any(axis=1).tolist(),
+                       None if self.t_col is None else values[:, self.t_col].tolist(),
+                       None if self.t_col is None else cells[self.t_col::count])
+
+    def numbered(self, line: int, numbers: "Numbers", i: int) -> Row:
+        """The row of CSV line `line` from the `i`th line of `numbers`; a DataError as `row` gives one
+        where it is not a valid row."""
+        where = f"{self.source}:{line}"
+        y, u = numbers.y[i], numbers.u[i]
+        if numbers.lacking[i]:
+            self._inputs(u, where)
+        time = None if numbers.time is None else numbers.time[i]
+        self._timed(time, None if time is None else numbers.time_cells[i], None, where)
+        if not self.all_measured:
+            self.measured |= ~np.isnan(y)
+            self.all_measured = bool(self.measured.all())
+        return Row(line, time, y, u, None)
+
+    def finish(self):
+        """At the file's end: warn of an input column absent and of an output never measured (as from
+        the frame above the caller's, as iter_rows's reader warns from where its rows were taken)."""
+        model = self.model
+        for name, col, default in zip(model.inputs, self.u_cols, model.input_defaults):
             if col is None:
-                _warn(f"{source}: no column {name!r}: input {name} took its default {default:g} throughout")
-        for name, col, seen in zip(model.outputs, y_cols, measured):
+                _warn(f"{self.source}: no column {name!r}: input {name} took its default {default:g} throughout", 4)
+        for name, col, seen in zip(model.outputs, self.y_cols, self.measured):
             if col is not None and not seen:
-                _warn(f"{source}: column {name!r} has no values: output {name} was never measured")
+                _warn(f"{self.source}: column {name!r} has no values: output {name} was never measured", 4)
+
+
+@dataclass(frozen=True)
+class Numbers:
+    """Lines of plain numbers as RowParser.numbers reads them: each line's outputs and inputs (their
+    defaults where missing), whether an input lacks a value with no default, its time and time cell."""
+
+    y: np.ndarray  # (lines, ny)
+    u: np.ndarray  # (lines, nu)
+    lacking: list
+    time: list | None
+    time_cells: list | None
 
 
 def _mode(cells, col, modes, where):

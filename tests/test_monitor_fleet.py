@@ -12,7 +12,10 @@
 - Following growing files, the monitor killed with SIGKILL mid-file and started again with the same
   command loses and repeats no row of any unit: each run's rows are t = 1..N once each, and each
   unit's table is the uninterrupted `jmlgdsl run` table (--lag 0: nothing held back).
-- Stopped while each unit's file holds more rows than its queue, the monitor returns, every unit's
+- A fleet's files are read in one thread, not one a unit; a bad line in one unit's file is that
+  unit's malformed event naming its file and line, and its rows after it are read on; started again
+  from saved positions, each unit reads on at its offset with the same line numbers.
+- Stopped while each unit's file holds more rows than its queue, the monitor returns, the units'
   reader thread ends, and started again it diagnoses every unit's rows once each.
 - Over MQTT (a mosquitto started here on 127.0.0.1), topics PREFIX/UNIT/NAME and JSON objects of
   several names on PREFIX/UNIT land in each unit's run; killed mid-stream, the persistent session
@@ -318,9 +321,156 @@ def readings(unit, lines, kind):
     return messages
 
 
+def test_a_fleets_files_are_read_in_one_thread_a_bad_line_is_its_units_event_and_a_restart_reads_on(tmp_path):
+    """50 units' files are read by one thread, not a thread a unit. A bad line in one unit's file is a
+    malformed event of that unit naming its file and line, and the unit's rows after it are read on.
+    Started again from the positions saved with each unit's 5th row (the bad line is after it), each
+    unit reads on from its 6th row with the same line numbers, and the same event names the same line."""
+    import jmlgdsl
+    from jmlgdsl.monitor.sources import Connection, open_source
+    from jmlgdsl.monitor.sources.contract import End, Event, WholeRow
+
+    units, bad, rows = [f"u{k:02d}" for k in range(50)], "u07", 20
+    folder = tmp_path / "units"
+    folder.mkdir()
+    for unit in units:
+        lines = [f"{t},15,50.5\n" if unit != bad or t != 9 else "9,15,hot\n" for t in range(1, rows + 1)]
+        (folder / f"{unit}.csv").write_text("# a logger's comment\ntime,current,temp\n" + "".join(lines))
+    model = jmlgdsl.load(SPEC)
+
+    def read(positions):
+        """Each unit's items, in order, and the threads the source started."""
+        source = open_source(Connection(str(folder / "{unit}.csv"), follow=False), model, {}, units)
+        items, ended, before = {unit: [] for unit in units}, threading.Event(), threading.active_count()
+        counted = threading.Event()  # the readers wait with their first items until their threads are counted
+
+        def put(handed):
+            assert counted.wait(WAIT)
+            for unit, item in handed if isinstance(handed, list) else [handed]:  # a round of items, or one
+                if unit is None:
+                    assert isinstance(item, End)
+                    ended.set()
+                else:
+                    items[units[unit]].append(item)
+
+        source.start(put, positions)
+        started = threading.active_count() - before
+        counted.set()
+        assert ended.wait(WAIT)
+        source.stop()
+        return items, started
+
+    items, started = read([None] * len(units))
+    assert started <= 1
+    for unit in units:
+        whole = [item for item in items[unit] if isinstance(item, WholeRow)]
+        kept = [t for t in range(1, rows + 1) if unit != bad or t != 9]
+        assert [row.row.time for row in whole] == kept and [row.row.line for row in whole] == [t + 2 for t in kept]
+        events = [item for item in items[unit] if isinstance(item, Event)]
+        assert [(e.kind, e.detail.split(": ")[0]) for e in events] == (
+            [("malformed", f"{folder / bad}.csv:11")] if unit == bad else [])
+    saved = [next(item for item in items[unit] if isinstance(item, WholeRow) and item.row.time == 5).position
+             for unit in units]
+    again, _ = read(saved)
+    for unit in units:
+        whole = [item for item in again[unit] if isinstance(item, WholeRow)]
+        assert whole[0].row.time == 6 and whole[0].row.line == 8 and len(whole) == rows - 5 - (unit == bad)
+        assert [e.detail for e in again[unit] if isinstance(e, Event)] == [
+            e.detail for e in items[unit] if isinstance(e, Event)]
+
+
+@pytest.mark.filterwarnings("ignore::jmlgdsl.data.DataWarning")  # a time that repeats, on purpose
+def test_a_fleets_reader_reads_plain_lines_in_one_pass_and_gives_the_rows_a_files_reader_gives(tmp_path):
+    """A unit's lines of plain numbers are read a block at a time in one pass (no line split as CSV on
+    its own but the header; a block with any other line is read line by line), and every unit's items are, bit for bit, those a CsvSource of its file
+    alone gives: files over several blocks, with missing readings, a file without the current column
+    (its default), a bad line, a time that goes backwards and a time that repeats among plain lines,
+    CR LF line ends, comments, blank lines and a last line without its line end."""
+    import jmlgdsl
+    from jmlgdsl.monitor.sources import Connection, files, open_source
+    from jmlgdsl.monitor.sources.contract import End, Event, WholeRow
+
+    def lines(n, bad=()):
+        return [bad[t] if t in bad else f"{t},{15 + t % 3},{50.5 + 0.001 * t!r}\n" if t % 7 else f"{t},15,\n"
+                for t in range(1, n + 1)]
+
+    texts = {"plain": "time,current,temp\n" + "".join(lines(2000)),
+             "bad": "time,current,temp\n" + "".join(lines(1500, {500: "500,15,hot\n", 900: "100,15,50\n",
+                                                                    1200: "1199,15,50\n"})),
+             "default": "time,temp\n" + "".join(f"{t},{50 + t % 5}\n" for t in range(1, 800)),
+             "mixed": "# logger 7\r\ntime,current,temp\r\n" + "".join(line.replace("\n", "\r\n") for line in lines(300))
+                      + "\n# restarted\n" + "".join(lines(400)[300:]) + "401,15,50.5"}
+    folder = tmp_path / "units"
+    folder.mkdir()
+    for unit, text in texts.items():
+        (folder / f"{unit}.csv").write_text(text, newline="")
+    model = jmlgdsl.load(SPEC)
+
+    def read(source, fleet):
+        got, ended = [], threading.Event()
+
+        def put(handed):
+            for unit, item in handed if isinstance(handed, list) else [handed if fleet else (0, handed)]:
+                if isinstance(item, End):
+                    ended.set()
+                else:
+                    got.append((unit, item))
+
+        source.start(put, [None] * len(texts) if fleet else None)
+        assert ended.wait(WAIT)
+        source.stop()
+        return got
+
+    def plain(item):
+        if isinstance(item, WholeRow):
+            row = item.row
+            return (row.line, repr(row.time), type(row.time), row.y.tobytes(), row.u.tobytes(), row.mode,
+                    row.anomaly, row.changepoint, item.position)
+        return item
+
+    split = []
+    cells_of = files.cells_of
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(files, "cells_of", lambda line, delimiter, where: split.append(where.rsplit(":", 1)[0])
+                      or cells_of(line, delimiter, where))
+        fleet = read(open_source(Connection(str(folder / "{unit}.csv"), follow=False), model, {}, list(texts)), True)
+    for i, unit in enumerate(texts):
+        alone = read(files.CsvSource(str(folder / f"{unit}.csv"), model, follow=False), False)
+        assert [plain(item) for k, item in fleet if k == i] == [plain(item) for _, item in alone], unit
+    assert sum(isinstance(item, WholeRow) for _, item in fleet) == 2000 + 1500 - 2 + 799 + 401
+    assert [item.detail.split(": ")[0] for _, item in fleet if isinstance(item, Event)] == [
+        f"{folder / 'bad.csv'}:{line}" for line in (501, 901)]
+    for unit in ("plain", "default"):  # their headers only: a block with a bad line, or CR LF, is read line by line
+        assert split.count(str(folder / f"{unit}.csv")) == 1
+
+
+def test_a_fleets_reader_reads_a_line_longer_than_many_blocks(tmp_path, monkeypatch):
+    """A line far longer than the reader's block (here a comment of 6,000 blocks) is read whole and
+    skipped, and the rows around it are read."""
+    import jmlgdsl
+    from jmlgdsl.monitor.sources import Connection, files, open_source
+    from jmlgdsl.monitor.sources.contract import End, WholeRow
+
+    monkeypatch.setattr(files, "BLOCK", 16)
+    (tmp_path / "a.csv").write_text("time,current,temp\n1,15,50.5\n# " + "x" * 96_000 + "\n2,15,50.6\n")
+    source = open_source(Connection(str(tmp_path / "{unit}.csv"), follow=False), jmlgdsl.load(SPEC), {}, ["a"])
+    got, ended = [], threading.Event()
+
+    def put(handed):
+        for _, item in handed if isinstance(handed, list) else [handed]:
+            if isinstance(item, End):
+                ended.set()
+            else:
+                got.append(item)
+
+    source.start(put, [None])
+    assert ended.wait(WAIT)
+    assert [(item.row.line, item.row.time) for item in got if isinstance(item, WholeRow)] == [(2, 1.0), (4, 2.0)]
+
+
 def test_stopped_while_its_files_run_far_ahead_it_lets_their_readers_go_and_resumes(tmp_path):
     """Stopped while each unit's file holds far more rows than the monitor's queue, the monitor
-    returns, every unit's reader thread ends (none left waiting to hand over rows no one takes), and
+    returns, the units' reader thread ends (not left waiting to hand over rows no one takes), and
     the same monitor started again diagnoses every unit's rows t = 1..N once each."""
     import jmlgdsl
     from jmlgdsl.monitor import Monitor, MonitorOptions, Store
@@ -345,9 +495,8 @@ def test_stopped_while_its_files_run_far_ahead_it_lets_their_readers_go_and_resu
     threading.Timer(1.0, stop.set).start()
     stopped, source = monitor(stop)
     assert not stopped.ended and 0 < stopped.rows < len(UNITS) * rows
-    for reader in source.sources:
-        reader._thread.join(WAIT)
-        assert not reader._thread.is_alive()
+    source._thread.join(WAIT)
+    assert not source._thread.is_alive()
     stopped, _ = monitor()
     assert stopped.ended and stopped.stored == len(UNITS) * rows
     with sqlite3.connect(tmp_path / "fleet.db") as db:
@@ -543,6 +692,109 @@ def test_the_page_shows_a_unit_and_switches_to_another(fleet, tmp_path):
     finally:
         process.terminate()
         process.wait(WAIT)
+
+
+class Rounds:
+    """A source of `units` units' rows t = 1..`rounds`, round after round, handed over before the
+    monitor takes any, then the data end."""
+
+    name, rows = "rows", True
+
+    def __init__(self, units, rounds):
+        self.units, self.rounds = units, rounds
+
+    def round(self, t):
+        """Every unit's row t, as (unit index, WholeRow) pairs."""
+        from jmlgdsl.data import Row
+        from jmlgdsl.monitor.sources.contract import WholeRow
+        return [(i, WholeRow(Row(t, float(t), np.array([50.5 + 20 * (t > 8)]), np.array([15.0]), None), {"t": t}))
+                for i in range(len(self.units))]
+
+    def start(self, put, positions):
+        from jmlgdsl.monitor.sources.contract import End
+        for t in range(1, self.rounds + 1):
+            for pair in self.round(t):
+                put(pair)
+        put((None, End()))
+
+    def acknowledge(self, tokens):
+        pass
+
+    def stop(self):
+        pass
+
+
+def test_a_fleets_commit_writes_every_units_rows_with_a_statement_a_table(tmp_path):
+    """A fleet's commit writes its units' samples, results, events and states with one statement a
+    table and looks at the open alarms once, however many units it holds: beside a statement for each
+    alarm raised (every unit raises one here) and the run's record read and its time format written
+    (once a run), a commit of 100 units' rows makes no more statements than one of 2 units'."""
+    import jmlgdsl
+    from jmlgdsl.monitor import Monitor, MonitorOptions, Store
+
+    def statements(count):
+        units = [f"u{k:03d}" for k in range(count)]
+        said = []  # the statements of each commit
+
+        class Counted(Store):
+            def save(self, commits, marks=()):
+                made = []
+                for name in ("execute", "executemany", "insert"):  # the store's calls to its database
+                    def call(*args, method=getattr(self.db, name)):
+                        if not args[0].startswith(("INSERT INTO alarm", "UPDATE run")) and "FROM run" not in args[0]:
+                            made.append(args[0])
+                        return method(*args)
+                    setattr(self.db, name, call)
+                super().save(commits, marks)
+                for name in ("execute", "executemany", "insert"):
+                    delattr(self.db, name)
+                said.append((sum(len(c.results) for c in commits), len(made)))
+
+        with Counted(str(tmp_path / f"fleet{count}.db")) as store:
+            stopped = Monitor(jmlgdsl.load(SPEC), store, Rounds(units, 12), spec=SPEC, options=MonitorOptions(),
+                              tags={}, units=units).run()
+        assert stopped.ended and stopped.stored == 12 * count
+        with sqlite3.connect(tmp_path / f"fleet{count}.db") as db:
+            assert db.execute("SELECT count(DISTINCT run) FROM alarm").fetchone()[0] == count
+            assert db.execute("SELECT count(*) FROM state WHERE rows = 12").fetchone()[0] == count
+        return max(made for rows, made in said if rows == 12 * count)
+
+    assert statements(100) <= statements(2)
+
+
+def test_a_fleets_source_hands_over_a_round_of_its_units_items_at_once_and_waits_for_the_monitor(tmp_path):
+    """A source of 100 units that hands over each round of their rows as one list: every row is
+    diagnosed once, and the source's hand-over waits while ROUNDS_AHEAD rounds are not yet taken."""
+    import jmlgdsl
+    from jmlgdsl.monitor import Monitor, MonitorOptions, Store, live
+    from jmlgdsl.monitor.sources.contract import End
+
+    units, handed, ahead = [f"u{k:03d}" for k in range(100)], [0], []
+
+    class Lists(Rounds):
+        def start(self, put, positions):
+            def hand():
+                for t in range(1, self.rounds + 1):
+                    put(self.round(t))
+                    handed[0] += 1
+                put((None, End()))
+            threading.Thread(target=hand, daemon=True).start()
+
+    class Watched(Monitor):
+        def _handle(self, unit, item):
+            if unit == 0:  # the first item of a round: rounds handed over beyond those taken
+                ahead.append(handed[0] - self.units[0].rows)
+            return super()._handle(unit, item)
+
+    stop = threading.Event()
+    threading.Timer(WAIT, stop.set).start()
+    with Store(str(tmp_path / "fleet.db")) as store:
+        stopped = Watched(jmlgdsl.load(SPEC), store, Lists(units, 40), spec=SPEC, options=MonitorOptions(), tags={},
+                          units=units).run(stop)
+    stop.set()
+    assert stopped.ended and stopped.stored == 40 * len(units)
+    assert per_run(tmp_path / "fleet.db", "result") == {unit: counted(40) for unit in units}
+    assert len(ahead) == 40 and max(ahead) <= live.ROUNDS_AHEAD + 1  # the queue's and the one being taken
 
 
 def test_a_large_fleets_commit_holds_many_rows_of_each_unit(tmp_path):

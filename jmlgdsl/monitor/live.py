@@ -43,6 +43,9 @@ GROUP = 0.05
 # 40 dryers catching up on their files stepped 38 units at a time with 16 (7 with none, 21 with 64),
 # and the rows went fastest.
 LEAD = 16
+# Rounds of a fleet's items (a list of (unit index, item) pairs, handed over at once by a source that
+# reads every unit's data in one thread) the queue holds before the source waits for the monitor.
+ROUNDS_AHEAD = 2
 # Seconds a fleet's row may wait for the other units' rows of its sample, so that their filters step
 # together (a commit steps every row first).
 GATHER = 0.02
@@ -175,11 +178,13 @@ class Monitor:
         # ones, so a unit's source catching up (a file read in one thread's time slice) cannot fill the
         # queue alone, and the other units' rows come in beside its own for their filters to step together
         credits = [threading.Semaphore(LEAD) for _ in self.units] if self.named else None
+        rounds = threading.Semaphore(ROUNDS_AHEAD)  # a fleet's rounds handed over and not yet taken
         closing = threading.Event()  # set when the monitor takes no more items: a source's thread gives up
 
         def put(item):
-            if credits is not None and item[0] is not None:
-                while not credits[item[0]].acquire(timeout=IDLE):
+            held = rounds if isinstance(item, list) else credits[item[0]] if credits and item[0] is not None else None
+            if held is not None:
+                while not held.acquire(timeout=IDLE):
                     if closing.is_set():
                         return
             if not closing.is_set():
@@ -198,23 +203,26 @@ class Monitor:
             self.outbox.start()
             while not stop.is_set() and not ended:
                 try:
-                    unit, item = items.get(timeout=IDLE)
-                    if credits is not None and unit is not None:
-                        credits[unit].release()
+                    taken = items.get(timeout=IDLE)
                 except queue.Empty:
                     for watch in self.units:
                         if watch.assembler is not None:
                             watch.assembled(*watch.assembler.advance(clock.time()))
                     self.commit()
                     continue
-                ended = self._handle(unit, item)
-                if self.ready == len(self.units):
-                    self.step(len(self.units))  # the rounds every unit has a row for
-                elif self.unstepped >= 4 * BATCH:
-                    self.step()
-                elif self.ready and clock.monotonic() - self.waited >= GATHER:
-                    self.step(max(1, self.ready // 2))  # rounds of many units; the rows of the others wait on
-                    self.waited = clock.monotonic()
+                if isinstance(taken, list):  # a round of a fleet's items
+                    rounds.release()
+                elif credits is not None and taken[0] is not None:
+                    credits[taken[0]].release()
+                for unit, item in taken if isinstance(taken, list) else (taken,):
+                    ended = self._handle(unit, item)
+                    if self.ready == len(self.units):
+                        self.step(len(self.units))  # the rounds every unit has a row for
+                    elif self.unstepped >= 4 * BATCH:
+                        self.step()
+                    elif self.ready and clock.monotonic() - self.waited >= GATHER:
+                        self.step(max(1, self.ready // 2))  # rounds of many units; the rows of the others wait on
+                        self.waited = clock.monotonic()
                 if self.finished >= self.batch or len(self.tokens) >= BATCH or items.empty() and (
                         self.finished or clock.monotonic() - self.committed >= GROUP):
                     self.commit()

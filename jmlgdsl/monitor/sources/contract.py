@@ -15,7 +15,8 @@ and a source that reads on from a place (a file) reads on from the last commit.
     Fatal(message)                  what trying again cannot mend: the monitor stops with it
 
 A source of a fleet's units (jmlgdsl.monitor.units) hands over (unit index, item) pairs instead
-(None: an item of every unit, say its one connection's event).
+(None: an item of every unit, say its one connection's event), or a list of such pairs at once: a
+round of its units' items, read in one thread (the monitor holds a few rounds ahead, no more).
 """
 
 from __future__ import annotations

@@ -182,12 +182,12 @@ class Store:
     # ------------------------------------------------------------------ the one write
     def save(self, commits: list[Commit], marks=()):
         """Commit every run's part (a Commit each) in one transaction: all of them, or none; with the
-        sinks' delivery `marks` (sink, run, t, action) when given."""
+        sinks' delivery `marks` (sink, run, t, action) when given. Every run's rows go in with one
+        statement a table: a fleet's commit holds a part of each of its units."""
         try:
             with self._transaction():
                 at = now()
-                for commit in commits:
-                    self._save(commit, at)
+                self._save(commits, at)
                 self.db.executemany("INSERT INTO delivery VALUES (?,?,?,?,?) ON CONFLICT (sink, run) DO UPDATE SET "
                                     "t = excluded.t, action = excluded.action, saved = excluded.saved",
                                     [(*mark, at) for mark in marks])
@@ -195,47 +195,52 @@ class Store:
             raise StoreError(f"{self.path}: the store failed while saving ({exc}); nothing of this batch was kept, "
                              "and the monitor started again resumes from its last commit") from None
 
-    def _save(self, commit: Commit, at: str):
-        run, samples, results, events = commit.run, commit.samples, commit.results, commit.events
-        modes, vector = self._modes(run), self.db.vector
-        if commit.times is not None:
-            recorded = self._recorded(run)
-            options = dict(recorded.options, **{TIMES: commit.times.as_json()})
-            self.db.execute("UPDATE run SET options = ? WHERE id = ?", (json.dumps(options, sort_keys=True), run))
-            self._runs[run] = dataclasses.replace(recorded, options=options)
+    def _save(self, commits: list[Commit], at: str):
+        vector = self.db.vector
+        for commit in commits:
+            if commit.times is not None:
+                recorded = self._recorded(commit.run)
+                options = dict(recorded.options, **{TIMES: commit.times.as_json()})
+                self.db.execute("UPDATE run SET options = ? WHERE id = ?",
+                                (json.dumps(options, sort_keys=True), commit.run))
+                self._runs[commit.run] = dataclasses.replace(recorded, options=options)
+        modes = {commit.run: self._modes(commit.run) for commit in commits}
         self.db.executemany("INSERT INTO sample VALUES (?,?,?,?,?,?,?,?)", [
-            (run, t, row.time, vector(row.y), vector(row.u), None if row.mode is None else modes[row.mode],
-             row.anomaly, row.changepoint) for t, row in samples])
+            (c.run, t, row.time, vector(row.y), vector(row.u), None if row.mode is None else modes[c.run][row.mode],
+             row.anomaly, row.changepoint) for c in commits for t, row in c.samples])
         self.db.executemany("INSERT INTO result (run, t, map_mode, posterior, state_mean, y_pred, residual, ess, "
                             "loglik, alarm, y_sd, evidence_mode, evidence) VALUES (?,?,?,?,?,?,?,?,?,?,?,?,?)", [
-            (run, d.step.t, modes[d.step.map_mode], vector(d.step.mode_posterior), vector(d.step.state_mean),
+            (c.run, d.step.t, modes[c.run][d.step.map_mode], vector(d.step.mode_posterior), vector(d.step.state_mean),
              vector(d.step.y_pred), vector(d.step.residual), _real(d.step.ess), _real(d.step.loglik), d.alarm,
-             vector(sd), *_evidence(d.evidence, modes, vector))
-            for d, sd in results])
-        self._alarms(run, [d for d, _ in results])
+             vector(sd), *_evidence(d.evidence, modes[c.run], vector))
+            for c in commits for d, sd in c.results])
+        raised = {}  # each run's open alarm, in one look at them all
+        for run, alarm in self.db.execute("SELECT run, id FROM alarm WHERE cleared_t IS NULL ORDER BY id").fetchall():
+            raised.setdefault(run, alarm)
+        for commit in commits:
+            self._alarms(commit.run, [d for d, _ in commit.results], raised.get(commit.run))
         self.db.executemany("INSERT INTO event (run, at, time, kind, tag, detail) VALUES (?,?,?,?,?,?)",
-                            [(run, at, e.time, e.kind, e.tag, e.detail) for e in events])
-        self.db.execute("INSERT INTO state VALUES (?,?,?,?,?,?) ON CONFLICT (run) DO UPDATE SET "
-                        "rows = excluded.rows, checkpoint = excluded.checkpoint, monitor = excluded.monitor, "
-                        "position = excluded.position, saved = excluded.saved",
-                        (run, commit.rows, commit.checkpoint, commit.monitor,
-                         None if commit.position is None else json.dumps(commit.position), at))
+                            [(c.run, at, e.time, e.kind, e.tag, e.detail) for c in commits for e in c.events])
+        self.db.executemany("INSERT INTO state VALUES (?,?,?,?,?,?) ON CONFLICT (run) DO UPDATE SET "
+                            "rows = excluded.rows, checkpoint = excluded.checkpoint, monitor = excluded.monitor, "
+                            "position = excluded.position, saved = excluded.saved",
+                            [(c.run, c.rows, c.checkpoint, c.monitor,
+                              None if c.position is None else json.dumps(c.position), at) for c in commits])
 
-    def _alarms(self, run, results):
-        """Alarm episodes from the results' 0/1 alarms, continuing the one open in the store; each
-        names the most probable unhealthy mode of the row that raised it."""
-        open_ = self.db.execute("SELECT id FROM alarm WHERE run = ? AND cleared_t IS NULL", (run,)).fetchone()
+    def _alarms(self, run, results, raised: int | None):
+        """Alarm episodes from the results' 0/1 alarms, continuing the one open in the store (`raised`,
+        its id); each names the most probable unhealthy mode of the row that raised it."""
         for d in results:
-            if d.alarm and open_ is None:
+            if d.alarm and raised is None:
                 modes, healthy = self._modes(run), self._recorded(run).options.get("healthy", [])
                 unhealthy = [k for k, name in enumerate(modes) if name not in healthy]
                 mode = modes[max(unhealthy, key=lambda k: d.step.mode_posterior[k])] if unhealthy else None
-                open_ = (self.db.insert("INSERT INTO alarm (run, raised_t, raised_time, mode) VALUES (?,?,?,?)",
-                                        (run, d.step.t, d.row.time, mode)),)
-            elif not d.alarm and open_ is not None:
+                raised = self.db.insert("INSERT INTO alarm (run, raised_t, raised_time, mode) VALUES (?,?,?,?)",
+                                        (run, d.step.t, d.row.time, mode))
+            elif not d.alarm and raised is not None:
                 self.db.execute("UPDATE alarm SET cleared_t = ?, cleared_time = ? WHERE id = ?",
-                                (d.step.t, d.row.time, open_[0]))
-                open_ = None
+                                (d.step.t, d.row.time, raised))
+                raised = None
 
     def act(self, run: int, alarm: int, kind: str, who: str, reason: str | None = None):
         """Record what an operator did with an alarm (ISA-18.2: acknowledge, shelve with a reason,
