@@ -25,6 +25,17 @@ POLL = 0.05  # seconds between looks at a followed file that has not grown
 BLOCK, ROUND = 1 << 14, 4
 
 
+def header_line(stream, name: str):
+    """(text, line number) of the header line of the file `stream` (a followed file, read again from
+    its start: a restarted reader needs it before its saved offset)."""
+    stream.seek(0)
+    for number, raw in enumerate(stream, start=1):
+        text = raw.decode("utf-8", "replace")
+        if is_record(text):
+            return text, number
+    raise DataError(f"{name}: the header line is gone from the file being followed")
+
+
 class Lines:
     """A stream's lines, decoded, for iter_rows, from a byte offset on (with the line number there):
     at the end it waits for more while `follow`, and ends when `stop` is set. `number` is the line
@@ -39,20 +50,12 @@ class Lines:
         self.header = None  # (text, line number) of the header line
         self._again, self._rest = False, b""
         if offset:
-            self.header = self._header()
+            self.header = header_line(self.stream, self.name)
             stream.seek(offset)
             self.again()
 
     def again(self):
         self._again = True
-
-    def _header(self):
-        self.stream.seek(0)
-        for number, raw in enumerate(self.stream, start=1):
-            text = raw.decode("utf-8", "replace")
-            if is_record(text):
-                return text, number
-        raise DataError(f"{self.name}: the header line is gone from the file being followed")
 
     def readline(self) -> str:
         if self._again:
@@ -243,7 +246,7 @@ class UnitFile:
         if self.saved:  # read on from a saved position: the header again first
             self.saved = False
             try:
-                header = self._header()
+                header = header_line(self.stream, self.name)
             except DataError as exc:
                 self.ended = True
                 return [Fatal(str(exc))]
@@ -319,15 +322,6 @@ class UnitFile:
         delimiter = delimiter_of(text)
         self.parser = RowParser(cells_of(text, delimiter, f"{self.name}:{line}"), self.model, self.name)
         self.header, self.delimiter = (text, line), delimiter
-
-    def _header(self):
-        """The header line of the file and its line number."""
-        self.stream.seek(0)
-        for number, raw in enumerate(self.stream, start=1):
-            text = raw.decode("utf-8", "replace")
-            if is_record(text):
-                return text, number
-        raise DataError(f"{self.name}: the header line is gone from the file being followed")
 
     def _more(self, follow: bool) -> bool:
         """Read a block: whether it brought a whole line (or, at the end of an unfollowed file, a last
