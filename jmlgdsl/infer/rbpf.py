@@ -272,20 +272,22 @@ def advance_together(engines, rows, nodes, parent, mode, pairs, log_prior, r, Li
     child = graph.children(rows, nodes.reshape(-1)[owner * n + parents[row]], z)
     node = Representatives.pick_together([e.reps for e in engines], graph, child, owner)
     held = np.bincount(owner, minlength=g)  # the particles each engine keeps
-    ends = np.cumsum(held).tolist()
     # `tidy` is called only where it may act (an engine's classes, or a graph of its own, past its bound)
     bound = 4 * int(held.min()) + first.spare_nodes
     tidy = max(e.reps.held for e in engines) > bound or (not graph.shared and graph.size > bound)
-    ps, ms = (repeat(parent), repeat(mode)) if pairs else (parent, mode)
     if (held == held[0]).all():  # as many kept by each (the usual step): rows of (g, ...) arrays
-        each = zip(*(a.reshape((g, -1) + a.shape[1:]) for a in (kept, z, mu, logw, copies, node)))
-    else:
-        each = ((kept[a:b], z[a:b], mu[a:b], logw[a:b], copies[a:b], node[a:b]) for a, b in zip([0] + ends[:-1], ends))
-    for e, mine, p, m, lp, rj, Lj, qj in zip(engines, each, ps, ms, log_prior, r, Linv, q):
-        e.predictive = Predictive(m, lp, rj, Lj, mask)
-        e.genealogy = Genealogy(p, m, qj, mine[0])
-        e.z, e.mu, e.logw, e.copies, e.node = mine[1:]
-        if tidy:
+        each = [a.reshape((g, -1) + a.shape[1:]) for a in (kept, z, mu, logw, copies, node)]
+    else:  # each engine's slice, taken in one pass per array
+        ends = np.cumsum(held)
+        spans = [slice(*span) for span in zip((ends - held).tolist(), ends.tolist())]
+        each = [list(map(a.__getitem__, spans)) for a in (kept, z, mu, logw, copies, node)]
+    ps, ms = (repeat(parent), repeat(mode)) if pairs else (parent, mode)
+    # the engines' new state, made in passes over the engines (no Python step of ours per engine)
+    states = zip(map(Predictive, ms, log_prior, r, Linv, repeat(mask)), map(Genealogy, ps, ms, q, each[0]), *each[1:])
+    for e, state in zip(engines, states):
+        e.predictive, e.genealogy, e.z, e.mu, e.logw, e.copies, e.node = state
+    if tidy:
+        for e in engines:
             e.tidy()
     return sizes
 
