@@ -20,13 +20,17 @@ def rows_of(y, u):
     return [Row(t + 1, float(t), y[t], u[t], None) for t in range(len(y))]
 
 
-@pytest.mark.parametrize("spec", ["dryer", "wide"])
-def test_the_evidence_of_every_unit_is_its_own_bit_for_bit(spec):
+@pytest.mark.parametrize("spec, algorithm", [("dryer", "imm"), ("wide", "imm"), ("dryer", "la-rbpf")])
+def test_the_evidence_of_every_unit_is_its_own_bit_for_bit(spec, algorithm):
+    """Under imm the evidence comes from the fleet's vectorised filter; under la-rbpf from each unit's
+    engine, stepped with the others of its group."""
     model = (jmlgdsl.load("specs/dryer.jmlg") if spec == "dryer"
              else random_model(np.random.default_rng(8), K=3, nx=3, ny=6, stay=0.98))
     ys, us = fleet_data(model, 6, 150)
     records = [rows_of(y, u) for y, u in zip(ys, us)]
-    options = Options(explain=True, threshold=0.4, persistence=2)  # alarms rise and clear on both plants
+    particles = {"particles": 5, "seed": 3} if algorithm != "imm" else {}
+    # alarms rise and clear on both plants
+    options = Options(explain=True, threshold=0.4, persistence=2, algorithm=algorithm, **particles)
     fleet = Fleet(model, len(records), options, scored=False)
     assert fleet.filter is not None  # one filter for every unit
     kept = [[] for _ in records]

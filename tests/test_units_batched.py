@@ -335,7 +335,8 @@ def test_engines_stepped_together_give_their_estimates_as_rows_each_as_alone(dry
     """`step_together` gives its engines' Estimates as rows of arrays with a leading engine axis (a
     fleet makes its records from them, without a Step each): row i is, bit for bit, what engine i
     gets stepped alone, through missing readings and a gross error its gate leaves out (that engine's
-    step redone alone, the others' together), and each engine goes on as alone."""
+    step redone alone, the others' together), and each engine goes on as alone, its step's
+    Predictive and Genealogy as its own step makes them."""
     ys, us = fleet_data(dryer, 4, 40, seed=5)
     together = [Filter(dryer, algorithm, particles, seed=s).engine for s in range(4)]
     alone = [Filter(dryer, algorithm, particles, seed=s).engine for s in range(4)]
@@ -367,4 +368,7 @@ def test_engines_stepped_together_give_their_estimates_as_rows_each_as_alone(dry
         for a, b in zip(together, alone):
             assert np.array_equal(a.z, b.z) and np.array_equal(a.logw, b.logw)
             assert a.rng.bit_generator.state == b.rng.bit_generator.state
+            for name in ("predictive", "genealogy"):  # what evidence and smoothing read of the step
+                mine, its = getattr(a, name), getattr(b, name)
+                assert type(mine) is type(its) and all(np.array_equal(x, y, equal_nan=True) for x, y in zip(mine, its))
     assert screened > 0

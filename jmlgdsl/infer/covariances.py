@@ -208,7 +208,9 @@ class Representatives:
     def pick_together(each, graph, nodes, owner) -> np.ndarray:
         """`pick` of several engines' Representatives `each` side by side: node i is owner[i]'s."""
         classes = graph.classes.buffer[nodes]
-        tables = [r.table(graph) for r in each]
+        tables = [r.of for r in each]  # as they are where all are as long and long enough (every class in them)
+        if len(set(map(len, tables))) > 1 or len(tables[0]) < graph.classes.size:
+            tables = [r.table(graph) for r in each]
         rep = np.concatenate(tables).reshape(len(each), -1)[owner, classes]  # np.stack, without its steps per table
         missing = rep < 0
         if missing.any():  # new classes, taken in order: (engine, class) pairs, first occurrences

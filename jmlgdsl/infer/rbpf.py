@@ -86,10 +86,12 @@ class RaoBlackwellised:
         raise NotImplementedError
 
     @staticmethod
-    def select_together(engines, q) -> list:
-        """`select` of engines of this algorithm side by side, from their weights q (g, J): (chosen,
-        log-weights, ESS) for each engine it serves, None for each that selects on its own (all, here)."""
-        return [None] * len(engines)
+    def select_together(engines, q):
+        """`select` of engines of this algorithm side by side, from their weights q (g, J): None when
+        each selects on its own (always, here), else (the positions of the engines it served, which
+        resampled to equal weights, their chosen candidates a row each, every engine's ESS (g,));
+        the others select on their own."""
+        return None
 
     def advance(self, rows, parent, mode, pairs, log_prior, r, Linv, q, mu_f, mask, selected=None) -> float:
         """Select the next particles from this step's candidates (candidate j: particle parent[j] into
@@ -242,44 +244,52 @@ def advance_together(engines, rows, nodes, parent, mode, pairs, log_prior, r, Li
     """`RaoBlackwellised.advance` of engines that share one graph and weighed as many candidates, side
     by side: parent and mode (J,) when the candidates are every (particle, mode) pair (`pairs`), else
     one row (g, J) per engine; log_prior, r, Linv, q and mu_f with a leading engine axis; `selected`
-    what each engine's `select` gives, or None where it is to select on its own; nodes (g, n) their
-    particles' nodes. Their copies merge
+    what their `select_together` gives; nodes (g, n) their particles' nodes. Their copies merge
     and their children are found in one call each, every engine's the same operations on its own
     numbers as alone; the ESS of each."""
     first = engines[0]
     graph, K, g, J, n = first.graph, first.K, len(engines), q.shape[-1], len(first.z)
-    picks = [e.select(q[j], *((parent, mode) if pairs else (parent[j], mode[j]))) if done is None else done
-             for j, (e, done) in enumerate(zip(engines, selected))]
-    chosen, logws, sizes = zip(*picks)
-    lengths = np.fromiter(map(len, chosen), np.int64, g)
-    chosen = np.concatenate(chosen)
     parents, modes = (np.broadcast_to(a, (g, J)).reshape(-1) for a in (parent, mode))  # every candidate's
+    going, rows_chosen, size = selected if selected is not None else (np.empty(0, np.int64), None, None)
+    if len(going) == g:  # every engine resampled to equal weights (the usual step): n chosen each
+        lengths = np.full(g, rows_chosen.shape[1])
+        chosen, logws = rows_chosen.reshape(-1), np.broadcast_to(first.resampler.uniform, rows_chosen.shape).reshape(-1)
+        resampled, sizes = np.ones(g, dtype=bool), size
+    else:
+        done = dict(zip(going.tolist(), rows_chosen if len(going) else ()))
+        picks = [(done[j], e.resampler.uniform, size[j]) if j in done else
+                 e.select(q[j], *((parent, mode) if pairs else (parent[j], mode[j]))) for j, e in enumerate(engines)]
+        chosen, logws, sizes = zip(*picks)
+        lengths = np.fromiter(map(len, chosen), np.int64, g)
+        chosen, logws = np.concatenate(chosen), np.concatenate(logws)
+        resampled = np.array([e.resampler is not None and logw is e.resampler.uniform  # all weights 1 / N
+                              for e, logw in zip(engines, (p[1] for p in picks))])
     row = np.repeat(np.arange(g) * J, lengths) + chosen  # each chosen candidate's, among every candidate
     key = chosen if pairs else parents[row] * K + modes[row]  # (parent, mode) as one number
-    resampled = np.array([e.resampler is not None and logw is e.resampler.uniform  # all weights 1 / N
-                          for e, logw in zip(engines, logws)])
-    kept, logw, copies, owner = merge_copies_together(key, chosen, np.concatenate(logws), n * K, resampled, lengths)
+    kept, logw, copies, owner = merge_copies_together(key, chosen, logws, n * K, resampled, lengths)
     row = owner * J + kept
     z, mu = modes[row], mu_f.reshape(g * J, -1)[row]
     child = graph.children(rows, nodes.reshape(-1)[owner * n + parents[row]], z)
     node = Representatives.pick_together([e.reps for e in engines], graph, child, owner)
     held = np.bincount(owner, minlength=g)  # the particles each engine keeps
-    ends = np.cumsum(held).tolist()
     # `tidy` is called only where it may act (an engine's classes, or a graph of its own, past its bound)
     bound = 4 * int(held.min()) + first.spare_nodes
     tidy = max(e.reps.held for e in engines) > bound or (not graph.shared and graph.size > bound)
-    ps, ms = (repeat(parent), repeat(mode)) if pairs else (parent, mode)
     if (held == held[0]).all():  # as many kept by each (the usual step): rows of (g, ...) arrays
-        each = zip(*(a.reshape((g, -1) + a.shape[1:]) for a in (kept, z, mu, logw, copies, node)))
-    else:
-        each = ((kept[a:b], z[a:b], mu[a:b], logw[a:b], copies[a:b], node[a:b]) for a, b in zip([0] + ends[:-1], ends))
-    for e, mine, p, m, lp, rj, Lj, qj in zip(engines, each, ps, ms, log_prior, r, Linv, q):
-        e.predictive = Predictive(m, lp, rj, Lj, mask)
-        e.genealogy = Genealogy(p, m, qj, mine[0])
-        e.z, e.mu, e.logw, e.copies, e.node = mine[1:]
-        if tidy:
+        each = [a.reshape((g, -1) + a.shape[1:]) for a in (kept, z, mu, logw, copies, node)]
+    else:  # each engine's slice, taken in one pass per array
+        ends = np.cumsum(held)
+        spans = [slice(*span) for span in zip((ends - held).tolist(), ends.tolist())]
+        each = [list(map(a.__getitem__, spans)) for a in (kept, z, mu, logw, copies, node)]
+    ps, ms = (repeat(parent), repeat(mode)) if pairs else (parent, mode)
+    # the engines' new state, made in passes over the engines (no Python step of ours per engine)
+    states = zip(map(Predictive, ms, log_prior, r, Linv, repeat(mask)), map(Genealogy, ps, ms, q, each[0]), *each[1:])
+    for e, state in zip(engines, states):
+        e.predictive, e.genealogy, e.z, e.mu, e.logw, e.copies, e.node = state
+    if tidy:
+        for e in engines:
             e.tidy()
-    return list(sizes)
+    return sizes
 
 
 def share(engines):
@@ -420,29 +430,28 @@ class LookAheadRBPF(RaoBlackwellised):
         return ancestors * K + sample_rows(q[ancestors], self.rng), logw, size
 
     @staticmethod
-    def select_together(engines, q) -> list:
+    def select_together(engines, q):
         """`select` of the engines that resample this step with the systematic scheme, side by side:
-        each draws from its own Generator the numbers it would alone (one for the scheme, then one per
-        particle for its mode: one call), and gets the same particles."""
+        whether each resamples is decided for all at once as its `Resampler.resamples` decides it;
+        each that does draws from its own Generator the numbers it would alone (one for the scheme,
+        then one per particle for its mode: one call), and gets the same particles."""
         K, g = engines[0].K, len(engines)
         q = q.reshape(g, -1, K)
         w = q.sum(axis=-1)
         copies = joined([e.copies for e in engines])
         size = 1.0 / (w[:, None, :] @ (w / copies)[:, :, None])[:, 0, 0]  # ess(w, copies), row by row
-        out = [None] * g
-        going = [i for i, (e, s, c) in enumerate(zip(engines, size.tolist(), copies))
-                 if e.resampler.scheme is systematic and e.resampler.resamples(s, c)]
-        if not going:
-            return out
-        n = engines[going[0]].resampler.n
+        resamplers = [e.resampler for e in engines]
+        threshold, n = (np.array([getattr(r, name) for r in resamplers]) for name in ("threshold", "n"))
+        going = np.flatnonzero(np.array([r.scheme is systematic for r in resamplers])
+                               & ((threshold >= 1.0) | (size < threshold * n) | (copies.sum(axis=1) != n)))
+        if not len(going):
+            return None
+        n = int(n[going[0]])
         draws = np.empty((len(going), n + 1))  # the scheme's, then sample_rows'
-        for i, row in zip(going, draws):
+        for i, row in zip(going.tolist(), draws):
             engines[i].rng.random(out=row)
         ancestors = systematic_rows(w[going], n, draws[:, 0])
-        chosen = ancestors * K + rows_drawn(q[going][np.arange(len(going))[:, None], ancestors], draws[:, 1:])
-        for i, c in zip(going, chosen):
-            out[i] = c, engines[i].resampler.uniform, size[i]
-        return out
+        return going, ancestors * K + rows_drawn(q[going][np.arange(len(going))[:, None], ancestors], draws[:, 1:]), size
 
 
 class FearnheadCliffordRBPF(RaoBlackwellised):

@@ -451,11 +451,17 @@ def _together(filters, mask) -> tuple[list, list]:
     """(the positions of each group of two or more units that step together: one bank, one mask (n, ny)
     row, as many particles; in the order of their first units), and the positions of the others."""
     _, which = _groups(mask)
-    groups = {}
-    for i, key in enumerate(zip([id(f.model) for f in filters], which.tolist(), [len(f.engine.z) for f in filters])):
-        groups.setdefault(key, []).append(i)
-    return ([np.array(members) for members in groups.values() if len(members) > 1],
-            sorted(members[0] for members in groups.values() if len(members) == 1))
+    models = [f.model for f in filters]
+    bank = (np.zeros(len(filters), np.int64) if models.count(models[0]) == len(models) else
+            np.unique(np.array(list(map(id, models))), return_inverse=True)[1])
+    held = np.array([len(f.engine.z) for f in filters])
+    # each unit's (bank, mask, particles) as one number, the groups in the order of their first units
+    _, first, group = np.unique((bank * (which.max() + 1) + which) * (held.max() + 1) + held, return_index=True,
+                                return_inverse=True)
+    order = np.argsort(first)
+    sizes = np.bincount(group)[order]
+    members = np.split(np.argsort(np.argsort(order)[group], kind="stable"), np.cumsum(sizes)[:-1])
+    return [m for m in members if len(m) > 1], first[order][sizes == 1].tolist()
 
 
 def _unit_error(index, i, exc):
