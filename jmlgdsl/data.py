@@ -17,6 +17,8 @@ DataWarning naming the column.
 from __future__ import annotations
 
 import csv
+import functools
+import io
 import math
 import re
 import sys
@@ -690,6 +692,19 @@ def format_numbers(values) -> list[str]:
     return ["" if value != value else f"{value:.10g}" for value in np.asarray(values, dtype=float).ravel().tolist()]
 
 
+def joined_numbers(values: list) -> str:
+    """The cells `format_cell` makes of a list of numbers (Python's own), joined by commas: formatted in
+    one call of one format, a NaN's 'nan' then emptied."""
+    text = _format_of(len(values)) % tuple(values)
+    return text if "nan" not in text else ",".join("" if cell == "nan" else cell for cell in text.split(","))
+
+
+@functools.lru_cache(maxsize=64)
+def _format_of(count: int) -> str:
+    """The format of `count` numbers in 10 significant digits, comma-separated (as f"{value:.10g}")."""
+    return ",".join(["%.10g"] * count)
+
+
 class CsvWriter:
     """Writes rows of a table; with flush=True every row reaches the reader at once (on-line use)."""
 
@@ -702,6 +717,22 @@ class CsvWriter:
         self._writer.writerow([format_cell(c) for c in cells])
         if self._flush:
             self._stream.flush()
+
+    def write_line(self, cells: str):
+        """A row of cells already joined by commas: numbers as `joined_numbers` formats them and text as
+        `csv_cell` quotes it (a result table's rows, most of what `run` on many files writes), the line
+        `write` makes of them."""
+        self._stream.write(cells + "\n")
+        if self._flush:
+            self._stream.flush()
+
+
+def csv_cell(text: str) -> str:
+    """A text cell as a CSV writer writes it among others: quoted where it holds a comma, a quote or
+    a line end."""
+    line = io.StringIO()
+    csv.writer(line, lineterminator="").writerow([text, ""])
+    return line.getvalue()[:-1]
 
 
 def write_columns(path, columns: dict):
