@@ -694,9 +694,8 @@ def format_numbers(values) -> list[str]:
 
 def joined_numbers(values: list) -> str:
     """The cells `format_cell` makes of a list of numbers (Python's own), joined by commas: formatted in
-    one call of one format, a NaN's 'nan' then emptied."""
-    text = _format_of(len(values)) % tuple(values)
-    return text if "nan" not in text else ",".join("" if cell == "nan" else cell for cell in text.split(","))
+    one call of one format, each NaN's 'nan' (no number's cell holds those letters) then emptied."""
+    return (_format_of(len(values)) % tuple(values)).replace("nan", "")
 
 
 @functools.lru_cache(maxsize=64)
