@@ -17,6 +17,8 @@ DataWarning naming the column.
 from __future__ import annotations
 
 import csv
+import functools
+import io
 import math
 import re
 import sys
@@ -179,6 +181,7 @@ class DataFile:
     def __init__(self, path):
         self.name, self.line = ("<stdin>" if str(path) == "-" else str(path)), 0
         self._lines, self._next, self._rest, self._after_cr = [], 0, bytearray(), False
+        self._offered, self._ended = True, False  # whether `pending` gave the lines read last; at the end
         if str(path) == "-":
             if sys.stdin is None:
                 raise DataError("<stdin>: standard input is closed")
@@ -200,9 +203,36 @@ class DataFile:
         self.line += 1
         return self._decode(raw)
 
+    def pending(self) -> str:
+        """The whole lines read from the file and not yet taken, as one text, for a reader that reads
+        them in one pass (then `skip`s them): each read's lines once, '' where they were offered
+        already, there are none or they are not all ASCII (which `readline` decodes, or refuses)."""
+        if not self._fill() or self._offered:
+            return ""
+        self._offered = True
+        raw = b"".join(self._lines[self._next:])
+        return raw.decode("ascii") if raw.isascii() else ""
+
+    def skip(self, count: int):
+        """Take the next `count` lines as read (by a reader of what `pending` gave)."""
+        self._next += count
+        self.line += count
+
     def _raw(self):
         """The bytes of the next line, with its line end (b'' at the end)."""
+        if not self._fill():
+            rest, self._rest = bytes(self._rest), bytearray()
+            return rest
+        line = self._lines[self._next]
+        self._next += 1
+        return line
+
+    def _fill(self) -> bool:
+        """Read on while no whole line is left to take (lines left: none were offered yet); False at the
+        end of the file, where `_rest` holds a last line without its line end."""
         while self._next == len(self._lines):
+            if self._ended:
+                return False
             try:
                 chunk = self._read(1 << 16)
             except (OSError, ValueError) as exc:
@@ -211,8 +241,8 @@ class DataFile:
             if isinstance(chunk, str):  # a text stream in place of standard input
                 chunk = chunk.encode("utf-8", "surrogateescape")
             if not chunk:
-                rest, self._rest = bytes(self._rest), bytearray()
-                return rest
+                self._ended = True
+                return False
             if self._after_cr and chunk[:1] == b"\n":  # the LF of a CR LF that came in two pieces
                 chunk = chunk[1:]
             self._after_cr = chunk[-1:] == b"\r"
@@ -221,10 +251,8 @@ class DataFile:
                 continue
             lines = self._rest.splitlines(keepends=True)  # at LF, CR LF and CR alone
             self._rest = lines.pop() if not lines[-1].endswith((b"\n", b"\r")) else bytearray()
-            self._lines, self._next = lines, 0
-        line = self._lines[self._next]
-        self._next += 1
-        return line
+            self._lines, self._next, self._offered = lines, 0, False
+        return True
 
     def _decode(self, raw) -> str:
         where = f"{self.name}:{self.line}"
@@ -269,9 +297,9 @@ def open_target(path):
 
 
 def _records(stream, source):
-    """(line number, cells) for each line that is neither blank nor a # comment, read one at a time;
-    the separator is chosen on the first such line (the header). A stream that numbers its own lines
-    (a `number` attribute: a followed file read on from the middle) gives the line numbers."""
+    """(line number, cells, separator) for each line that is neither blank nor a # comment, read one
+    at a time; the separator is chosen on the first such line (the header). A stream that numbers its
+    own lines (a `number` attribute: a followed file read on from the middle) gives the line numbers."""
     delimiter = None
     numbered = hasattr(stream, "number")
     for count, line in enumerate(iter(stream.readline, ""), start=1):
@@ -279,7 +307,7 @@ def _records(stream, source):
         if is_record(line):
             if delimiter is None:
                 delimiter = delimiter_of(line)
-            yield number, cells_of(line, delimiter, f"{source}:{number}")
+            yield number, cells_of(line, delimiter, f"{source}:{number}"), delimiter
 
 
 def is_record(line: str) -> bool:
@@ -423,15 +451,37 @@ class RowReader:
 
     def _read(self, stream, model, source, outputs):
         records = _records(stream, source)
-        _, header = next(records, (0, None))
+        number, header, delimiter = next(records, (0, None, None))
         if header is None:
             raise DataError(f"{source}: no header line (expected columns {', '.join(model.outputs)})")
         parser = RowParser(header, model, source, outputs)
-        for line, cells in records:
-            row = parser.row(line, cells)
+        rows = (self._blocks(stream, parser, delimiter, number - stream.line) if isinstance(stream, DataFile)
+                else (parser.row(line, cells) for line, cells, _ in records))
+        for row in rows:
             self.times = parser.times
             yield row
         parser.finish()
+
+    @staticmethod
+    def _blocks(stream: DataFile, parser: "RowParser", delimiter: str, base: int):
+        """The rows of a data file's lines after its header: each read's lines in one pass where they
+        are plain (RowParser.numbers), else one at a time as `row` reads them. `base`: what a line's
+        number is past the file's count of lines read (lines read before the reader began)."""
+        while True:
+            text = stream.pending()
+            numbers = parser.numbers(text, delimiter) if text else None
+            if numbers is not None:
+                first = stream.line + base + 1
+                stream.skip(len(numbers.y))
+                for i in range(len(numbers.y)):
+                    yield parser.numbered(first + i, numbers, i)
+                continue
+            line = stream.readline()
+            if not line:
+                return
+            if is_record(line):
+                number = stream.line + base
+                yield parser.row(number, cells_of(line, delimiter, f"{parser.source}:{number}"))
 
 
 class RowParser:
@@ -468,6 +518,7 @@ class RowParser:
         self.time_col = self.stamp_col if self.t_col is None else self.t_col  # with both, `time` is the time axis
         self.check_time = (None if self.time_col is None else  # time stamps are kept to the microsecond
                            _TimeCheck(names[self.time_col], model.dt, 1e-6 if self.t_col is None else 0.0))
+        self._mode_index = {name: k for k, name in enumerate(model.modes)} | {"": None}  # a `mode` cell's index
         self.measured = np.zeros(model.ny, bool)  # the outputs with a value in a row read so far
         self.all_measured = False  # whether every output has: `numbered` looks no further
 
@@ -510,19 +561,29 @@ class RowParser:
     def numbers(self, text: str, delimiter: str) -> "Numbers | None":
         """Whole lines of a file (`text`, each line ending in a line end) read in one pass, for rows
         of them one at a time by `numbered`. None where the lines need reading one at a time as `row`
-        reads them: a file with time stamps, labels or a column of an output missing, or lines with
-        anything but plain numbers (ASCII digits, point, sign, exponent) and commas: a comment, a
-        blank line, spaces, a missing-value word, a line with another number of cells than the
-        header, a number too large for a float."""
-        count = len(self.names)
-        if (delimiter != "," or None in self.y_cols or self.stamp_col is not None or self.mode_col is not None
-                or self.anomaly_col is not None or self.change_col is not None or not PLAIN.fullmatch(text)):
+        reads them: a file with time stamps or a column of an output missing, or lines with anything
+        but plain numbers (ASCII digits, point, sign, exponent) and commas (a comment, a blank line,
+        spaces, a missing-value word, a line with another number of cells than the header, a number
+        too large for a float) other than a known mode's name or nothing in the `mode` column, and
+        0, 1 or nothing in the `anomaly` and `changepoint` columns."""
+        count, mode_col = len(self.names), self.mode_col
+        if (delimiter != "," or None in self.y_cols or self.stamp_col is not None
+                or (mode_col is not None and mode_col in (*self.y_cols, *self.u_cols, self.t_col))):
             return None
         lines = text.split("\n")
         lines.pop()  # after the last line end
         if any(line.count(",") != count - 1 for line in lines):
             return None
         cells = ",".join(lines).split(",")
+        modes = None
+        if mode_col is not None:
+            try:
+                modes = [self._mode_index[cell] for cell in cells[mode_col::count]]
+            except KeyError:  # a name to strip, or not a mode: as `row` reads it
+                return None
+            cells[mode_col::count] = [""] * len(lines)
+        if not PLAIN.fullmatch(text if modes is None else ",".join(cells)):
+            return None
         try:
             values = np.array([cell or "0" for cell in cells], dtype=float).reshape(len(lines), count)
         except ValueError:
@@ -530,12 +591,18 @@ class RowParser:
         if np.isinf(values).any():
             return None
         values[np.array([not cell for cell in cells]).reshape(values.shape)] = math.nan  # empty: missing
+        labels = []
+        for col in (self.anomaly_col, self.change_col):
+            label = None if col is None else values[:, col]
+            if label is not None and not ((label == 0) | (label == 1) | np.isnan(label)).all():
+                return None
+            labels.append(None if label is None else [None if v != v else int(v) for v in label.tolist()])
         values = np.hstack([values, np.full((len(lines), 1), math.nan)])  # the column of an absent input
         last = len(self.names)
         u = with_defaults(values[:, [last if c is None else c for c in self.u_cols]], self.model.input_defaults)
         return Numbers(values[:, self.y_cols], u, np.isnan(u).any(axis=1).tolist(),
                        None if self.t_col is None else values[:, self.t_col].tolist(),
-                       None if self.t_col is None else cells[self.t_col::count])
+                       None if self.t_col is None else cells[self.t_col::count], modes, *labels)
 
     def numbered(self, line: int, numbers: "Numbers", i: int) -> Row:
         """The row of CSV line `line` from the `i`th line of `numbers`; a DataError as `row` gives one
@@ -549,7 +616,9 @@ class RowParser:
         if not self.all_measured:
             self.measured |= ~np.isnan(y)
             self.all_measured = bool(self.measured.all())
-        return Row(line, time, y, u, None)
+        return Row(line, time, y, u, None if numbers.modes is None else numbers.modes[i],
+                   None if numbers.anomaly is None else numbers.anomaly[i],
+                   None if numbers.changepoint is None else numbers.changepoint[i])
 
     def finish(self):
         """At the file's end: warn of an input column absent and of an output never measured (as from
@@ -573,6 +642,9 @@ class Numbers:
     lacking: list
     time: list | None
     time_cells: list | None
+    modes: list | None = None  # true mode indices, None where a line has no label
+    anomaly: list | None = None  # 0/1 labels, None where a line has none
+    changepoint: list | None = None
 
 
 def _mode(cells, col, modes, where):
@@ -620,6 +692,18 @@ def format_numbers(values) -> list[str]:
     return ["" if value != value else f"{value:.10g}" for value in np.asarray(values, dtype=float).ravel().tolist()]
 
 
+def joined_numbers(values: list) -> str:
+    """The cells `format_cell` makes of a list of numbers (Python's own), joined by commas: formatted in
+    one call of one format, each NaN's 'nan' (no number's cell holds those letters) then emptied."""
+    return (_format_of(len(values)) % tuple(values)).replace("nan", "")
+
+
+@functools.lru_cache(maxsize=64)
+def _format_of(count: int) -> str:
+    """The format of `count` numbers in 10 significant digits, comma-separated (as f"{value:.10g}")."""
+    return ",".join(["%.10g"] * count)
+
+
 class CsvWriter:
     """Writes rows of a table; with flush=True every row reaches the reader at once (on-line use)."""
 
@@ -632,6 +716,22 @@ class CsvWriter:
         self._writer.writerow([format_cell(c) for c in cells])
         if self._flush:
             self._stream.flush()
+
+    def write_line(self, cells: str):
+        """A row of cells already joined by commas: numbers as `joined_numbers` formats them and text as
+        `csv_cell` quotes it (a result table's rows, most of what `run` on many files writes), the line
+        `write` makes of them."""
+        self._stream.write(cells + "\n")
+        if self._flush:
+            self._stream.flush()
+
+
+def csv_cell(text: str) -> str:
+    """A text cell as a CSV writer writes it among others: quoted where it holds a comma, a quote or
+    a line end."""
+    line = io.StringIO()
+    csv.writer(line, lineterminator="").writerow([text, ""])
+    return line.getvalue()[:-1]
 
 
 def write_columns(path, columns: dict):

@@ -1,6 +1,8 @@
 """The result table from Python: write_result writes what `run -o` writes, and read_table reads it back."""
 
 import csv
+import io
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -9,8 +11,10 @@ from hypothesis import strategies as st
 
 import jmlgdsl
 from jmlgdsl.cli import main
-from jmlgdsl.data import format_cell, format_numbers, read_csv, write_columns
-from jmlgdsl.infer.table import read_table, write_result
+from jmlgdsl.data import format_cell, format_numbers, joined_numbers, read_csv, write_columns
+from jmlgdsl.diagnosis.evidence import Evidence
+from jmlgdsl.infer.result import Step
+from jmlgdsl.infer.table import TableWriter, read_table, write_result
 from jmlgdsl.simulation.linear import simulate
 
 
@@ -54,3 +58,29 @@ def test_a_rows_numbers_are_formatted_in_one_pass_as_cell_by_cell(values):
     """The result table formats a row's numbers in one pass (format_numbers); every cell is what
     format_cell makes of the number: 10 significant digits, NaN an empty cell."""
     assert format_numbers(np.array(values, dtype=float)) == [format_cell(float(v)) for v in values]
+
+
+@given(st.lists(st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.integers(-10**12, 10**12)),
+                min_size=1, max_size=20))
+def test_a_rows_numbers_are_joined_in_one_format_as_cell_by_cell(values):
+    """A table's line formats its numbers with one format of them all (joined_numbers): the cells
+    format_cell makes, NaN an empty cell, -0.0 '-0', infinities 'inf'."""
+    assert joined_numbers(values) == ",".join(format_cell(float(v)) for v in values)
+
+
+def test_a_table_row_is_the_line_a_csv_writer_writes_of_its_cells():
+    """A result table's row, made in one pass, is byte for byte the line csv.writer makes of its cells:
+    a mode's name that needs quoting quoted, a missing number an empty cell, the evidence after."""
+    names = SimpleNamespace(modes=("normal", 'fan, "off"'), states=("x",), outputs=("a", "b"), ny=2)
+    step = Step(7, np.array([0.25, 0.75]), np.array([-0.0]), None, np.array([1e-320, 2.5]),
+                np.array([np.nan, 123456789012.0]), -1.5, 3.0)
+    out = io.StringIO()
+    writer = TableWriter(out, names, True, explain=True)
+    writer.write(step, 1583752474.5, 1, Evidence(1, 0, np.array([0.5, np.inf]), np.inf))
+    writer.write(step, np.nan, 0, None)
+    expected = io.StringIO()
+    lines = csv.writer(expected, lineterminator="\n")
+    numbers = [0.25, 0.75, -0.0, 1e-320, 2.5, np.nan, 123456789012.0, 3.0]
+    lines.writerow([format_cell(v) for v in [7, 1583752474.5, 'fan, "off"', *numbers, 1, 'fan, "off"', 0.5, np.inf]])
+    lines.writerow([format_cell(v) for v in [7, np.nan, 'fan, "off"', *numbers, 0, "", "", ""]])
+    assert out.getvalue().split("\n", 1)[1] == expected.getvalue()

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..data import CsvWriter, format_numbers, open_source, open_target
+from ..data import CsvWriter, csv_cell, joined_numbers, open_source, open_target
 from ..errors import DataError
 from ..model import Model
 from ..names import plural
@@ -48,20 +48,23 @@ class TableWriter:
             stream.write(f"# {SMOOTHED}: p_<mode>, <state>_mean given {given(lag)}; <output>_pred, "
                          "<output>_resid: one-step predictions of the filter\n")
         self._writer = CsvWriter(stream, columns(model, with_time, with_alarm, explain), flush)
+        self._modes = [csv_cell(mode) for mode in model.modes]  # each mode's cell, quoted once
 
     def write(self, step: Step, time: float | None = None, alarm: int | None = None, evidence=None):
         """One row: a filter step and, when the table has those columns, the data row's time, the alarm
-        and the evidence (a jmlgdsl.diagnosis.evidence.Evidence, or None)."""
-        numbers = np.concatenate([step.mode_posterior, step.state_mean, step.y_pred, step.residual, [step.ess]])
-        self._writer.write([step.t] + ([time] if self.with_time else []) + [self.model.modes[step.map_mode]]
-                           + format_numbers(numbers) + ([alarm] if self.with_alarm else [])
-                           + (self._evidence(evidence) if self.explain else []))
+        and the evidence (a jmlgdsl.diagnosis.evidence.Evidence, or None). Its numbers are formatted in
+        one pass before the mode's name and one after."""
+        first = joined_numbers([step.t, time] if self.with_time else [step.t])
+        rest = joined_numbers([*step.mode_posterior.tolist(), *step.state_mean.tolist(), *step.y_pred.tolist(),
+                               *step.residual.tolist(), float(step.ess)] + ([alarm] if self.with_alarm else []))
+        line = f"{first},{self._modes[step.map_mode]},{rest}"
+        self._writer.write_line(f"{line},{self._evidence(evidence)}" if self.explain else line)
 
-    def _evidence(self, evidence) -> list:
+    def _evidence(self, evidence) -> str:
         """The evidence cells: the mode's name and each output's evidence (all empty without evidence)."""
         if evidence is None:
-            return [""] * (1 + self.model.ny)
-        return [self.model.modes[evidence.mode]] + format_numbers(evidence.terms)
+            return "," * self.model.ny
+        return f"{self._modes[evidence.mode]},{joined_numbers(np.asarray(evidence.terms, float).ravel().tolist())}"
 
 
 def write_result(path, result: Result, time=None, alarm=None):
