@@ -5,7 +5,8 @@ process that resumes).
 What is saved is a tree of numbers, strings, None, lists, tuples, dicts, sets, deques, slices,
 bytes, numeric numpy arrays and scalars, numpy random generators (their bit generator's state) and
 records of the classes and functions the caller names in `kinds`: a record is its class's name and
-its fields, put back with `object.__new__` and the fields set, so no constructor, `__setstate__` or
+its fields (each as its attribute reads, so a class may make a field's value only when it is read),
+put back with `object.__new__` and the fields set, so no constructor, `__setstate__` or
 import of a name the bytes give is ever run. Objects met twice are saved once and come back shared
 (a filter's generator, its resampler's and its engine's are one). Objects named in `given` (the
 model a diagnosis runs on) are left out and given back by the reader.
@@ -161,7 +162,8 @@ class _Writer:
                 raise SealedError(f"cannot save a generator of {type(bits).__name__}")
             return {"generator": type(bits).__name__, "state": self.node(bits.state)}
         slots = [s for c in kind.__mro__ for s in getattr(c, "__slots__", ()) if hasattr(value, s)]
-        fields = dict(vars(value)) if hasattr(value, "__dict__") else {}
+        # each field as its attribute reads (a class may hold a field's value lazily behind a property)
+        fields = {k: getattr(value, k) for k in list(vars(value))} if hasattr(value, "__dict__") else {}
         fields.update((s, getattr(value, s)) for s in slots)
         return {"record": self.kinds[kind], "fields": {k: self.node(v) for k, v in fields.items()}}
 

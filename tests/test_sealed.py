@@ -52,6 +52,27 @@ def test_what_is_sealed_comes_back_exactly_and_shared_as_it_was():
     assert np.array_equal(back["step"].residual, step.residual, equal_nan=True)
 
 
+class Lazy:
+    """A class that holds a field's value lazily: its property of the field's name makes it when read."""
+
+    def __init__(self):
+        vars(self)["made"] = None  # not made yet
+
+    @property
+    def made(self):
+        held = vars(self)
+        if held["made"] is None:
+            held["made"] = np.arange(3.0)
+        return held["made"]
+
+
+def test_a_field_is_saved_as_its_attribute_reads():
+    """A record's fields are read through its attributes, so one a property makes when read is saved
+    made, and comes back as a plain field."""
+    back = unseal(seal(Lazy(), {}, (Lazy,)), (Lazy,))
+    assert type(back) is Lazy and np.array_equal(vars(back)["made"], [0.0, 1.0, 2.0])
+
+
 @pytest.mark.parametrize("value", [lambda: None, np.array([object()]), Record(), open])
 def test_what_it_cannot_hold_is_refused_when_saving(value):
     with pytest.raises(SealedError, match="^cannot save"):

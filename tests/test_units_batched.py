@@ -11,10 +11,13 @@ import numpy as np
 import pytest
 
 import jmlgdsl
+from jmlgdsl import sealed
 from jmlgdsl.cli import main
+from jmlgdsl.diagnosis.pipeline import SAVED_KINDS
 from jmlgdsl.errors import DataError
 from jmlgdsl.infer import ALGORITHMS, Filter, FilterError, kalman
 from jmlgdsl.infer.rbpf import Exact, RaoBlackwellised
+from jmlgdsl.infer.result import Predictive
 from jmlgdsl.infer.units import Units, _groups, filter_units
 from jmlgdsl.simulation.linear import simulate
 
@@ -336,7 +339,8 @@ def test_engines_stepped_together_give_their_estimates_as_rows_each_as_alone(dry
     fleet makes its records from them, without a Step each): row i is, bit for bit, what engine i
     gets stepped alone, through missing readings and a gross error its gate leaves out (that engine's
     step redone alone, the others' together), and each engine goes on as alone, its step's
-    Predictive and Genealogy as its own step makes them."""
+    Predictive and Genealogy as its own step makes them, and so saved before they are read (a
+    group's engine makes them when they are read)."""
     ys, us = fleet_data(dryer, 4, 40, seed=5)
     together = [Filter(dryer, algorithm, particles, seed=s).engine for s in range(4)]
     alone = [Filter(dryer, algorithm, particles, seed=s).engine for s in range(4)]
@@ -365,10 +369,14 @@ def test_engines_stepped_together_give_their_estimates_as_rows_each_as_alone(dry
                     expected = getattr(est, field)
                     assert np.array_equal(getattr(rows, field)[j], np.zeros(1, bool) if expected is None else expected)
                 screened += est.rejected is not None
+        kinds = (*SAVED_KINDS, Predictive)
         for a, b in zip(together, alone):
             assert np.array_equal(a.z, b.z) and np.array_equal(a.logw, b.logw)
             assert a.rng.bit_generator.state == b.rng.bit_generator.state
+            saved = sealed.unseal(sealed.seal(a, {}, kinds, {"model": dryer}), kinds, {"model": dryer})
             for name in ("predictive", "genealogy"):  # what evidence and smoothing read of the step
-                mine, its = getattr(a, name), getattr(b, name)
+                mine, its = vars(saved)[name], getattr(b, name)
+                assert type(mine) is type(its) and all(np.array_equal(x, y, equal_nan=True) for x, y in zip(mine, its))
+                mine = getattr(a, name)
                 assert type(mine) is type(its) and all(np.array_equal(x, y, equal_nan=True) for x, y in zip(mine, its))
     assert screened > 0

@@ -18,6 +18,7 @@ mode histories, not with N.
 from __future__ import annotations
 
 from itertools import repeat
+from typing import NamedTuple
 
 import numpy as np
 
@@ -110,6 +111,33 @@ class RaoBlackwellised:
         self.node = self.reps.pick(self.graph, self.graph.children(rows, self.node[parent[chosen]], self.z))
         self.tidy()
         return size
+
+    @property
+    def predictive(self) -> Predictive:
+        """The last step's Predictive (`Predictive`); an engine stepped with a group holds its row of the
+        group's step instead, made into its own Predictive here when first read."""
+        return self._made("predictive")
+
+    @predictive.setter
+    def predictive(self, value):
+        vars(self)["predictive"] = value
+
+    @property
+    def genealogy(self) -> Genealogy:
+        """The last step's Genealogy, as `predictive` keeps it."""
+        return self._made("genealogy")
+
+    @genealogy.setter
+    def genealogy(self, value):
+        vars(self)["genealogy"] = value
+
+    def _made(self, name):
+        held = vars(self)
+        if name not in held:
+            raise AttributeError(f"{type(self).__name__} has no {name} before its first step")
+        if type(held[name]) is StepRow:
+            held[name] = getattr(held[name], name)()
+        return held[name]
 
     def tidy(self):
         """Keep the nodes in bounds after a step: forget the classes the particles left, as a graph of
@@ -281,15 +309,48 @@ def advance_together(engines, rows, nodes, parent, mode, pairs, log_prior, r, Li
         ends = np.cumsum(held)
         spans = [slice(*span) for span in zip((ends - held).tolist(), ends.tolist())]
         each = [list(map(a.__getitem__, spans)) for a in (kept, z, mu, logw, copies, node)]
-    ps, ms = (repeat(parent), repeat(mode)) if pairs else (parent, mode)
-    # the engines' new state, made in passes over the engines (no Python step of ours per engine)
-    states = zip(map(Predictive, ms, log_prior, r, Linv, repeat(mask)), map(Genealogy, ps, ms, q, each[0]), *each[1:])
-    for e, state in zip(engines, states):
-        e.predictive, e.genealogy, e.z, e.mu, e.logw, e.copies, e.node = state
+    # the engines' new state, made in passes over the engines (no Python step of ours per engine); each
+    # engine's Predictive and Genealogy are its row of the group's step, made when first read
+    step = GroupStep(parent, mode, pairs, log_prior, r, Linv, mask, q, each[0])
+    for e, row, state in zip(engines, map(StepRow, repeat(step), range(g)), zip(*each[1:])):
+        fields = vars(e)
+        fields["predictive"] = fields["genealogy"] = row
+        e.z, e.mu, e.logw, e.copies, e.node = state
     if tidy:
         for e in engines:
             e.tidy()
     return sizes
+
+
+class GroupStep(NamedTuple):
+    """What engines stepped together weighed and kept at their step (`advance_together`'s arguments,
+    `kept` each engine's chosen candidates), from which each engine's Predictive and Genealogy are
+    made when read: row i, engine i's, is what its own step would have kept."""
+
+    parent: np.ndarray
+    mode: np.ndarray
+    pairs: bool  # parent and mode (J,) serve every engine; else one row each
+    log_prior: np.ndarray
+    r: np.ndarray
+    Linv: np.ndarray
+    mask: np.ndarray
+    q: np.ndarray
+    kept: object  # each engine's chosen candidates: an array a row, or a list of arrays
+
+
+class StepRow(NamedTuple):
+    """An engine's row of its group's step, held in place of its Predictive and Genealogy until read."""
+
+    step: GroupStep
+    i: int
+
+    def predictive(self) -> Predictive:
+        s, i = self
+        return Predictive(s.mode if s.pairs else s.mode[i], s.log_prior[i], s.r[i], s.Linv[i], s.mask)
+
+    def genealogy(self) -> Genealogy:
+        s, i = self
+        return Genealogy(*((s.parent, s.mode) if s.pairs else (s.parent[i], s.mode[i])), s.q[i], s.kept[i])
 
 
 def share(engines):
