@@ -686,12 +686,6 @@ def format_cell(value) -> str:
     return "" if math.isnan(value) else f"{value:.10g}"
 
 
-def format_numbers(values) -> list[str]:
-    """The cells `format_cell` makes of an array of numbers, in one pass over Python floats (a
-    table's rows are most of what `run` on many files writes)."""
-    return ["" if value != value else f"{value:.10g}" for value in np.asarray(values, dtype=float).ravel().tolist()]
-
-
 def joined_numbers(values: list) -> str:
     """The cells `format_cell` makes of a list of numbers (Python's own), joined by commas: formatted in
     one call of one format, each NaN's 'nan' (no number's cell holds those letters) then emptied."""

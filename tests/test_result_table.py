@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 import jmlgdsl
 from jmlgdsl.cli import main
-from jmlgdsl.data import format_cell, format_numbers, joined_numbers, read_csv, write_columns
+from jmlgdsl.data import format_cell, joined_numbers, read_csv, write_columns
 from jmlgdsl.diagnosis.evidence import Evidence
 from jmlgdsl.infer.result import Step
 from jmlgdsl.infer.table import TableWriter, read_table, write_result
@@ -50,14 +50,6 @@ def test_a_result_table_that_fails_part_way_is_not_written(tmp_path):
     with pytest.raises(IndexError):
         write_result(out, result, time=np.arange(10.0))  # the times end at row 10 of 20
     assert out.read_text() == "the old table\n" and [p.name for p in tmp_path.iterdir()] == ["result.csv"]
-
-
-@given(st.lists(st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.integers(-10**12, 10**12)),
-                max_size=20))
-def test_a_rows_numbers_are_formatted_in_one_pass_as_cell_by_cell(values):
-    """The result table formats a row's numbers in one pass (format_numbers); every cell is what
-    format_cell makes of the number: 10 significant digits, NaN an empty cell."""
-    assert format_numbers(np.array(values, dtype=float)) == [format_cell(float(v)) for v in values]
 
 
 @given(st.lists(st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.integers(-10**12, 10**12)),
