@@ -240,6 +240,13 @@ def systematic_rows(w, n, offsets):
     return np.array([c.searchsorted(p, side="right") for c, p in zip(*flat)]).reshape(points.shape)
 
 
+def resampling(threshold, n, size, held):
+    """Whether particles of ESS `size` and `held` copies in all are resampled by a resampler of
+    `threshold` keeping n (`Resampler.resamples`); element by element over arrays (many units at once):
+    always at a threshold of 1 or more, else below threshold * n or when the copies are not n."""
+    return (threshold >= 1.0) | (size < threshold * n) | (held != n)
+
+
 class Resampler:
     """The resampling policy of a particle filter: a scheme, a target count and an ESS threshold.
 
@@ -257,7 +264,7 @@ class Resampler:
 
     def resamples(self, size, copies) -> bool:
         """Whether particles of this ESS and copy counts are resampled."""
-        return self.threshold >= 1.0 or size < self.threshold * self.n or copies.sum() != self.n
+        return bool(resampling(self.threshold, self.n, size, copies.sum()))
 
     def __call__(self, w, copies=None):
         """(ancestor indices, their new log-weights, ESS) for normalised weights w."""

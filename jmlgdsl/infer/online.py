@@ -113,10 +113,7 @@ class Filter:
         t = self.t + 1
         if not (math.isfinite(est.loglik) and np.isfinite(est.state_cov).all()):
             raise _overflow(t, est)
-        if est.flagged is not None or self._watching:
-            self._count_flagged(est.flagged)
-        self.t = t
-        self.loglik += est.loglik
+        self._counted(est.loglik, est.flagged)
         record = Step(t, est.mode_posterior, est.state_mean, est.state_cov, est.y_pred, y - est.y_pred,
                       est.loglik, est.ess, est.rejected)
         return record if self._smoother is None else self._hold(record, u)
@@ -129,10 +126,15 @@ class Filter:
         (as arrays, without a Step each)."""
         flagged = est.flagged.any(axis=1).tolist()
         for f, loglik, found, row in zip(filters, est.loglik.tolist(), flagged, est.flagged):
-            if found or f._watching:
-                f._count_flagged(row if found else None)
-            f.t += 1
-            f.loglik += loglik
+            f._counted(loglik, row if found else None)
+
+    def _counted(self, loglik, flagged):
+        """A step counted: the clock, the log-likelihood and the gate counts (flagged: the readings
+        beyond the gate (ny,), None when none were)."""
+        if flagged is not None or self._watching:
+            self._count_flagged(flagged)
+        self.t += 1
+        self.loglik += loglik
 
     def _hold(self, record, u):
         """Keep the new record back; give out the oldest one, smoothed, once `lag` rows follow it."""

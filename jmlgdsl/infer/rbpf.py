@@ -25,7 +25,7 @@ import numpy as np
 from .covariances import CovarianceGraph, Representatives
 from . import kalman
 from .engine import (OPEN, Estimate, Estimates, FilterError, Gate, Genealogy, Resampler, joined, mixture_moments,
-                     offsets, rows_drawn, sample_rows, screen, systematic_rows)
+                     offsets, resampling, rows_drawn, sample_rows, screen, systematic_rows)
 from .resample import ess, fearnhead_clifford, normalize, normalize_rows, systematic
 from .result import Predictive
 
@@ -504,7 +504,7 @@ class LookAheadRBPF(RaoBlackwellised):
         resamplers = [e.resampler for e in engines]
         threshold, n = (np.array([getattr(r, name) for r in resamplers]) for name in ("threshold", "n"))
         going = np.flatnonzero(np.array([r.scheme is systematic for r in resamplers])
-                               & ((threshold >= 1.0) | (size < threshold * n) | (copies.sum(axis=1) != n)))
+                               & resampling(threshold, n, size, copies.sum(axis=1)))
         if not len(going):
             return None
         n = int(n[going[0]])
