@@ -1,4 +1,5 @@
-"""Interacting multiple models: one Kalman filter per mode, mixed through the transition matrix.
+"""Interacting multiple models: one Kalman filter per mode, mixed through the transition matrix;
+and MMAE, the same filters never mixed.
 
 The classical deterministic baseline: K Kalman steps per time step, no sampling, but biased because
 the mixture over histories is collapsed to one Gaussian per mode at every step.
@@ -28,10 +29,10 @@ LOG_FLOOR = np.finfo(float).min  # below every finite log-probability
 SURE = 1e-12
 
 
-def mix(log_mu, logP, means, covs):
-    """The mixing of one step, from mode log-probabilities log_mu (..., K) and per-mode moments means
-    (..., K, nx) and covs (..., K, nx, nx): (log_pred, mixed means, mixed covariances), where
-    log_pred[j] = log p(z_t = j | y_1:t-1) and mode j starts from sum_i p(z_t-1 = i | z_t = j) N_i."""
+def transition(log_mu, logP):
+    """The modes' step through the transition matrix, from mode log-probabilities log_mu (..., K):
+    (log_pred, mix_t) with log_pred[j] = log p(z_t = j | y_1:t-1) and mix_t[j, i] = p(z_t-1 = i |
+    z_t = j, y_1:t-1)."""
     joint = log_mu[..., :, None] + logP  # (i, j): log p(z_t-1 = i, z_t = j | y_1:t-1)
     # the log-sum over i, shifted by the largest term: a mode that cannot be reached (every term
     # -inf) has its shift floored to a finite number, so its terms are 0, their total 0 and log_pred
@@ -41,8 +42,14 @@ def mix(log_mu, logP, means, covs):
     total = np.add.reduce(w, axis=-2)  # along i, one term after the other (not the innermost axis)
     with np.errstate(divide="ignore"):
         log_pred = top + np.log(total)
-    # mix[j, i] = p(z_t-1 = i | z_t = j, y_1:t-1)
-    mix_t = np.swapaxes(w / np.maximum(total, 1.0)[..., None, :], -1, -2)
+    return log_pred, np.swapaxes(w / np.maximum(total, 1.0)[..., None, :], -1, -2)
+
+
+def mix(log_mu, logP, means, covs):
+    """The mixing of one step, from mode log-probabilities log_mu (..., K) and per-mode moments means
+    (..., K, nx) and covs (..., K, nx, nx): (log_pred, mixed means, mixed covariances), where
+    log_pred is `transition`'s and mode j starts from sum_i p(z_t-1 = i | z_t = j) N_i."""
+    log_pred, mix_t = transition(log_mu, logP)
     mixed = mix_t @ means
     # deviations d[j, :, i] of each mode's mean from mode j's mixed mean, the previous mode innermost
     # (a broadcast with an inner axis of nx runs 3 times slower at nx = 3)
@@ -101,6 +108,16 @@ def refresh(model, C, covs, mask, kept, reusable):
     return pieces, (base, pieces, tol)
 
 
+def within_closest(gate, mask, r, quad, Linv) -> bool:
+    """Whether every reading is within the gate under the mode whose prediction is closest (the
+    smallest squared distance quad): then none is beyond it under every mode, and `screen` would flag
+    nothing. One mode's standard deviations where the closer look takes every mode's: on a bank of
+    many modes over many outputs, a fault puts most modes' predictions beyond the gate's bound while
+    the mode that fits stays within."""
+    j = np.argmin(quad)
+    return not (np.abs(r[j]) > gate.limit[mask] * kalman.standard_deviations(Linv[j])).any()
+
+
 def moments(post, means, covs):
     """The mixture's mean and covariance over the modes: posterior post (..., K), per-mode moments."""
     lead, (K, nx) = covs.shape[:-3], covs.shape[-3:-1]
@@ -130,14 +147,24 @@ class IMM:
         self._kept = mask.copy(), kept
         return pieces
 
+    def _mixed(self):
+        """(log_pred, each mode's starting mean and covariance) of the next step: the mixing."""
+        return mix(self.log_mu, self.model.logP, self.means, self.covs)
+
+    def _repeatable(self, post) -> bool:
+        """Whether the next step's starting covariances may repeat this step's (then its pieces are
+        compared with the kept ones): only after a posterior on one mode, as the spread of the
+        modes' means enters the mixing otherwise."""
+        return post.max() >= 1.0 - SURE
+
     def step(self, y, mask, u, gate=OPEN) -> Estimate:
         model = self.model
-        log_pred, mixed, covs = mix(self.log_mu, model.logP, self.means, self.covs)
+        log_pred, mixed, covs = self._mixed()
         Linv, logdet, gain_t, covs = self._pieces(covs, mask)
         mu_p, y_pred = predict(model, self._C, mixed, u)
         r, quad = whitened(y, mask, y_pred, Linv)
         flagged = None
-        if gate.closer_look(quad):
+        if gate.closer_look(quad) and not within_closest(gate, mask, r, quad, Linv):
             screened, flagged = screen(self, y, mask, u, gate, r, kalman.standard_deviations(Linv))
             if screened is not None:
                 return screened
@@ -145,7 +172,27 @@ class IMM:
         means = mu_p + (r[..., None, :] @ gain_t)[..., 0, :]
         post, loglik = normalize(log_pred + kalman.log_density(quad, logdet, r.shape[-1]))
         self.log_mu = np.log(post, out=np.full_like(post, -np.inf), where=post > 0)
-        self._sure = post.max() >= 1.0 - SURE
+        self._sure = self._repeatable(post)
         self.means, self.covs = means, covs
         mean, cov = moments(post, means, covs)
         return Estimate(post, mean, cov, np.exp(log_pred) @ y_pred, loglik, np.nan, flagged=flagged)
+
+
+class MMAE(IMM):
+    """Multiple-model adaptive estimation: IMM's Kalman filter per mode, each started at a step from
+    its own last moments, never mixed with the others; the mode posterior still goes through the
+    transition matrix, from the filters' one-step likelihoods.
+
+    Its covariances never see the data nor the posterior, so they settle (to kalman.tolerance) after
+    a few steps whatever the posterior does, and a step then costs the means: no O(K nx^3) work. IMM's
+    mixing repeats its covariances only while the posterior is sure of one mode, and a namer of
+    many fault modes over many states is seldom that (18 modes over 52 states: 25 times the time a
+    step). Where every mode's filter follows the outputs closely (outputs read almost exactly, as in
+    learned banks) the mixing moves little, and the two name the same modes; where a mode's state is
+    hidden, its filter drifts with its own model instead of being pulled back to the others'."""
+
+    def _mixed(self):
+        return transition(self.log_mu, self.model.logP)[0], self.means, self.covs
+
+    def _repeatable(self, post) -> bool:
+        return True
