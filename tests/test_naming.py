@@ -164,7 +164,7 @@ def test_the_namer_follows_the_rows_around_alarms_only_and_starts_from_the_rows_
     expected = np.full(len(y), -1)
     namer = naming.namer
     for a, b in spans:
-        alone = jmlgdsl.filter(namer, y[a:b], np.empty((b - a, 0))).mode_posterior.argmax(axis=1)
+        alone = jmlgdsl.filter(namer, y[a:b], np.empty((b - a, 0)), algorithm="mmae").mode_posterior.argmax(axis=1)
         expected[a:b] = np.where(alarm[a:b], alone, -1)
     assert naming.named == expected.tolist()
     assert (expected[alarm] == namer.modes.index("bias")).mean() > 0.9

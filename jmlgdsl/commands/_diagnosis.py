@@ -49,7 +49,8 @@ def add_split_options(p):
                             "--prefilter or --explain; otherwise the whole bank")
     split.add_argument("--name", metavar="MODE,MODE[,...]", type=names,
                        help="while the alarm is up, name each row by the most probable of these modes (the "
-                            "fault modes, filtered on their own; default: the modes outside --detect). With the "
+                            "fault modes, filtered on their own by Kalman filters that never mix, --filter mmae, "
+                            "whatever --filter the detector has; default: the modes outside --detect). With the "
                             "true mode in the data the summary adds, per fault, the share of its rows named right "
                             "and the confusion among the faults")
 

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import DataError
+from ..infer.algorithms import NAMER_ALGORITHM
 from ..names import suggest
 
 
@@ -157,9 +158,9 @@ class DetectThenName:
     passes the rows on to the detector's Diagnosis, its truth as a 0/1 anomaly (true mode not
     healthy), and keeps each row's true mode for the naming scores; the object is then a sink of that
     Diagnosis: `collect` steps the namer's Filter on each finished row it follows and names the row
-    when its alarm is up. The namer's Filter is one of `options` (jmlgdsl.diagnosis.Options), without
-    a lag; their healthy modes are the rule's (None: the first mode). `steps` and `seconds` count the
-    namer's work.
+    when its alarm is up. The detector's Filter is the one `options` (jmlgdsl.diagnosis.Options) say;
+    the namer's is NAMER_ALGORITHM, without a lag. The healthy modes are the rule's (None: the first
+    mode). `steps` and `seconds` count the namer's work.
     """
 
     def __init__(self, model, detect, name, options):
@@ -180,7 +181,7 @@ class DetectThenName:
         self.faults = np.array([self.namer.modes.index(m) if m in self.namer.modes else -1
                                 for m in model.modes])  # the whole bank's mode index -> fault index (-1: none)
         self.healthy = np.array([m in healthy for m in model.modes])
-        self.options = dataclasses.replace(options, lag=0)
+        self.options = dataclasses.replace(options, algorithm=NAMER_ALGORITHM, particles=None, lag=0)
         self.filter = None  # the namer's Filter while it follows the rows
         self._recent = deque(maxlen=WARM_UP)  # the last rows (y, u), to start the namer from
         self._quiet = 0  # rows since the alarm was last up
