@@ -570,7 +570,8 @@ class LookAheadRBPF(RaoBlackwellised):
         for i, row in zip(going.tolist(), draws):
             engines[i].rng.random(out=row)
         ancestors = systematic_rows(w[going], n, draws[:, 0])
-        return going, ancestors * K + rows_drawn(q[going][np.arange(len(going))[:, None], ancestors], draws[:, 1:]), size
+        q = q if len(going) == g else q[going]
+        return going, ancestors * K + rows_drawn(q[np.arange(len(going))[:, None], ancestors], draws[:, 1:]), size
 
 
 class FearnheadCliffordRBPF(RaoBlackwellised):
