@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from jmlgdsl.infer import FilterError
-from jmlgdsl.infer.engine import Resampler, cdf_drawn, rows_drawn, sample_rows, systematic_rows
+from jmlgdsl.infer.engine import Resampler, cdf_drawn, cumulated, rows_drawn, sample_rows, systematic_rows
 from jmlgdsl.infer.resample import SCHEMES, ess, fearnhead_clifford, normalize
 
 W = np.array([0.005, 0.3, 0.0, 0.12, 0.375, 0.2])
@@ -115,7 +115,8 @@ def test_sample_rows_never_draws_a_zero_probability_category():
     assert set(draws) == {1, 3}
 
 
-@pytest.mark.parametrize("rows, J, n", [(6, 10, 10), (5, 200, 200)])  # every comparison at once; a search a row
+@pytest.mark.parametrize("rows, J, n", [(6, 10, 10), (5, 200, 200), (1200, 3, 10)])  # every comparison at once; a
+# search a row; the weights of many rows cumulated column by column
 def test_systematic_rows_resample_each_row_as_the_scheme_alone(rows, J, n):
     rng = np.random.default_rng(J)
     w = rng.random((rows, J)) ** 6
@@ -129,6 +130,15 @@ def test_systematic_rows_resample_each_row_as_the_scheme_alone(rows, J, n):
 
     alone = [SCHEMES["systematic"](row, n, Drawn(offset)) for row, offset in zip(w, offsets)]
     assert np.array_equal(systematic_rows(w, n, offsets), np.array(alone))
+
+
+@pytest.mark.parametrize("shape", [(2, 1500, 4), (3000, 2), (50, 4), (2000, 12)])  # many short rows column by column
+def test_cumulated_rows_are_numpys_cumulative_sums_bit_for_bit(shape):
+    rng = np.random.default_rng(len(shape))
+    a = rng.random(shape) * 10.0 ** rng.integers(-8, 8, shape)  # magnitudes far apart: every sum rounds
+    a = a[..., ::-1]  # a view, as callers may give
+    assert np.array_equal(cumulated(a), a.cumsum(axis=-1))
+    assert not np.shares_memory(cumulated(a), a)
 
 
 @pytest.mark.parametrize("K, rows", [(4, 2000), (4, 50), (12, 2000)])  # many short rows column by column

@@ -210,7 +210,20 @@ def sample_rows(probs, rng):
 def rows_drawn(probs, uniforms):
     """`sample_rows` with its uniforms on [0, 1) given, one per row of probs (..., M, K): the same
     draws row by row over any leading axes (many units' particles, each with its own numbers)."""
-    return cdf_drawn(probs.cumsum(axis=-1), uniforms)
+    return cdf_drawn(cumulated(probs), uniforms)
+
+
+def cumulated(a) -> np.ndarray:
+    """a.cumsum(axis=-1), bit for bit (each sum the one before it plus the next entry), in one call
+    per column where a has many short rows: numpy accumulates row by row, its cost per row the most
+    of its time at thousands of rows of a few (a fleet's particles, each row its modes)."""
+    K = a.shape[-1]
+    if K > 8 or a.size < 1000 * K:
+        return a.cumsum(axis=-1)
+    out = a.copy()
+    for k in range(1, K):
+        np.add(out[..., k - 1], out[..., k], out=out[..., k])
+    return out
 
 
 def cdf_drawn(cdf, uniforms):
@@ -230,7 +243,7 @@ def cdf_drawn(cdf, uniforms):
 def systematic_rows(w, n, offsets):
     """Systematic resampling (`resample.systematic`) of n draws from each row of normalised weights w
     (..., J) with its uniform offset on [0, 1): the ancestors (..., n), as the scheme gives them row by row."""
-    cdf = w.cumsum(axis=-1)
+    cdf = cumulated(w)
     cdf[..., -1] = 1.0  # as resample._inverse_cdf
     points = systematic_points(n) + offsets[..., None] / n
     if cdf.shape[-1] * n <= 1024:  # a few particles: every comparison at once

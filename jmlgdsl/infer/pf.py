@@ -23,6 +23,12 @@ class BootstrapPF:
         self.logw = np.full(particles, -np.log(particles))
         self._noise = {}  # observation mask -> (inverse Cholesky factors of R per mode, log-determinants)
 
+    @property
+    def particles_held(self) -> int:
+        """How many particles the engine holds (as `RaoBlackwellised.particles_held`, whose particles
+        merge into copies)."""
+        return len(self.z)
+
     def _measurement_noise(self, mask):
         key = mask.tobytes()
         if key not in self._noise:

@@ -30,6 +30,28 @@ from .resample import ess, fearnhead_clifford, normalize, normalize_rows, system
 from .result import Predictive
 
 
+class Particles:
+    """An engine's array of its particles' modes (z), means (mu), log-weights (logw), copy counts
+    (copies) or covariance nodes (node), an attribute held as any other. An engine stepped with a
+    group holds its row of the group's step (`StepRow`) in its place instead, so that a step writes
+    nothing a unit but that row: read, the array is its slice of the group's, not kept, so the row
+    stays and the group's next step takes the group's arrays as they are (`particles_together`)."""
+
+    def __set_name__(self, owner, name):
+        self.name = name
+
+    def __get__(self, engine, owner=None):
+        if engine is None:
+            return self
+        held = vars(engine).get(self.name, self)
+        if held is self:
+            raise AttributeError(f"{type(engine).__name__} has no {self.name} yet")
+        return held.particles(self.name) if type(held) is StepRow else held
+
+    def __set__(self, engine, value):
+        vars(engine)[self.name] = value
+
+
 class RaoBlackwellised:
     """Shared state and step of the Rao-Blackwellised filters; subclasses choose candidates and selection.
 
@@ -37,6 +59,7 @@ class RaoBlackwellised:
     resampling policy."""
 
     spare_nodes = 4096  # the covariance graph is compacted when it outgrows 4 nodes a particle + this
+    z, mu, logw, copies, node = Particles(), Particles(), Particles(), Particles(), Particles()
 
     def __init__(self, model, particles=None, rng=None, resampler: Resampler | None = None):
         self.model, self.n, self.rng, self.resampler = model, particles, rng, resampler
@@ -87,8 +110,9 @@ class RaoBlackwellised:
         raise NotImplementedError
 
     @staticmethod
-    def select_together(engines, q):
-        """`select` of engines of this algorithm side by side, from their weights q (g, J): None when
+    def select_together(engines, q, copies):
+        """`select` of engines of this algorithm side by side, from their weights q (g, J) and their
+        particles' copy counts (g, n): None when
         each selects on its own (always, here), else (the positions of the engines it served, which
         resampled to equal weights, their chosen candidates a row each, every engine's ESS (g,));
         the others select on their own."""
@@ -130,6 +154,12 @@ class RaoBlackwellised:
     @genealogy.setter
     def genealogy(self, value):
         vars(self)["genealogy"] = value
+
+    @property
+    def particles_held(self) -> int:
+        """How many (distinct) particles the engine holds, len(z), without making its arrays."""
+        held = vars(self)["z"]
+        return held.step.held[held.i] if type(held) is StepRow else len(held)
 
     def _made(self, name):
         held = vars(self)
@@ -201,7 +231,7 @@ def step_together(engines, y, mask, u, gates) -> Estimates:
     The engines share one covariance graph (`share`)."""
     first = engines[0]
     model, K, nx, ny = first.model, first.K, first.nx, first.ny
-    n, g = len(first.z), len(engines)
+    n, g = first.particles_held, len(engines)
     rows = first.graph.rows(mask)
     parent_all, mode_all, log_prop_all = type(first).candidates_together(engines)
     pairs = log_prop_all is None  # the candidates are every (particle, mode) pair, the same for all
@@ -210,8 +240,7 @@ def step_together(engines, y, mask, u, gates) -> Estimates:
         """The prior, predictions and Kalman pieces of the candidates of the engines at `chosen`, as
         views laid out as in each engine's own step (a matrix product's order of sums follows them)."""
         es, g = [engines[i] for i in chosen], len(chosen)
-        z, logw, node = (joined([getattr(e, name) for e in es]) for name in ("z", "logw", "node"))
-        mu = joined([e.mu for e in es]).reshape(g, n, nx)
+        z, mu, logw, copies, node = particles_together(es)
         # units under the same inputs (the usual case) share their offsets, computed once
         offsets = (first._offsets(u[0])[None] if (u == u[0]).all() else
                    np.stack([e._offsets(u[i]) for i, e in zip(chosen, es)]))
@@ -233,10 +262,12 @@ def step_together(engines, y, mask, u, gates) -> Estimates:
         y_pred = cand[..., nx:]
         r = y[chosen][:, None, :] - y_pred if mask.all() else y[chosen][:, None, mask] - y_pred[..., mask]
         quad = kalman.quad_form((Linv @ r[..., None])[..., 0])
-        return parent, mode, prior, log_prior, quad, logdet, r, cand[..., :nx], y_pred, gain_t, Sig_f, Linv, pred, node
+        return (parent, mode, prior, log_prior, quad, logdet, r, cand[..., :nx], y_pred, gain_t, Sig_f, Linv, pred, node,
+                copies)
 
     kept = np.arange(g)
-    parent, mode, prior, log_prior, quad, logdet, r, mu_p, y_pred, gain_t, Sig_f, Linv, pred, node = weighed(kept)
+    (parent, mode, prior, log_prior, quad, logdet, r, mu_p, y_pred, gain_t, Sig_f, Linv, pred, node,
+     copies) = weighed(kept)
     screened, flagged = {}, np.zeros((g, ny), dtype=bool)
     for i in Gate.closer_looks(gates, quad):  # under every mode of every particle
         Linv_every = Linv[i] if pairs else rows.at(engines[i].node)[0]
@@ -250,15 +281,15 @@ def step_together(engines, y, mask, u, gates) -> Estimates:
     if screened:  # the engines whose step screening redid are done
         kept = np.array([i for i in range(g) if i not in screened], dtype=np.int64)
         if len(kept):
-            (parent, mode, prior, log_prior, quad, logdet, r, mu_p, y_pred, gain_t, Sig_f, Linv, pred,
-             node) = weighed(kept)
+            (parent, mode, prior, log_prior, quad, logdet, r, mu_p, y_pred, gain_t, Sig_f, Linv, pred, node,
+             copies) = weighed(kept)
     out = Estimates.empty(g, K, nx, ny)
     if len(kept):
         q, loglik, mu_f, mean, cov, posterior, yp = weigh(prior, log_prior, mode, K, quad, logdet, r, mu_p, y_pred,
                                                           gain_t, Sig_f)
         es = [engines[i] for i in kept.tolist()]
         sizes = advance_together(es, rows, node, parent, mode, pairs, log_prior, r, Linv, q, mu_f, mask,
-                                 type(first).select_together(es, q))
+                                 type(first).select_together(es, q, copies))
         if not screened:
             return Estimates(posterior, mean, cov, yp, loglik, np.array(sizes, dtype=float), out.rejected, flagged)
         out.put(kept, Estimates(posterior, mean, cov, yp, loglik, np.array(sizes, dtype=float), False, False))
@@ -276,7 +307,7 @@ def advance_together(engines, rows, nodes, parent, mode, pairs, log_prior, r, Li
     and their children are found in one call each, every engine's the same operations on its own
     numbers as alone; the ESS of each."""
     first = engines[0]
-    graph, K, g, J, n = first.graph, first.K, len(engines), q.shape[-1], len(first.z)
+    graph, K, g, J, n = first.graph, first.K, len(engines), q.shape[-1], nodes.shape[1]
     parents, modes = (np.broadcast_to(a, (g, J)).reshape(-1) for a in (parent, mode))  # every candidate's
     going, rows_chosen, size = selected if selected is not None else (np.empty(0, np.int64), None, None)
     if len(going) == g:  # every engine resampled to equal weights (the usual step): n chosen each
@@ -303,19 +334,13 @@ def advance_together(engines, rows, nodes, parent, mode, pairs, log_prior, r, Li
     # `tidy` is called only where it may act (an engine's classes, or a graph of its own, past its bound)
     bound = 4 * int(held.min()) + first.spare_nodes
     tidy = max(e.reps.held for e in engines) > bound or (not graph.shared and graph.size > bound)
-    if (held == held[0]).all():  # as many kept by each (the usual step): rows of (g, ...) arrays
-        each = [a.reshape((g, -1) + a.shape[1:]) for a in (kept, z, mu, logw, copies, node)]
-    else:  # each engine's slice, taken in one pass per array
-        ends = np.cumsum(held)
-        spans = [slice(*span) for span in zip((ends - held).tolist(), ends.tolist())]
-        each = [list(map(a.__getitem__, spans)) for a in (kept, z, mu, logw, copies, node)]
-    # the engines' new state, made in passes over the engines (no Python step of ours per engine); each
-    # engine's Predictive and Genealogy are its row of the group's step, made when first read
-    step = GroupStep(parent, mode, pairs, log_prior, r, Linv, mask, q, each[0])
-    for e, row, state in zip(engines, map(StepRow, repeat(step), range(g)), zip(*each[1:])):
-        fields = vars(e)
+    # the engines' new state: each holds its row of the group's step in place of its Predictive,
+    # Genealogy and particles, made when read (one pass over the engines, no Python step of ours each)
+    step = GroupStep(parent, mode, pairs, log_prior, r, Linv, mask, q, kept, z, mu, logw, copies, node,
+                     np.concatenate([[0], np.cumsum(held)]).tolist(), held.tolist())
+    for fields, row in zip(map(vars, engines), map(StepRow, repeat(step), range(g))):
         fields["predictive"] = fields["genealogy"] = row
-        e.z, e.mu, e.logw, e.copies, e.node = state
+        fields["z"] = fields["mu"] = fields["logw"] = fields["copies"] = fields["node"] = row
     if tidy:
         for e in engines:
             e.tidy()
@@ -323,9 +348,10 @@ def advance_together(engines, rows, nodes, parent, mode, pairs, log_prior, r, Li
 
 
 class GroupStep(NamedTuple):
-    """What engines stepped together weighed and kept at their step (`advance_together`'s arguments,
-    `kept` each engine's chosen candidates), from which each engine's Predictive and Genealogy are
-    made when read: row i, engine i's, is what its own step would have kept."""
+    """What engines stepped together weighed and kept at their step (`advance_together`'s arguments;
+    each engine's chosen candidates and new particles, one engine's after the other's), from which
+    each engine's Predictive, Genealogy and particles are made when read: row i, engine i's, is what
+    its own step would have kept."""
 
     parent: np.ndarray
     mode: np.ndarray
@@ -335,11 +361,19 @@ class GroupStep(NamedTuple):
     Linv: np.ndarray
     mask: np.ndarray
     q: np.ndarray
-    kept: object  # each engine's chosen candidates: an array a row, or a list of arrays
+    kept: np.ndarray  # the chosen candidates
+    z: np.ndarray  # the new particles' modes, means, log-weights, copy counts and nodes
+    mu: np.ndarray
+    logw: np.ndarray
+    copies: np.ndarray
+    node: np.ndarray
+    starts: list  # where each engine's particles start in them, and where the last engine's end
+    held: list  # how many particles each engine holds
 
 
 class StepRow(NamedTuple):
-    """An engine's row of its group's step, held in place of its Predictive and Genealogy until read."""
+    """An engine's row of its group's step, held in place of its Predictive, Genealogy and particles
+    until read."""
 
     step: GroupStep
     i: int
@@ -350,7 +384,32 @@ class StepRow(NamedTuple):
 
     def genealogy(self) -> Genealogy:
         s, i = self
-        return Genealogy(*((s.parent, s.mode) if s.pairs else (s.parent[i], s.mode[i])), s.q[i], s.kept[i])
+        return Genealogy(*((s.parent, s.mode) if s.pairs else (s.parent[i], s.mode[i])), s.q[i], self.particles("kept"))
+
+    def particles(self, name) -> np.ndarray:
+        """The engine's slice of the step's array `name` (kept, z, mu, logw, copies or node)."""
+        s, i = self
+        return getattr(s, name)[s.starts[i]:s.starts[i + 1]]
+
+
+def particles_together(engines) -> tuple:
+    """The particles of engines holding as many, side by side: (z, mu, logw, copies, node), each
+    (g, n) (mu (g, n, nx)), row i engine i's arrays as it reads them. Engines that hold their rows
+    of group steps (the usual case) give their steps' arrays indexed once; else their own arrays are
+    joined."""
+    held = list(map(vars, engines))
+    rows = [fields["z"] for fields in held]
+    names = ("z", "mu", "logw", "copies", "node")
+    if not all(type(row) is StepRow and fields["mu"] is fields["logw"] is fields["copies"] is fields["node"] is row
+               for row, fields in zip(rows, held)):
+        return tuple(joined(a).reshape((len(a),) + a[0].shape)
+                     for a in ([getattr(e, name) for e in engines] for name in names))
+    steps = list({id(row.step): row.step for row in rows}.values())
+    offset = dict(zip(map(id, steps), np.cumsum([0] + [len(s.z) for s in steps[:-1]]).tolist()))
+    start = np.fromiter((offset[id(s)] + s.starts[i] for s, i in rows), np.int64, len(rows))
+    at = start[:, None] + np.arange(rows[0].step.held[rows[0].i])  # each engine's particles
+    return tuple((getattr(steps[0], name) if len(steps) == 1 else
+                  np.concatenate([getattr(s, name) for s in steps]))[at] for name in names)
 
 
 def share(engines):
@@ -376,7 +435,7 @@ def share(engines):
             if e.graph is not graph:
                 e.join(graph)
         if graph.size > RaoBlackwellised.spare_nodes and graph.size > RaoBlackwellised.spare_nodes + 4 * sum(
-                len(e.node) for e in holders):
+                e.particles_held for e in holders):
             graph.compact(holders)
 
 
@@ -491,7 +550,7 @@ class LookAheadRBPF(RaoBlackwellised):
         return ancestors * K + sample_rows(q[ancestors], self.rng), logw, size
 
     @staticmethod
-    def select_together(engines, q):
+    def select_together(engines, q, copies):
         """`select` of the engines that resample this step with the systematic scheme, side by side:
         whether each resamples is decided for all at once as its `Resampler.resamples` decides it;
         each that does draws from its own Generator the numbers it would alone (one for the scheme,
@@ -499,7 +558,6 @@ class LookAheadRBPF(RaoBlackwellised):
         K, g = engines[0].K, len(engines)
         q = q.reshape(g, -1, K)
         w = q.sum(axis=-1)
-        copies = joined([e.copies for e in engines])
         size = 1.0 / (w[:, None, :] @ (w / copies)[:, :, None])[:, 0, 0]  # ess(w, copies), row by row
         resamplers = [e.resampler for e in engines]
         threshold, n = (np.array([getattr(r, name) for r in resamplers]) for name in ("threshold", "n"))
@@ -512,7 +570,8 @@ class LookAheadRBPF(RaoBlackwellised):
         for i, row in zip(going.tolist(), draws):
             engines[i].rng.random(out=row)
         ancestors = systematic_rows(w[going], n, draws[:, 0])
-        return going, ancestors * K + rows_drawn(q[going][np.arange(len(going))[:, None], ancestors], draws[:, 1:]), size
+        q = q if len(going) == g else q[going]
+        return going, ancestors * K + rows_drawn(q[np.arange(len(going))[:, None], ancestors], draws[:, 1:]), size
 
 
 class FearnheadCliffordRBPF(RaoBlackwellised):

@@ -454,7 +454,7 @@ def _together(filters, mask) -> tuple[list, list]:
     models = [f.model for f in filters]
     bank = (np.zeros(len(filters), np.int64) if models.count(models[0]) == len(models) else
             np.unique(np.array(list(map(id, models))), return_inverse=True)[1])
-    held = np.array([len(f.engine.z) for f in filters])
+    held = np.array([f.engine.particles_held for f in filters])
     # each unit's (bank, mask, particles) as one number, the groups in the order of their first units
     _, first, group = np.unique((bank * (which.max() + 1) + which) * (held.max() + 1) + held, return_index=True,
                                 return_inverse=True)
