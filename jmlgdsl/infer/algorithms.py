@@ -87,7 +87,7 @@ DEFAULT_ALGORITHM = "imm"
 # posterior does, so a step costs the means, where an IMM namer seldom sure of one fault pays the
 # full covariance step of every mode at every row. On the Tennessee Eastman bank's training
 # recordings (18 faults over 52 outputs) it names the faulty rows as IMM does (82.70 % against
-# 82.72 % right), at a quarter of the time a step.
+# 82.72 % right), at a ninth of the time a step.
 NAMER_ALGORITHM = "mmae"
 
 
