@@ -111,8 +111,15 @@ def _whitened_dynamics(base, Linv, A, C, mask):
 # training recordings its posteriors are within 4e-8 of those kept to kalman.tolerance, every row
 # named the same, at 0.34 ms a row against 0.86.
 DENSITIES_SETTLED = 1e-6
-DENSITIES = Gauge(_whitened_dynamics, lambda covs, base, bound: (
-    np.sqrt(np.einsum("...ij,...ij->...", covs - base, covs - base)) * bound <= DENSITIES_SETTLED))
+
+
+def _moves_densities_little(covs, base, bound):
+    """(..., K) True where covs moves from base by at most DENSITIES_SETTLED / bound (Frobenius)."""
+    change = covs - base
+    return np.sqrt(np.einsum("...ij,...ij->...", change, change)) * bound <= DENSITIES_SETTLED
+
+
+DENSITIES = Gauge(_whitened_dynamics, _moves_densities_little)
 
 
 def refresh(model, C, covs, mask, kept, reusable, gauge=ROUNDING):
