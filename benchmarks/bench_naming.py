@@ -28,7 +28,8 @@ Naming (per fault, the share of its faulty test rows whose most probable fault i
 VAR(1) by least squares with a covariance floor, each row named by its best one-step likelihood; the
 fault modes of `learn --relative-to none` (one EM fit per recording); and the fault modes learned
 relative to normal (`learn --relative-to normal`, what plain `learn` chooses here), both filtered
-by IMM over the fault modes alone, as `run` names them.
+over the fault modes alone by the filter `run` names them with (mmae: their Kalman filters never
+mixed).
 """
 
 from __future__ import annotations
@@ -46,6 +47,7 @@ import numpy as np  # noqa: E402
 
 from jmlgdsl.diagnosis.alarms import sub_bank  # noqa: E402
 from jmlgdsl.infer import filter as run_filter  # noqa: E402
+from jmlgdsl.infer.algorithms import NAMER_ALGORITHM  # noqa: E402
 from jmlgdsl.learn import learn  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -220,8 +222,9 @@ def log_odds(model, y: np.ndarray, healthy: str) -> np.ndarray:
 
 
 def fault_names(model, y: np.ndarray) -> np.ndarray:
-    """The most probable mode of every row by IMM on `model` (a bank of fault modes alone)."""
-    return np.array(model.modes)[run_filter(model, y).mode_posterior.argmax(axis=1)]
+    """The most probable mode of every row on `model` (a bank of fault modes alone) by the filter a
+    detect-then-name run names with."""
+    return np.array(model.modes)[run_filter(model, y, algorithm=NAMER_ALGORITHM).mode_posterior.argmax(axis=1)]
 
 
 def persisted(score: np.ndarray, k: int = PERSISTENCE) -> np.ndarray:
@@ -327,7 +330,7 @@ def main(argv=None):
     namers = {"VAR(1) per fault, best one-step likelihood": var.names_of,
               "the same, summed over 10 rows": lambda y: var.names_of(y, 10)}
     for label, model in banks.items():
-        namers[f"{label}: fault modes by IMM"] = (lambda m: lambda y: fault_names(m, y))(sub_bank(model, FAULTS))
+        namers[f"{label}: fault modes by mmae"] = (lambda m: lambda y: fault_names(m, y))(sub_bank(model, FAULTS))
     table = {}
     for key, (label, name) in zip(NAMER_KEYS, namers.items()):
         start = time.perf_counter()
