@@ -661,11 +661,16 @@ def _mode(cells, col, modes, where):
 def read_csv(path, model, outputs=True) -> Data:
     """Read a whole data file ('-' = standard input) into arrays bound to the names of `model`, a
     Model or the Columns to read by."""
-    model = Columns.of(model)
     with open_source(path) as stream:
-        rows = list(iter_rows(stream, model, stream.name, outputs))
+        return read_data(stream, model, stream.name, outputs)
+
+
+def read_data(stream, model, source: str, outputs=True) -> Data:
+    """`read_csv` of a data stream already open, named `source` in errors."""
+    model = Columns.of(model)
+    rows = list(iter_rows(stream, model, source, outputs))
     if not rows:
-        raise DataError(f"{stream.name}: no data rows")
+        raise DataError(f"{source}: no data rows")
 
     def labels(name):
         values = [getattr(r, name) for r in rows]
@@ -675,7 +680,7 @@ def read_csv(path, model, outputs=True) -> Data:
     return Data(time=labels("time"), y=np.array([r.y for r in rows]).reshape(len(rows), model.ny),
                 u=np.array([r.u for r in rows]).reshape(len(rows), model.nu),
                 modes=None if modes.count(None) == len(modes) else np.array([-1 if m is None else m for m in modes]),
-                source=stream.name, anomaly=labels("anomaly"), changepoint=labels("changepoint"))
+                source=source, anomaly=labels("anomaly"), changepoint=labels("changepoint"))
 
 
 def format_cell(value) -> str:
