@@ -293,7 +293,6 @@ def _diagnose_chunk(model: Model, paths: list, models: list, folder: str, tables
     return History(units, run.filter is not None, run.seconds)
 
 
-
 def _diagnose_together(model: Model, paths: list, models: list, folder: str, tables: bool,
                        options: Options) -> History:
     """`_diagnose_chunk` of files whose units one vectorised filter steps together (imm, no lag), with
@@ -308,23 +307,23 @@ def _diagnose_together(model: Model, paths: list, models: list, folder: str, tab
         with open_source(os.path.join(folder, path)) as source:
             records.append(read_data(source, bank, path))
     lengths = np.array([len(record.y) for record in records])
-    steps, units = int(lengths.max()), len(records)
-    y, u = np.zeros((steps, units, model.ny)), np.zeros((steps, units, model.nu))
+    steps, count = int(lengths.max()), len(records)
+    y, u = np.zeros((steps, count, model.ny)), np.zeros((steps, count, model.nu))
     for i, record in enumerate(records):
         y[:lengths[i], i], u[:lengths[i], i] = record.y, record.u
-    posterior = np.empty((steps, units, len(model.modes)))
-    mean, ess = np.empty((steps, units, model.nx)), np.empty((steps, units))
-    y_pred, residuals = np.empty((steps, units, model.ny)), np.empty((steps, units, model.ny))
-    filter = Units(model, units, models=models)
+    posterior = np.empty((steps, count, len(model.modes)))
+    mean, ess = np.empty((steps, count, model.nx)), np.empty((steps, count))
+    y_pred, residuals = np.empty((steps, count, model.ny)), np.empty((steps, count, model.ny))
+    units = Units(model, count, models=models)
     for t in range(steps):
         on = slice(None) if lengths.min() > t else np.flatnonzero(lengths > t)
-        step = filter.step(y[t, on], u[t, on], None if isinstance(on, slice) else on)
+        step = units.step(y[t, on], u[t, on], None if isinstance(on, slice) else on)
         posterior[t, on], mean[t, on], ess[t, on] = step.mode_posterior, step.state_mean, step.ess
         y_pred[t, on], residuals[t, on] = step.y_pred, step.residuals
     alarms = options.rule(model).alarms(posterior, model.modes)
     diagnosed = posterior.argmax(axis=2)
     checks = [ScaleCheck(bank) for bank in models]
-    for check, length, i in zip(checks, lengths, range(units)):
+    for i, (check, length) in enumerate(zip(checks, lengths)):
         check.add_rows(residuals[:length, i])
     for check in checks:  # records shorter than the check's rows: judged at their end
         check.finish()
@@ -343,4 +342,4 @@ def _diagnose_together(model: Model, paths: list, models: list, folder: str, tab
             error = 100.0 * int((diagnosed[:length, i] != record.modes)[labelled].sum()) / int(labelled.sum())
         outcomes.append(Outcome(path, int(length), bank.modes[diagnosed[length - 1, i]], len(runs(alarms[:length, i])),
                                 error, text))
-    return History(outcomes, True, filter.seconds)
+    return History(outcomes, True, units.seconds)
