@@ -437,11 +437,13 @@ def iter_rows(stream, model, source="<data>", outputs=True) -> "RowReader":
 
 class RowReader:
     """The rows iter_rows reads, one at a time, and `times`: how the stream writes its times (a
-    TimeFormat once a row with a time has been read; None before, and for a stream without times)."""
+    TimeFormat once a row with a time has been read; None before, and for a stream without times).
+    With whole=True (`read_data`: the file is wanted as arrays) a data file's block of plain lines
+    that are all rows needing no word (`RowParser.takes`) comes as one Numbers instead of a Row each."""
 
-    def __init__(self, stream, model, source: str, outputs: bool):
+    def __init__(self, stream, model, source: str, outputs: bool, whole: bool = False):
         self.times = None
-        self._rows = self._read(stream, Columns.of(model), source, outputs)
+        self._rows = self._read(stream, Columns.of(model), source, outputs, whole)
 
     def __iter__(self) -> Iterator[Row]:
         return self
@@ -449,13 +451,13 @@ class RowReader:
     def __next__(self) -> Row:
         return next(self._rows)
 
-    def _read(self, stream, model, source, outputs):
+    def _read(self, stream, model, source, outputs, whole):
         records = _records(stream, source)
         number, header, delimiter = next(records, (0, None, None))
         if header is None:
             raise DataError(f"{source}: no header line (expected columns {', '.join(model.outputs)})")
         parser = RowParser(header, model, source, outputs)
-        rows = (self._blocks(stream, parser, delimiter, number - stream.line) if isinstance(stream, DataFile)
+        rows = (self._blocks(stream, parser, delimiter, number - stream.line, whole) if isinstance(stream, DataFile)
                 else (parser.row(line, cells) for line, cells, _ in records))
         for row in rows:
             self.times = parser.times
@@ -463,16 +465,20 @@ class RowReader:
         parser.finish()
 
     @staticmethod
-    def _blocks(stream: DataFile, parser: "RowParser", delimiter: str, base: int):
+    def _blocks(stream: DataFile, parser: "RowParser", delimiter: str, base: int, whole: bool):
         """The rows of a data file's lines after its header: each read's lines in one pass where they
         are plain (RowParser.numbers), else one at a time as `row` reads them. `base`: what a line's
-        number is past the file's count of lines read (lines read before the reader began)."""
+        number is past the file's count of lines read (lines read before the reader began). `whole`:
+        a block that the parser takes whole comes as its Numbers."""
         while True:
             text = stream.pending()
             numbers = parser.numbers(text, delimiter) if text else None
             if numbers is not None:
                 first = stream.line + base + 1
                 stream.skip(len(numbers.y))
+                if whole and parser.takes(numbers):
+                    yield numbers
+                    continue
                 for i in range(len(numbers.y)):
                     yield parser.numbered(first + i, numbers, i)
                 continue
@@ -620,6 +626,31 @@ class RowParser:
                    None if numbers.anomaly is None else numbers.anomaly[i],
                    None if numbers.changepoint is None else numbers.changepoint[i])
 
+    def takes(self, numbers: "Numbers") -> bool:
+        """Whether every line of `numbers` is a row that `numbered` gives without a word: no input
+        lacks a value, and the times (none missing) go on from the last row's by the model's sample
+        time to within 1e-3 of it (or only forward, without one), so no check could stop or warn.
+        Then the parser is taken past them as `numbered` takes it a line at a time; else nothing
+        changes, the lines left to `numbered`."""
+        check = self.check_time
+        if any(numbers.lacking):
+            return False
+        if numbers.time is not None:
+            times = np.array(numbers.time if check.last is None else [check.last, *numbers.time])
+            steps, dt = np.diff(times), check.dt
+            if (np.isnan(times).any() or (check.last is not None and not check.consecutive) or not (steps > 0).all()
+                    or (dt and not (np.abs(steps - dt) <= 1e-3 * dt).all())):
+                return False
+            if check.last is None:
+                check.first = times[0]
+            check.last, check.cell, check.consecutive = numbers.time[-1], numbers.time_cells[-1], True
+            if self.times is None:
+                self.times = TimeFormat()
+        if not self.all_measured:
+            self.measured |= ~np.isnan(numbers.y).all(axis=0)
+            self.all_measured = bool(self.measured.all())
+        return True
+
     def finish(self):
         """At the file's end: warn of an input column absent and of an output never measured (as from
         the frame above the caller's, as iter_rows's reader warns from where its rows were taken)."""
@@ -661,21 +692,38 @@ def _mode(cells, col, modes, where):
 def read_csv(path, model, outputs=True) -> Data:
     """Read a whole data file ('-' = standard input) into arrays bound to the names of `model`, a
     Model or the Columns to read by."""
-    model = Columns.of(model)
     with open_source(path) as stream:
-        rows = list(iter_rows(stream, model, stream.name, outputs))
-    if not rows:
-        raise DataError(f"{stream.name}: no data rows")
+        return read_data(stream, model, stream.name, outputs)
+
+
+def read_data(stream, model, source: str, outputs=True) -> Data:
+    """`read_csv` of a data stream already open, named `source` in errors."""
+    model = Columns.of(model)
+    y, u, columns = [], [], {name: [] for name in ("time", "mode", "anomaly", "changepoint")}
+    for piece in RowReader(stream, model, source, outputs, whole=True):  # a Row, or a block's Numbers
+        if isinstance(piece, Row):
+            y.append(piece.y[np.newaxis])
+            u.append(piece.u[np.newaxis])
+            for name, values in columns.items():
+                values.append(getattr(piece, name))
+            continue
+        y.append(piece.y)
+        u.append(piece.u)
+        lines = len(piece.y)
+        for values, block in zip(columns.values(), (piece.time, piece.modes, piece.anomaly, piece.changepoint)):
+            values += [None] * lines if block is None else block
+    if not y:
+        raise DataError(f"{source}: no data rows")
 
     def labels(name):
-        values = [getattr(r, name) for r in rows]
+        values = columns[name]
         return None if values[0] is None else np.array(values)
 
-    modes = [r.mode for r in rows]
-    return Data(time=labels("time"), y=np.array([r.y for r in rows]).reshape(len(rows), model.ny),
-                u=np.array([r.u for r in rows]).reshape(len(rows), model.nu),
+    modes = columns["mode"]
+    return Data(time=labels("time"), y=np.concatenate(y).reshape(len(modes), model.ny),
+                u=np.concatenate(u).reshape(len(modes), model.nu),
                 modes=None if modes.count(None) == len(modes) else np.array([-1 if m is None else m for m in modes]),
-                source=stream.name, anomaly=labels("anomaly"), changepoint=labels("changepoint"))
+                source=source, anomaly=labels("anomaly"), changepoint=labels("changepoint"))
 
 
 def format_cell(value) -> str:

@@ -54,6 +54,22 @@ def test_the_stream_gives_exactly_the_batch_series(threshold, persistence):
     assert 0 < sum(online) < len(online)
 
 
+def test_units_side_by_side_each_get_their_own_series_and_the_streams_count():
+    """A (T, n, K) posterior (a fleet's units) gives each unit the series of its own (T, K), and the
+    runs of 1s in it are the alarms its stream raised."""
+    from jmlgdsl.diagnosis.metrics import runs
+
+    rng = np.random.default_rng(4)
+    posterior = rng.dirichlet([0.3, 0.3, 0.3], size=(300, 4))
+    rule = AlarmRule(("ok",), 0.4, 3)
+    together = rule.alarms(posterior, MODES)
+    assert together.shape == (300, 4)
+    for i in range(4):
+        stream = rule.stream(MODES)
+        assert [stream.step(row) for row in posterior[:, i]] == together[:, i].tolist()
+        assert stream.raised == len(runs(together[:, i])) > 0
+
+
 def test_an_empty_posterior_gives_no_alarms():
     assert AlarmRule(("ok",)).alarms(np.zeros((0, 3)), MODES).shape == (0,)
 

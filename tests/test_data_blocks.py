@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import jmlgdsl
-from jmlgdsl.data import DataWarning, RowParser, iter_rows, open_source
+from jmlgdsl.data import Columns, DataWarning, RowParser, iter_rows, open_source, read_data
 from jmlgdsl.errors import DataError
 
 SPEC = "specs/dryer.jmlg"
@@ -99,3 +99,67 @@ def test_a_file_of_every_kind_of_line_reads_as_its_stream_of_lines_does(tmp_path
     assert error is expected is None and said == expected_said and len(said) == 2  # the repeat and the jump
     assert len(blocks) == len(by_line) == 10011 and all(same(a, b) for a, b in zip(blocks, by_line))
     assert blocks[-1].line == 10015 and (blocks[2099].time, blocks[2099].mode) == (2100, 1)
+
+
+def whole(path, model):
+    """A file read whole into arrays (read_data: its plain blocks taken as they are), its error and warnings."""
+    with warnings.catch_warnings(record=True) as said:
+        warnings.simplefilter("always", DataWarning)
+        with open_source(path) as source:
+            try:
+                data, error = read_data(source, model, str(path)), None
+            except DataError as exc:
+                data, error = None, str(exc)
+    return data, error, [str(w.message) for w in said]
+
+
+def arrays(data):
+    return [None if v is None else np.asarray(v) for v in (data.time, data.y, data.u, data.modes, data.anomaly,
+                                                           data.changepoint)]
+
+
+@pytest.mark.parametrize("bad", [
+    {}, {1500: "1500,15,50.5,fann,50.5,1,0\n"}, {40: "40,15,hot,normal,50.5,0,0\n"},
+    {2300: "2300,,50.5,normal,50.5,0,0\n"},  # an input without a value, and the dryer's current has no default
+    {700: "699.5,15,50.5,normal,50.5,0,0\n"}, {701: "701.5,15,50.5,normal,50.5,0,0\n"},  # off the sample time
+    {900: "900,15,50.5,normal,50.5,0,0\n" * 2}, {1900: "1,15,50.5,normal,50.5,0,0\n"},  # a repeat; backwards
+    {10: ",15,50.5,normal,50.5,0,0\n"},  # no time
+])
+@pytest.mark.parametrize("dt", [1.0, None])  # None: no sample time, the times only kept in order
+def test_a_file_read_whole_into_arrays_is_its_rows_with_their_errors_and_warnings(tmp_path, bad, dt):
+    """read_data takes the blocks of plain lines that need no word whole (no Row a line): the arrays,
+    error and warnings are those of the line reader's rows, whatever stops or warns among them."""
+    dryer = jmlgdsl.load(SPEC)
+    model = Columns(dryer.outputs, dryer.inputs, np.array([np.nan]), dryer.modes, dt)  # current: no default
+    path = tmp_path / "u.csv"
+    path.write_text(HEADER + "".join(lines(3000, bad=bad)) + "# the end\n" + "".join(lines(500, 3001)))
+    data, error, said = whole(path, model)
+    (rows, expected, expected_said), _ = read(path, model)
+    assert error == expected and said == expected_said
+    if rows is not None:
+        labels = [[getattr(r, name) for r in rows] for name in ("time", "mode", "anomaly", "changepoint")]
+        assert len(data.y) == len(rows) == 3500 + (900 in bad)
+        for got, want in zip(arrays(data), [np.array(labels[0]), np.array([r.y for r in rows]),
+                                            np.array([r.u for r in rows]),
+                                            np.array([-1 if m is None else m for m in labels[1]]),
+                                            np.array(labels[2]), np.array(labels[3])]):
+            np.testing.assert_array_equal(got, want)
+
+
+def test_a_file_without_times_or_labels_reads_whole_into_arrays(tmp_path):
+    model = jmlgdsl.load(SPEC)
+    path = tmp_path / "u.csv"
+    path.write_text("current,temp\n" + "".join(f"{15 + t % 2},{50 + 0.01 * t}\n" for t in range(2000)))
+    data, error, said = whole(path, model)
+    assert error is None and not said and data.time is data.modes is data.anomaly is None
+    np.testing.assert_array_equal(data.y[:, 0], [50 + 0.01 * t for t in range(2000)])
+    np.testing.assert_array_equal(data.u[:, 0], [15 + t % 2 for t in range(2000)])
+
+
+def test_plain_blocks_are_read_whole_not_a_row_a_line(tmp_path, monkeypatch):
+    model = jmlgdsl.load(SPEC)
+    path = tmp_path / "u.csv"
+    path.write_text(HEADER + "".join(lines(3000)))
+    monkeypatch.setattr(RowParser, "numbered", lambda *args: pytest.fail("a plain line made a Row"))
+    data, error, said = whole(path, model)
+    assert error is None and not said and len(data.y) == 3000 and data.modes[-1] == 1

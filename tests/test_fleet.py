@@ -126,3 +126,52 @@ def test_checking_many_files_tables_looks_at_each_path_once(tmp_path, monkeypatc
     assert looks[0] < 50 * count
     with pytest.raises(JmlgError, match="tables/u007.csv is also an input"):
         check_tables(str(tmp_path / "tables"), [str(p) for p in paths], inputs=[str(tmp_path / "tables/u007.csv")])
+
+
+def test_whole_files_are_diagnosed_as_arrays_each_unit_as_alone(tmp_path, monkeypatch):
+    """`run` on many files whose units one vectorised filter steps (imm, no lag, pre-filter or
+    evidence) diagnoses them as arrays over (step, unit), no unit's Diagnosis finishing a row at a
+    time; each unit's table, steps, last mode, alarms raised, diagnosis error and scale warning are
+    those of its file diagnosed alone: records of other lengths, rows without a true mode, a file
+    without a time column, a record shorter than the scale check's rows."""
+    import csv
+    import warnings
+    from pathlib import Path
+
+    from jmlgdsl.diagnosis.files import diagnose_file
+    from jmlgdsl.diagnosis.fleet import diagnose_files
+    from jmlgdsl.diagnosis.pipeline import Diagnosis
+
+    model = jmlgdsl.load("specs/dryer.jmlg")
+    with open("examples/dryer_seq1.csv", newline="") as f:
+        header, *rows = list(csv.reader(f))
+    unlabelled = [r[:] for r in rows[100:900]]
+    for r in unlabelled[::3]:
+        r[3] = ""
+    centi = [r[:2] + [str(100 * float(r[2]))] + r[3:] for r in rows]  # degC written as centi-degC
+    bodies = {"a": (header, rows), "b": (header, unlabelled), "long": (header, centi),
+              "short": (header, centi[:30]), "untimed": (header[1:], [r[1:] for r in rows[:700]])}
+    paths = []
+    for name, (head, body) in bodies.items():
+        paths.append(str(tmp_path / f"{name}.csv"))
+        with open(paths[-1], "w", newline="") as f:
+            csv.writer(f).writerows([head] + body)
+    options = Options(healthy=("normal",), threshold=0.3, persistence=2)
+
+    alone, said = [], []
+    for path in paths:
+        table = tmp_path / f"alone_{Path(path).name}"
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            diagnosis = diagnose_file(model, path, options, output=str(table)).diagnosis
+        said += [str(w.message) for w in caught]
+        alone.append((diagnosis.summary.T, model.modes[diagnosis.summary.current], diagnosis.alarms.raised,
+                      diagnosis.summary.diagnosis_error, table.read_text()))
+    monkeypatch.setattr(Diagnosis, "finished", lambda *args: pytest.fail("a unit's row finished alone"))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        history = diagnose_files(model, paths, options)
+    assert [str(w.message) for w in caught] == said and len(said) == 2  # the long record's at its 50th row first
+    assert [(u.steps, u.last_mode, u.alarms, u.error, u.table) for u in history.units] == alone
+    assert history.batched and [u.steps for u in history.units] == [1000, 800, 1000, 30, 700]
+    assert history.units[1].error is not None and history.units[4].table.startswith("t,map_mode,")

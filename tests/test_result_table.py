@@ -47,7 +47,7 @@ def test_a_result_table_that_fails_part_way_is_not_written(tmp_path):
     result = jmlgdsl.filter(model, simulate(model, 20, seed=1).y)
     out = tmp_path / "result.csv"
     out.write_text("the old table\n")
-    with pytest.raises(IndexError):
+    with pytest.raises(ValueError):
         write_result(out, result, time=np.arange(10.0))  # the times end at row 10 of 20
     assert out.read_text() == "the old table\n" and [p.name for p in tmp_path.iterdir()] == ["result.csv"]
 
@@ -76,3 +76,28 @@ def test_a_table_row_is_the_line_a_csv_writer_writes_of_its_cells():
     lines.writerow([format_cell(v) for v in [7, 1583752474.5, 'fan, "off"', *numbers, 1, 'fan, "off"', 0.5, np.inf]])
     lines.writerow([format_cell(v) for v in [7, np.nan, 'fan, "off"', *numbers, 0, "", "", ""]])
     assert out.getvalue().split("\n", 1)[1] == expected.getvalue()
+
+
+@pytest.mark.parametrize("with_time", [True, False])
+def test_many_rows_written_at_once_are_the_rows_written_one_at_a_time(with_time):
+    """`write_rows` (a Result's table, a fleet's whole files) writes the bytes `write` writes row by
+    row: a NaN an empty cell, a mode's name holding 'nan' or '%' as it is, quoted where it needs."""
+    names = SimpleNamespace(modes=("banana", '50%, "off"', "nan"), states=("x", "v"), outputs=("a",))
+    rng = np.random.default_rng(5)
+    T = 6
+    posterior = rng.dirichlet(np.ones(3), T)
+    posterior[2] = [0.1, 0.2, 0.7]  # the mode named nan
+    mean, y_pred, residuals = rng.normal(size=(T, 2)) * 1e5, rng.normal(size=(T, 1)), rng.normal(size=(T, 1))
+    residuals[1, 0] = np.nan
+    ess, time, alarm = np.full(T, np.nan), np.arange(T) * 1.5 + 1e9, np.array([0, 1, 1, 0, 1, 0])
+    time[3] = np.nan
+    one, many = io.StringIO(), io.StringIO()
+    writer = TableWriter(one, names, with_time)
+    for i in range(T):
+        writer.write(Step(i + 1, posterior[i], mean[i], None, y_pred[i], residuals[i], 0.0, ess[i]),
+                     time[i] if with_time else None, int(alarm[i]))
+    TableWriter(many, names, with_time).write_rows(np.arange(1, T + 1), posterior, mean, y_pred, residuals, ess,
+                                                   time if with_time else None, alarm)
+    assert many.getvalue() == one.getvalue()
+    lines = one.getvalue().splitlines()
+    assert lines[2].split(",")[-3] == "" and ",nan," in lines[3] and '"50%, ""off"""' in one.getvalue()

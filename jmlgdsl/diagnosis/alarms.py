@@ -60,10 +60,11 @@ class AlarmRule:
         return _fault_probability(posterior, self.faulty_modes(modes))
 
     def alarms(self, posterior, modes) -> np.ndarray:
-        """(T,) 0/1 alarms: 1 at t when P(not healthy) > threshold at each of the steps t-k+1..t."""
+        """(T,) 0/1 alarms of a (T, K) posterior: 1 at t when P(not healthy) > threshold at each of the
+        steps t-k+1..t. A (T, n, K) posterior (n units side by side) gives each unit's (T, n)."""
         above = self.fault_probability(posterior, modes) > self.threshold
-        steps = np.arange(len(above))
-        last_below = np.maximum.accumulate(np.where(above, -1, steps))
+        steps = np.arange(len(above)).reshape(-1, *[1] * (above.ndim - 1))
+        last_below = np.maximum.accumulate(np.where(above, -1, steps), axis=0)
         return ((steps - last_below) >= self.persistence).astype(np.int8)
 
     def stream(self, modes) -> "AlarmStream":

@@ -8,8 +8,10 @@ filters stepped together. A smoothing filter's Diagnosis filters its own rows.
 
 `diagnose_files` is `jmlgdsl run SPEC a.csv b.csv ... -o OUTDIR/`: each file a unit, its table and
 summary; with `cluster` the files are split into chunks, one per CPU of a Ray cluster, each chunk a
-Fleet in a Ray task. Every unit's rows are those of diagnosing it alone, so the tables are the same
-bytes however the files are chunked.
+Fleet in a Ray task. Whole files under the vectorised imm with nothing kept per unit row by row (no
+lag, pre-filter or evidence) skip the units' Diagnoses: their rows are filtered together into arrays
+over (step, unit), the alarm rule and the tables made of those arrays. Every unit's rows are those of
+diagnosing it alone, so the tables are the same bytes however the files are chunked.
 
     >>> import jmlgdsl
     >>> from jmlgdsl.data import iter_rows, open_source
@@ -35,18 +37,21 @@ from pathlib import Path
 
 import numpy as np
 
-from ..data import iter_rows, open_source, open_target
+from ..data import iter_rows, open_source, open_target, read_data
 from ..errors import DataError, JmlgError
 from ..infer import ALGORITHMS
+from ..infer.table import TableWriter
 from ..infer.units import Units, stackable
 from ..model import Model
 from ..names import plural
 from ..output import check_folder, file_names
 from .progress import Progress
 from .evidence import Evidence
+from .metrics import runs
 from .options import Options
 from .pipeline import Diagnosis
 from .report import evidence_report
+from .scale import ScaleCheck
 from .sinks import Raised, TableSink
 
 
@@ -262,7 +267,12 @@ def diagnose_files(model: Model, paths, options: Options = Options(), *, tables:
 def _diagnose_chunk(model: Model, paths: list, models: list, folder: str, tables: bool, options: Options) -> History:
     """Some files diagnosed as one Fleet, each under its unit's bank in `models`: in this process, or in
     a Ray task on a cluster, whose working folder is not the driver's; a relative path is from `folder`
-    ('': this process's own)."""
+    ('': this process's own). Whole files that one vectorised filter steps together are diagnosed as
+    arrays over (step, unit) (`_diagnose_together`), the rest row by row, each unit's own Diagnosis."""
+    first = options.filter(model)  # options the filter cannot take refused as each unit's Diagnosis would
+    if (ALGORITHMS[first.algorithm].vectorised and stepped_together(first) and options.prefilter is None
+            and not options.explain and stackable([model, *models])):
+        return _diagnose_together(model, paths, models, folder, tables, options)
     records = []
     for path, bank in zip(paths, models):
         with open_source(os.path.join(folder, path)) as source:
@@ -282,3 +292,54 @@ def _diagnose_chunk(model: Model, paths: list, models: list, folder: str, tables
              for path, unit, text, alarms, bank in zip(paths, run.units, texts, raised, models)]
     return History(units, run.filter is not None, run.seconds)
 
+
+def _diagnose_together(model: Model, paths: list, models: list, folder: str, tables: bool,
+                       options: Options) -> History:
+    """`_diagnose_chunk` of files whose units one vectorised filter steps together (imm, no lag), with
+    nothing of a unit's own to keep row by row (no pre-filter, no evidence): each file read whole
+    into arrays, every unit's step filtered at once and written into arrays over (step, unit), then
+    the alarm rule applied to them all in one call and each unit's table written in one pass. Every
+    unit's table, summary and warnings are those its own Diagnosis gives row by row (`Fleet`): the
+    same filter, and the batch forms of its alarm rule (`AlarmRule.alarms`) and scale check
+    (`ScaleCheck.add_rows`)."""
+    records = []
+    for path, bank in zip(paths, models):
+        with open_source(os.path.join(folder, path)) as source:
+            records.append(read_data(source, bank, path))
+    lengths = np.array([len(record.y) for record in records])
+    steps, count = int(lengths.max()), len(records)
+    y, u = np.zeros((steps, count, model.ny)), np.zeros((steps, count, model.nu))
+    for i, record in enumerate(records):
+        y[:lengths[i], i], u[:lengths[i], i] = record.y, record.u
+    posterior = np.empty((steps, count, len(model.modes)))
+    mean, ess = np.empty((steps, count, model.nx)), np.empty((steps, count))
+    y_pred, residuals = np.empty((steps, count, model.ny)), np.empty((steps, count, model.ny))
+    units = Units(model, count, models=models)
+    for t in range(steps):
+        on = slice(None) if lengths.min() > t else np.flatnonzero(lengths > t)
+        step = units.step(y[t, on], u[t, on], None if isinstance(on, slice) else on)
+        posterior[t, on], mean[t, on], ess[t, on] = step.mode_posterior, step.state_mean, step.ess
+        y_pred[t, on], residuals[t, on] = step.y_pred, step.residuals
+    alarms = options.rule(model).alarms(posterior, model.modes)
+    diagnosed = posterior.argmax(axis=2)
+    checks = [ScaleCheck(bank) for bank in models]
+    for i, (check, length) in enumerate(zip(checks, lengths)):
+        check.add_rows(residuals[:length, i])
+    for check in checks:  # records shorter than the check's rows: judged at their end
+        check.finish()
+    outcomes = []
+    for i, (path, bank, record, length) in enumerate(zip(paths, models, records, lengths)):
+        text = None
+        if tables:
+            stream = io.StringIO()
+            TableWriter(stream, bank, record.time is not None, lag=options.lag).write_rows(
+                np.arange(1, length + 1), posterior[:length, i], mean[:length, i], y_pred[:length, i],
+                residuals[:length, i], ess[:length, i], record.time, alarms[:length, i])
+            text = stream.getvalue()
+        error = None
+        if record.modes is not None:
+            labelled = record.modes >= 0
+            error = 100.0 * int((diagnosed[:length, i] != record.modes)[labelled].sum()) / int(labelled.sum())
+        outcomes.append(Outcome(path, int(length), bank.modes[diagnosed[length - 1, i]], len(runs(alarms[:length, i])),
+                                error, text))
+    return History(outcomes, True, units.seconds)

@@ -27,8 +27,13 @@ class ScaleCheck:
 
     def add(self, step):
         """Note one step's residuals in units of the noise; judge once `rows` steps are in."""
+        self.add_rows(step.residual[np.newaxis])
+
+    def add_rows(self, residuals):
+        """Note the residuals (steps, ny) of steps in turn (a fleet's whole record at once), as `add`
+        notes them one step at a time; judge once `rows` steps are in."""
         if not self.done:
-            self.seen.append(np.abs(step.residual) / self.sd)
+            self.seen.extend(np.abs(residuals[:self.rows - len(self.seen)]) / self.sd)
             if len(self.seen) == self.rows:
                 self.finish()
 

@@ -38,8 +38,13 @@ def columns(model: Model, with_time: bool, with_alarm: bool = True, explain: boo
 
 
 class TableWriter:
-    """Writes result rows to a text stream; with flush=True each row reaches the reader at once, and
-    with explain=True each row ends with its evidence per sensor (empty where there is none)."""
+    """Writes result rows to a text stream, a row (`write`) or many (`write_rows`) at a time; with
+    flush=True each row reaches the reader at once, and with explain=True each row ends with its
+    evidence per sensor (empty where there is none).
+
+    A row is its numbers formatted as `joined_numbers` formats them, in one pass of one format with the
+    mode's cell left as a `%s` (each NaN's 'nan' emptied before any mode's name is in), then the mode's
+    cell put in: the same bytes whether rows are written one at a time or many at once."""
 
     def __init__(self, stream, model: Model, with_time: bool, flush: bool = False, with_alarm: bool = True,
                  lag: int | None = 0, explain: bool = False):
@@ -49,16 +54,38 @@ class TableWriter:
                          "<output>_resid: one-step predictions of the filter\n")
         self._writer = CsvWriter(stream, columns(model, with_time, with_alarm, explain), flush)
         self._modes = [csv_cell(mode) for mode in model.modes]  # each mode's cell, quoted once
+        after = len(model.modes) + len(model.states) + 2 * len(model.outputs) + 1 + with_alarm  # numbers after the mode
+        self._row = ",".join(["%.10g"] * (1 + with_time) + ["%%s"] + ["%.10g"] * after)
 
     def write(self, step: Step, time: float | None = None, alarm: int | None = None, evidence=None):
         """One row: a filter step and, when the table has those columns, the data row's time, the alarm
-        and the evidence (a jmlgdsl.diagnosis.evidence.Evidence, or None). Its numbers are formatted in
-        one pass before the mode's name and one after."""
-        first = joined_numbers([step.t, time] if self.with_time else [step.t])
-        rest = joined_numbers([*step.mode_posterior.tolist(), *step.state_mean.tolist(), *step.y_pred.tolist(),
-                               *step.residual.tolist(), float(step.ess)] + ([alarm] if self.with_alarm else []))
-        line = f"{first},{self._modes[step.map_mode]},{rest}"
+        and the evidence (a jmlgdsl.diagnosis.evidence.Evidence, or None)."""
+        numbers = ([step.t, time] if self.with_time else [step.t]) + [
+            *step.mode_posterior.tolist(), *step.state_mean.tolist(), *step.y_pred.tolist(), *step.residual.tolist(),
+            float(step.ess)] + ([alarm] if self.with_alarm else [])
+        line = self._lines(self._row, numbers, (self._modes[step.map_mode],))
         self._writer.write_line(f"{line},{self._evidence(evidence)}" if self.explain else line)
+
+    def write_rows(self, t, mode_posterior, state_mean, y_pred, residuals, ess, time=None, alarm=None):
+        """Many rows at once, as `write` writes them one at a time: arrays over rows (t (T,), the mode
+        posterior (T, K), the state means (T, nx), the predictions and residuals (T, ny), ess (T,)) and,
+        when the table has those columns, the data rows' times (T,) and alarms (T,); a table without
+        evidence (a Result's, or a fleet's run on whole files)."""
+        if self.explain:
+            raise ValueError("write_rows writes no evidence; a table that explains is written row by row")
+        count = len(t)
+        if not count:
+            return
+        numbers = np.column_stack([t] + ([time] if self.with_time else []) + [
+            mode_posterior, state_mean, y_pred, residuals, ess] + ([alarm] if self.with_alarm else []))
+        modes = [self._modes[k] for k in np.asarray(mode_posterior).argmax(axis=1).tolist()]
+        self._writer.write_line(self._lines("\n".join([self._row] * count), numbers.ravel().tolist(), modes))
+
+    @staticmethod
+    def _lines(form: str, numbers: list, modes) -> str:
+        """Rows of `form` (a row's format, repeated): the numbers formatted, NaN's cells emptied, then
+        the modes' cells put in."""
+        return (form % tuple(numbers)).replace("nan", "") % tuple(modes)
 
     def _evidence(self, evidence) -> str:
         """The evidence cells: the mode's name and each output's evidence (all empty without evidence)."""
@@ -72,10 +99,8 @@ def write_result(path, result: Result, time=None, alarm=None):
     column and `alarm` (T,) 0/1 the alarm column."""
     with open_target(path) as stream:  # an error part way leaves no half table
         writer = TableWriter(stream, result.model, time is not None, with_alarm=alarm is not None, lag=result.lag)
-        for i in range(result.T):
-            step = Step(i + 1, result.mode_posterior[i], result.state_mean[i], result.state_cov[i],
-                        result.y_pred[i], result.residuals[i], result.loglik_steps[i], result.ess[i])
-            writer.write(step, None if time is None else time[i], None if alarm is None else int(alarm[i]))
+        writer.write_rows(np.arange(1, result.T + 1), result.mode_posterior, result.state_mean, result.y_pred,
+                          result.residuals, result.ess, time, alarm)
 
 
 @dataclass(frozen=True)
