@@ -1,12 +1,12 @@
 """Inference: which mode is the plant in? Particle filters (pf, rbpf, la-rbpf, fc-rbpf) and the
-deterministic baselines (imm, exact) over one batched Kalman kernel.
+deterministic baselines (imm, mmae, exact) over one batched Kalman kernel.
 
 `Filter` takes one row at a time (a live stream); `filter` and `smooth` a whole record.
 
     >>> import jmlgdsl
     >>> from jmlgdsl.infer import ALGORITHMS, Filter
     >>> list(ALGORITHMS)
-    ['pf', 'rbpf', 'la-rbpf', 'fc-rbpf', 'imm', 'exact']
+    ['pf', 'rbpf', 'la-rbpf', 'fc-rbpf', 'imm', 'mmae', 'exact']
     >>> model = jmlgdsl.load("specs/dryer.jmlg")
     >>> f = Filter(model, "la-rbpf", particles=10, seed=1)
     >>> for temp in (50.5, 50.4, 44.0, 44.1, 44.0):   # the temperature drops: the fan has failed
