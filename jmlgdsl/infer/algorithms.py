@@ -86,8 +86,8 @@ DEFAULT_ALGORITHM = "imm"
 # alarms.DetectThenName): Kalman filters that never mix, whose covariances settle whatever the
 # posterior does, so a step costs the means, where an IMM namer seldom sure of one fault pays the
 # full covariance step of every mode at every row. On the Tennessee Eastman bank's training
-# recordings (18 faults over 52 outputs) it names the faulty rows as IMM does (82.70 % against
-# 82.72 % right), at a ninth of the time a step.
+# recordings (18 faults over 52 outputs) it names the faulty rows as IMM does (90.94 % against
+# 90.96 % right), in a fifth of the time.
 NAMER_ALGORITHM = "mmae"
 
 
