@@ -52,17 +52,26 @@ def test_units_are_split_into_contiguous_shards_of_nearly_equal_size():
                                                        ["u8", "u9"]]
 
 
-def shard_processes() -> list[int]:
-    """The processes of Ray actors running a shard (Ray names them after the class and its method)."""
-    found = []
+def shard_processes(root: int) -> list[int]:
+    """The processes below `root` (the monitor, whose local Ray's workers are its descendants) of Ray
+    actors running a shard (Ray names them after the class and its method): another monitor's shards
+    on the machine, such as another test run's, are not these."""
+    parents, commands = {}, {}
     for pid in filter(str.isdigit, os.listdir("/proc")):
         try:
+            with open(f"/proc/{pid}/stat", "rb") as stat:
+                parents[int(pid)] = int(stat.read().rsplit(b")", 1)[1].split()[1])  # the field after the state
             with open(f"/proc/{pid}/cmdline", "rb") as cmdline:
-                if cmdline.read().startswith(b"ray::Shard"):
-                    found.append(int(pid))
-        except OSError:
+                commands[int(pid)] = cmdline.read()
+        except (OSError, IndexError, ValueError):
             continue
-    return found
+
+    def below(pid):
+        while pid in parents and pid != root:
+            pid = parents[pid]
+        return pid == root
+
+    return [pid for pid, command in commands.items() if command.startswith(b"ray::Shard") and below(pid)]
 
 
 def listening() -> set[tuple[str, str]]:
@@ -114,14 +123,14 @@ def test_a_killed_shard_is_restarted_and_every_unit_table_equals_the_uninterrupt
         assert opened and {address for address, _ in opened} <= LOOPBACK, opened  # Ray's servers: 127.0.0.1 only
         writer.start()
         until(lambda: rows_of(store, "p1") >= 200, "unit p1's 200th row", monitor)
-        shards = shard_processes()
+        shards = shard_processes(monitor.pid)
         assert len(shards) == 2
         victim = shards[0]
         os.kill(victim, signal.SIGKILL)
         assert rows_of(store, "p1") < 600  # mid-stream
         killed.set()
         until(lambda: all(rows_of(store, u) == 600 for u in UNITS), "every unit's 600 rows", monitor)
-        after = shard_processes()
+        after = shard_processes(monitor.pid)
         assert len(after) == 2 and victim not in after  # Ray started the killed shard again
         err = stop(monitor)
         writer.join(WAIT)
