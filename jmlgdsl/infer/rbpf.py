@@ -30,12 +30,17 @@ from .resample import ess, fearnhead_clifford, normalize, normalize_rows, system
 from .result import Predictive
 
 
-class Particles:
-    """An engine's array of its particles' modes (z), means (mu), log-weights (logw), copy counts
-    (copies) or covariance nodes (node), an attribute held as any other. An engine stepped with a
-    group holds its row of the group's step (`StepRow`) in its place instead, so that a step writes
-    nothing a unit but that row: read, the array is its slice of the group's, not kept, so the row
-    stays and the group's next step takes the group's arrays as they are (`particles_together`)."""
+class Held:
+    """An engine's field that an engine stepped with a group may hold as its row of the group's step
+    (`StepRow`), so that a step writes nothing a unit but that row; read, the row is made into the
+    field: by `make(row)` (its Predictive, its Genealogy), kept in the row's place, so later reads
+    find it made; without `make`, the engine's slice of the step's array of the field's name (its
+    particles' modes z, means mu, log-weights logw, copy counts copies or covariance nodes node), not
+    kept, so the row stays and the group's next step takes the group's arrays as they are
+    (`particles_together`). A value set is held as any attribute."""
+
+    def __init__(self, make=None):
+        self.make = make
 
     def __set_name__(self, owner, name):
         self.name = name
@@ -43,10 +48,16 @@ class Particles:
     def __get__(self, engine, owner=None):
         if engine is None:
             return self
-        held = vars(engine).get(self.name, self)
-        if held is self:
-            raise AttributeError(f"{type(engine).__name__} has no {self.name} yet")
-        return held.particles(self.name) if type(held) is StepRow else held
+        fields = vars(engine)
+        if self.name not in fields:
+            raise AttributeError(f"{type(engine).__name__} has no {self.name} before its first step")
+        held = fields[self.name]
+        if type(held) is not StepRow:
+            return held
+        if self.make is None:
+            return held.particles(self.name)
+        fields[self.name] = self.make(held)
+        return fields[self.name]
 
     def __set__(self, engine, value):
         vars(engine)[self.name] = value
@@ -59,7 +70,9 @@ class RaoBlackwellised:
     resampling policy."""
 
     spare_nodes = 4096  # the covariance graph is compacted when it outgrows 4 nodes a particle + this
-    z, mu, logw, copies, node = Particles(), Particles(), Particles(), Particles(), Particles()
+    z, mu, logw, copies, node = Held(), Held(), Held(), Held(), Held()
+    predictive = Held(lambda row: row.predictive())  # the last step's Predictive
+    genealogy = Held(lambda row: row.genealogy())  # the last step's Genealogy
 
     def __init__(self, model, particles=None, rng=None, resampler: Resampler | None = None):
         self.model, self.n, self.rng, self.resampler = model, particles, rng, resampler
@@ -137,37 +150,10 @@ class RaoBlackwellised:
         return size
 
     @property
-    def predictive(self) -> Predictive:
-        """The last step's Predictive (`Predictive`); an engine stepped with a group holds its row of the
-        group's step instead, made into its own Predictive here when first read."""
-        return self._made("predictive")
-
-    @predictive.setter
-    def predictive(self, value):
-        vars(self)["predictive"] = value
-
-    @property
-    def genealogy(self) -> Genealogy:
-        """The last step's Genealogy, as `predictive` keeps it."""
-        return self._made("genealogy")
-
-    @genealogy.setter
-    def genealogy(self, value):
-        vars(self)["genealogy"] = value
-
-    @property
     def particles_held(self) -> int:
         """How many (distinct) particles the engine holds, len(z), without making its arrays."""
         held = vars(self)["z"]
         return held.step.held[held.i] if type(held) is StepRow else len(held)
-
-    def _made(self, name):
-        held = vars(self)
-        if name not in held:
-            raise AttributeError(f"{type(self).__name__} has no {name} before its first step")
-        if type(held[name]) is StepRow:
-            held[name] = getattr(held[name], name)()
-        return held[name]
 
     def tidy(self):
         """Keep the nodes in bounds after a step: forget the classes the particles left, as a graph of
